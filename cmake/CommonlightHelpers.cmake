@@ -1,0 +1,79 @@
+# Helpers shared by every module: one function makes a module library, one registers tests.
+
+# Compile options applied to every target of the project.
+add_library(commonlight_options INTERFACE)
+target_compile_options(commonlight_options INTERFACE -Wall -Wextra -Wpedantic -Wshadow
+                       -Wnon-virtual-dtor -Wcast-align -Woverloaded-virtual -Wnull-dereference)
+if(COMMONLIGHT_WERROR)
+  target_compile_options(commonlight_options INTERFACE -Werror)
+endif()
+if(COMMONLIGHT_ASAN AND COMMONLIGHT_TSAN)
+  message(FATAL_ERROR "COMMONLIGHT_ASAN and COMMONLIGHT_TSAN cannot be combined")
+endif()
+if(COMMONLIGHT_ASAN)
+  target_compile_options(commonlight_options INTERFACE -fsanitize=address,undefined
+                         -fno-sanitize-recover=undefined -fno-omit-frame-pointer)
+  target_link_options(commonlight_options INTERFACE -fsanitize=address,undefined)
+endif()
+if(COMMONLIGHT_TSAN)
+  target_compile_options(commonlight_options INTERFACE -fsanitize=thread -fno-omit-frame-pointer)
+  target_link_options(commonlight_options INTERFACE -fsanitize=thread)
+endif()
+
+# commonlight_module(<name> [SOURCES ...] [DEPS ...] [PRIVATE_DEPS ...])
+# Makes the library target commonlight_<name> with the alias commonlight::<name>. Without
+# SOURCES, every .cpp directly in the module folder is compiled (CONFIGURE_DEPENDS glob).
+# A module without sources is an INTERFACE target, so later issues can fill it in.
+function(commonlight_module name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS;PRIVATE_DEPS" ${ARGN})
+  if(NOT ARG_SOURCES)
+    file(GLOB ARG_SOURCES CONFIGURE_DEPENDS ${CMAKE_CURRENT_SOURCE_DIR}/*.cpp)
+  endif()
+  set(target commonlight_${name})
+  if(ARG_SOURCES)
+    add_library(${target} STATIC ${ARG_SOURCES})
+    target_include_directories(${target} PUBLIC ${PROJECT_SOURCE_DIR})
+    target_link_libraries(${target} PUBLIC ${ARG_DEPS} PRIVATE commonlight_options ${ARG_PRIVATE_DEPS})
+  else()
+    add_library(${target} INTERFACE)
+    target_include_directories(${target} INTERFACE ${PROJECT_SOURCE_DIR})
+    target_link_libraries(${target} INTERFACE ${ARG_DEPS})
+  endif()
+  add_library(commonlight::${name} ALIAS ${target})
+endfunction()
+
+# commonlight_sources(<module> <sources...>): adds sources (a backend folder, say) to a module.
+function(commonlight_sources name)
+  target_sources(commonlight_${name} PRIVATE ${ARGN})
+endfunction()
+
+# commonlight_test(<module> <name> SOURCES ... [DEPS ...] [LABELS ...] [TIMEOUT s])
+# A GoogleTest executable registered with CTest as "<module>/<name>". Exit code 77 means
+# "skipped" (hardware, display or namespace not available).
+function(commonlight_test module name)
+  cmake_parse_arguments(ARG "" "TIMEOUT" "SOURCES;DEPS;LABELS" ${ARGN})
+  set(target test_${module}_${name})
+  add_executable(${target} ${ARG_SOURCES})
+  target_link_libraries(${target} PRIVATE commonlight_options ${ARG_DEPS} GTest::gtest GTest::gmock
+                        commonlight_test_main)
+  add_test(NAME ${module}/${name} COMMAND ${target})
+  if(NOT ARG_TIMEOUT)
+    set(ARG_TIMEOUT 300)
+  endif()
+  set_tests_properties(${module}/${name} PROPERTIES SKIP_RETURN_CODE 77 TIMEOUT ${ARG_TIMEOUT}
+                       LABELS "${module};${ARG_LABELS}"
+                       ENVIRONMENT "COMMONLIGHT_SOURCE_DIR=${PROJECT_SOURCE_DIR};COMMONLIGHT_BINARY_DIR=${PROJECT_BINARY_DIR}")
+endfunction()
+
+# commonlight_script_test(<module> <name> COMMAND ... [LABELS ...] [TIMEOUT s])
+# A test written as a script (end-to-end tests of the command line), registered like above.
+function(commonlight_script_test module name)
+  cmake_parse_arguments(ARG "" "TIMEOUT" "COMMAND;LABELS" ${ARGN})
+  add_test(NAME ${module}/${name} COMMAND ${ARG_COMMAND})
+  if(NOT ARG_TIMEOUT)
+    set(ARG_TIMEOUT 300)
+  endif()
+  set_tests_properties(${module}/${name} PROPERTIES SKIP_RETURN_CODE 77 TIMEOUT ${ARG_TIMEOUT}
+                       LABELS "${module};${ARG_LABELS}"
+                       ENVIRONMENT "COMMONLIGHT_SOURCE_DIR=${PROJECT_SOURCE_DIR};COMMONLIGHT_BINARY_DIR=${PROJECT_BINARY_DIR};COMMONLIGHT=$<TARGET_FILE:commonlight>")
+endfunction()

@@ -1,0 +1,193 @@
+#include "core/camera_model.h"
+
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+#include <Eigen/LU>
+
+namespace commonlight {
+
+Result<void> CameraModel::validate() const {
+    std::ostringstream msg;
+    if (width <= 0 || height <= 0) {
+        msg << "image size must be positive, got " << width << "x" << height;
+    } else if (!(std::isfinite(fx) && std::isfinite(fy) && fx > 0 && fy > 0)) {
+        msg << "focal lengths must be positive and finite, got fx=" << fx << " fy=" << fy;
+    } else if (!(std::isfinite(cx) && std::isfinite(cy)) || cx < -0.5 || cy < -0.5 || cx > width - 0.5 ||
+               cy > height - 0.5) {
+        msg << "principal point (" << cx << ", " << cy << ") is outside the " << width << "x" << height
+            << " image";
+    } else if (!(std::isfinite(distortion.k1) && std::isfinite(distortion.k2) && std::isfinite(distortion.p1) &&
+                 std::isfinite(distortion.p2) && std::isfinite(distortion.k3))) {
+        msg << "distortion coefficients must be finite";
+    } else {
+        return {};
+    }
+    return fail(ErrorCode::kBadInput, msg.str());
+}
+
+Result<void> CameraModel::checkImageSize(int image_width, int image_height) const {
+    if (image_width == width && image_height == height) return {};
+    std::ostringstream msg;
+    msg << "image is " << image_width << "x" << image_height << " but the calibration is for " << width << "x"
+        << height;
+    return fail(ErrorCode::kBadInput, msg.str());
+}
+
+CameraModel CameraModel::scaledTo(int new_width, int new_height) const {
+    CameraModel out = *this;
+    const double sx = static_cast<double>(new_width) / width;
+    const double sy = static_cast<double>(new_height) / height;
+    out.width = new_width;
+    out.height = new_height;
+    out.fx = fx * sx;
+    out.fy = fy * sy;
+    // Pixel centres: continuous coordinate u + 0.5 scales.
+    out.cx = (cx + 0.5) * sx - 0.5;
+    out.cy = (cy + 0.5) * sy - 0.5;
+    return out;
+}
+
+Eigen::Vector2d CameraModel::distortNormalized(const Eigen::Vector2d& xy) const {
+    const auto& d = distortion;
+    const double x = xy.x();
+    const double y = xy.y();
+    const double r2 = x * x + y * y;
+    const double radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3));
+    return {x * radial + 2.0 * d.p1 * x * y + d.p2 * (r2 + 2.0 * x * x),
+            y * radial + d.p1 * (r2 + 2.0 * y * y) + 2.0 * d.p2 * x * y};
+}
+
+namespace {
+
+// Jacobian of distortNormalized at (x, y).
+Eigen::Matrix2d distortionJacobian(const Distortion& d, double x, double y) {
+    const double r2 = x * x + y * y;
+    const double radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3));
+    const double dradial_dr2 = d.k1 + r2 * (2.0 * d.k2 + 3.0 * r2 * d.k3);
+    Eigen::Matrix2d j;
+    j(0, 0) = radial + 2.0 * x * x * dradial_dr2 + 2.0 * d.p1 * y + 6.0 * d.p2 * x;
+    j(0, 1) = 2.0 * x * y * dradial_dr2 + 2.0 * d.p1 * x + 2.0 * d.p2 * y;
+    j(1, 0) = 2.0 * x * y * dradial_dr2 + 2.0 * d.p1 * x + 2.0 * d.p2 * y;
+    j(1, 1) = radial + 2.0 * y * y * dradial_dr2 + 6.0 * d.p1 * y + 2.0 * d.p2 * x;
+    return j;
+}
+
+}  // namespace
+
+double CameraModel::maxValidRadius() const {
+    // d/dr [r (1 + k1 r^2 + k2 r^4 + k3 r^6)] = 1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6 must stay > 0.
+    // Scan in r^2 for the first root; the tangential terms are small and ignored here.
+    const auto& d = distortion;
+    if (d.k1 >= 0 && d.k2 >= 0 && d.k3 >= 0) return std::numeric_limits<double>::infinity();
+    constexpr double kMaxR2 = 100.0;  // 84 degrees off-axis at r = 10; wider is not a pinhole lens
+    constexpr int kSteps = 20000;
+    double prev_r2 = 0.0;
+    for (int i = 1; i <= kSteps; ++i) {
+        const double r2 = kMaxR2 * i / kSteps;
+        const double slope = 1.0 + r2 * (3.0 * d.k1 + r2 * (5.0 * d.k2 + r2 * 7.0 * d.k3));
+        if (slope <= 0.0) {
+            // Bisect between prev_r2 and r2.
+            double lo = prev_r2;
+            double hi = r2;
+            for (int k = 0; k < 60; ++k) {
+                const double mid = 0.5 * (lo + hi);
+                const double s = 1.0 + mid * (3.0 * d.k1 + mid * (5.0 * d.k2 + mid * 7.0 * d.k3));
+                (s > 0.0 ? lo : hi) = mid;
+            }
+            return std::sqrt(lo);
+        }
+        prev_r2 = r2;
+    }
+    return std::numeric_limits<double>::infinity();
+}
+
+std::optional<Eigen::Vector2d> CameraModel::undistortNormalized(const Eigen::Vector2d& xy_distorted) const {
+    if (!xy_distorted.allFinite()) return std::nullopt;
+    if (distortion.isZero()) return xy_distorted;
+    const double max_radius = maxValidRadius();
+    // Damped Newton on f(x) = distort(x) - x_d. The fixed-point iteration OpenCV uses
+    // (x = (x_d - tangential) / radial) diverges for strong barrel distortion (k1 = -0.4 near the
+    // image corners); Newton with step halving converges there in a handful of iterations.
+    Eigen::Vector2d x = xy_distorted;
+    Eigen::Vector2d residual = distortNormalized(x) - xy_distorted;
+    constexpr double kTolerance = 1e-12;
+    for (int iteration = 0; iteration < 50 && residual.norm() > kTolerance; ++iteration) {
+        const Eigen::Matrix2d j = distortionJacobian(distortion, x.x(), x.y());
+        const double det = j.determinant();
+        // Hard case: a singular Jacobian means we reached the fold of the lens model.
+        if (!std::isfinite(det) || std::abs(det) < 1e-12) return std::nullopt;
+        const Eigen::Vector2d step = j.inverse() * residual;
+        double scale = 1.0;
+        bool improved = false;
+        for (int halving = 0; halving < 30; ++halving) {
+            const Eigen::Vector2d candidate = x - scale * step;
+            const Eigen::Vector2d candidate_residual = distortNormalized(candidate) - xy_distorted;
+            if (candidate_residual.norm() < residual.norm()) {
+                x = candidate;
+                residual = candidate_residual;
+                improved = true;
+                break;
+            }
+            scale *= 0.5;
+        }
+        if (!improved) break;
+    }
+    // Converged relative to the size of the point (tolerance scales for points far off-axis).
+    if (!(residual.norm() <= 1e-9 * std::max(1.0, xy_distorted.norm()))) return std::nullopt;
+    // Past the fold, a second preimage exists; it is not the one a real ray took.
+    if (x.norm() > max_radius) return std::nullopt;
+    return x;
+}
+
+std::optional<Eigen::Vector2d> CameraModel::project(const Eigen::Vector3d& p_in_cam) const {
+    // Hard case: points on or behind the image plane have no image.
+    if (!p_in_cam.allFinite() || p_in_cam.z() <= 1e-12) return std::nullopt;
+    const Eigen::Vector2d xy = p_in_cam.head<2>() / p_in_cam.z();
+    if (xy.norm() > maxValidRadius()) return std::nullopt;
+    const Eigen::Vector2d d = distortNormalized(xy);
+    return Eigen::Vector2d(fx * d.x() + cx, fy * d.y() + cy);
+}
+
+std::optional<Eigen::Vector3d> CameraModel::unproject(const Eigen::Vector2d& pixel) const {
+    const Eigen::Vector2d xd((pixel.x() - cx) / fx, (pixel.y() - cy) / fy);
+    const auto xy = undistortNormalized(xd);
+    if (!xy) return std::nullopt;
+    return Eigen::Vector3d(xy->x(), xy->y(), 1.0);
+}
+
+std::optional<Eigen::Vector2d> CameraModel::undistortPixel(const Eigen::Vector2d& pixel) const {
+    const auto ray = unproject(pixel);
+    if (!ray) return std::nullopt;
+    return Eigen::Vector2d(fx * ray->x() + cx, fy * ray->y() + cy);
+}
+
+Eigen::Vector2d CameraModel::distortPixel(const Eigen::Vector2d& ideal_pixel) const {
+    const Eigen::Vector2d xy((ideal_pixel.x() - cx) / fx, (ideal_pixel.y() - cy) / fy);
+    const Eigen::Vector2d d = distortNormalized(xy);
+    return {fx * d.x() + cx, fy * d.y() + cy};
+}
+
+Eigen::Matrix3d CameraModel::K() const {
+    Eigen::Matrix3d k;
+    k << fx, 0, cx, 0, fy, cy, 0, 0, 1;
+    return k;
+}
+
+Eigen::Matrix4d CameraModel::glProjection(double near_m, double far_m) const {
+    // Pixel u (centre convention) covers NDC x = 2 (u + 0.5) / width - 1. With x_ndc = x_clip / w_clip
+    // and w_clip = -z_gl = z_cam: x_ndc = (2 (fx x/z + cx + 0.5)) / width - 1.
+    Eigen::Matrix4d p = Eigen::Matrix4d::Zero();
+    p(0, 0) = 2.0 * fx / width;
+    p(0, 2) = 1.0 - 2.0 * (cx + 0.5) / width;
+    // GL's y points up while image rows go down: y_ndc = 1 - 2 (v + 0.5) / height.
+    p(1, 1) = 2.0 * fy / height;
+    p(1, 2) = 2.0 * (cy + 0.5) / height - 1.0;
+    p(2, 2) = -(far_m + near_m) / (far_m - near_m);
+    p(2, 3) = -2.0 * far_m * near_m / (far_m - near_m);
+    p(3, 2) = -1.0;
+    return p;
+}
+
+}  // namespace commonlight

@@ -1,0 +1,139 @@
+#include "core/camera_model.h"
+
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+
+namespace commonlight {
+namespace {
+
+CameraModel makeCamera(Distortion d = {}) {
+    CameraModel cam;
+    cam.width = 1280;
+    cam.height = 720;
+    cam.fx = 900.0;
+    cam.fy = 905.0;
+    cam.cx = 641.3;
+    cam.cy = 358.7;
+    cam.distortion = d;
+    return cam;
+}
+
+TEST(CameraModel, ProjectUnprojectRoundTripWithoutDistortion) {
+    const CameraModel cam = makeCamera();
+    const Eigen::Vector3d p(0.3, -0.2, 2.0);
+    const auto pixel = cam.project(p);
+    ASSERT_TRUE(pixel);
+    EXPECT_NEAR(pixel->x(), 900.0 * 0.15 + 641.3, 1e-12);
+    EXPECT_NEAR(pixel->y(), 905.0 * -0.1 + 358.7, 1e-12);
+    const auto ray = cam.unproject(*pixel);
+    ASSERT_TRUE(ray);
+    EXPECT_NEAR((*ray * 2.0 - p).norm(), 0.0, 1e-12);
+}
+
+TEST(CameraModel, PointsBehindTheCameraDoNotProject) {
+    const CameraModel cam = makeCamera();
+    EXPECT_FALSE(cam.project({0.0, 0.0, -1.0}));
+    EXPECT_FALSE(cam.project({0.1, 0.0, 0.0}));
+    EXPECT_FALSE(cam.project({NAN, 0.0, 1.0}));
+}
+
+// The hard case: strong barrel distortion, k1 = -0.4, over the whole image.
+TEST(CameraModel, UndistortConvergesOnStrongBarrelDistortion) {
+    const CameraModel cam = makeCamera({-0.4, 0.12, 0.001, -0.0015, 0.0});
+    double worst = 0.0;
+    int tested = 0;
+    for (int v = 0; v < cam.height; v += 20) {
+        for (int u = 0; u < cam.width; u += 20) {
+            const Eigen::Vector2d pixel(u, v);
+            const auto ideal = cam.undistortPixel(pixel);
+            if (!ideal) continue;  // beyond the model's fold: reported, never garbage
+            const Eigen::Vector2d back = cam.distortPixel(*ideal);
+            worst = std::max(worst, (back - pixel).norm());
+            ++tested;
+        }
+    }
+    EXPECT_LT(worst, 1e-6);
+    // With these coefficients the whole image lies inside the monotonic region.
+    EXPECT_EQ(tested, (cam.height / 20 + (cam.height % 20 ? 1 : 0)) * (cam.width / 20));
+}
+
+TEST(CameraModel, UndistortK1MinusPointFourRoundTripsRandomPoints) {
+    const CameraModel cam = makeCamera({-0.4, 0.0, 0.0, 0.0, 0.0});
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> coord(-0.9, 0.9);
+    const double max_r = cam.maxValidRadius();
+    EXPECT_NEAR(max_r, std::sqrt(1.0 / 1.2), 1e-6);  // d/dr r(1 - 0.4 r^2) = 0
+    for (int i = 0; i < 2000; ++i) {
+        const Eigen::Vector2d xy(coord(rng), coord(rng));
+        if (xy.norm() >= max_r * 0.999) continue;
+        const auto back = cam.undistortNormalized(cam.distortNormalized(xy));
+        ASSERT_TRUE(back) << xy.transpose();
+        EXPECT_LT((*back - xy).norm(), 1e-9) << xy.transpose();
+    }
+}
+
+TEST(CameraModel, UndistortRefusesPointsBeyondTheFold) {
+    // r_d = r (1 - 0.4 r^2) peaks at 0.6086; a distorted radius beyond it has no real preimage.
+    const CameraModel cam = makeCamera({-0.4, 0.0, 0.0, 0.0, 0.0});
+    EXPECT_FALSE(cam.undistortNormalized({0.7, 0.0}));
+    EXPECT_FALSE(cam.undistortNormalized({NAN, 0.0}));
+    // Projection of a point beyond the fold is refused instead of folding back into the image.
+    EXPECT_FALSE(cam.project({1.2, 0.0, 1.0}));
+}
+
+TEST(CameraModel, ValidateRejectsBadIntrinsics) {
+    CameraModel cam = makeCamera();
+    EXPECT_TRUE(cam.validate());
+    cam.fx = 0.0;
+    EXPECT_FALSE(cam.validate());
+    cam = makeCamera();
+    cam.cx = 5000.0;
+    auto r = cam.validate();
+    ASSERT_FALSE(r);
+    EXPECT_NE(r.error().message.find("principal point"), std::string::npos);
+    cam = makeCamera({NAN, 0, 0, 0, 0});
+    EXPECT_FALSE(cam.validate());
+}
+
+TEST(CameraModel, ImageSizeCheckNamesBothSizes) {
+    const CameraModel cam = makeCamera();
+    EXPECT_TRUE(cam.checkImageSize(1280, 720));
+    const auto r = cam.checkImageSize(640, 480);
+    ASSERT_FALSE(r);
+    EXPECT_EQ(r.error().code, ErrorCode::kBadInput);
+    EXPECT_NE(r.error().message.find("640x480"), std::string::npos);
+    EXPECT_NE(r.error().message.find("1280x720"), std::string::npos);
+}
+
+TEST(CameraModel, ScaledToKeepsRaysOnTheSamePixelCentres) {
+    const CameraModel cam = makeCamera();
+    const CameraModel half = cam.scaledTo(640, 360);
+    const Eigen::Vector3d p(0.1, 0.05, 1.0);
+    const Eigen::Vector2d full = *cam.project(p);
+    const Eigen::Vector2d small = *half.project(p);
+    EXPECT_NEAR((full.x() + 0.5) / 2.0 - 0.5, small.x(), 1e-12);
+    EXPECT_NEAR((full.y() + 0.5) / 2.0 - 0.5, small.y(), 1e-12);
+}
+
+TEST(CameraModel, GlProjectionMatchesPixelProjection) {
+    const CameraModel cam = makeCamera();
+    const Eigen::Matrix4d proj = cam.glProjection(0.1, 100.0);
+    const Eigen::Vector3d p_in_cam(0.4, -0.3, 3.0);
+    const Eigen::Vector4d p_gl(p_in_cam.x(), -p_in_cam.y(), -p_in_cam.z(), 1.0);
+    const Eigen::Vector4d clip = proj * p_gl;
+    const double x_ndc = clip.x() / clip.w();
+    const double y_ndc = clip.y() / clip.w();
+    const double u = (x_ndc + 1.0) * 0.5 * cam.width - 0.5;
+    const double v = (1.0 - y_ndc) * 0.5 * cam.height - 0.5;
+    const Eigen::Vector2d pixel = *cam.project(p_in_cam);
+    EXPECT_NEAR(u, pixel.x(), 1e-9);
+    EXPECT_NEAR(v, pixel.y(), 1e-9);
+    // Depth maps near -> -1 and far -> +1.
+    const Eigen::Vector4d near_clip = proj * Eigen::Vector4d(0, 0, -0.1, 1);
+    EXPECT_NEAR(near_clip.z() / near_clip.w(), -1.0, 1e-9);
+}
+
+}  // namespace
+}  // namespace commonlight
