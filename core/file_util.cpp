@@ -73,7 +73,9 @@ Result<std::string> readTextFile(const std::filesystem::path& file) {
 }
 
 Result<void> writeFileAtomic(const std::filesystem::path& file, std::span<const std::uint8_t> bytes, bool sync) {
-    const std::filesystem::path tmp = file.parent_path() / ("." + file.filename().string() + ".tmp");
+    std::string tmp_name = ".";  // built by appends: GCC 12 warns falsely (-Wrestrict) on "." + s
+    tmp_name.append(file.filename().string()).append(".tmp");
+    const std::filesystem::path tmp = file.parent_path() / tmp_name;
     const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
     if (fd < 0) return fail(fileError(tmp, "cannot create", errno));
     if (!writeAll(fd, bytes.data(), bytes.size()) || (sync && ::fdatasync(fd) != 0)) {
