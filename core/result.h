@@ -50,6 +50,8 @@ inline std::unexpected<Error> fail(Error error) { return std::unexpected<Error>(
 }  // namespace commonlight
 
 // Propagates an error: CL_TRY(auto value, expression); or CL_TRY_VOID(expression);
+// CL_TRY expands to several statements: brace the body of an if/for that uses it (an unbraced
+// use fails to compile).
 #define CL_CONCAT_INNER(a, b) a##b
 #define CL_CONCAT(a, b) CL_CONCAT_INNER(a, b)
 #define CL_TRY_IMPL(tmp, decl, expr)                                        \
