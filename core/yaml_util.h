@@ -3,6 +3,7 @@
 #pragma once
 
 #include <filesystem>
+#include <initializer_list>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -40,5 +41,32 @@ Result<double> asDouble(const std::string& file, const YAML::Node& node, std::st
 
 // The last component of a dotted key.
 std::string_view leafKey(std::string_view key);
+
+// Key paths for messages: joinKey("real[2]", "t") is "real[2].t", joinKey("", "camera") is "camera";
+// indexKey("real", 2) is "real[2]".
+std::string joinKey(std::string_view parent, std::string_view key);
+std::string indexKey(std::string_view parent, std::size_t index);
+
+// The key node of entry `key` of `map` (its line is the line of "key:"), or an undefined node.
+YAML::Node findKey(const YAML::Node& map, std::string_view key);
+
+// Whether `map` is a map with a non-null entry `key`.
+bool has(const YAML::Node& map, std::string_view key);
+
+// Fails when `node` is not a map, when one of its keys is not in `allowed` ("<file>:<line>: key
+// 'real[2].rpy': unknown key (expected t, rpy_deg, q_wxyz or matrix)"), is not a plain scalar, or
+// appears twice. `path` is the key path of the map itself ("" for the document root).
+Result<void> checkKeys(const std::string& file, const YAML::Node& node, std::string_view path,
+                       std::initializer_list<std::string_view> allowed);
+
+// A required entry that must be a map, or a list. `key` as for getDouble.
+Result<YAML::Node> getMap(const std::string& file, const YAML::Node& parent, std::string_view key);
+Result<YAML::Node> getList(const std::string& file, const YAML::Node& parent, std::string_view key);
+
+// Formats a double so that reading it back gives the same bits ("%.17g"), with a trailing "." on
+// integral values ("1.", "-0.") as OpenCV writes them, so the value stays a float in any reader.
+std::string formatDouble(double value);
+// A YAML scalar for `text`: plain when that reads back as the same string, otherwise double-quoted.
+std::string quoteString(std::string_view text);
 
 }  // namespace commonlight::yaml
