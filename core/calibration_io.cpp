@@ -14,7 +14,7 @@ namespace {
 enum class Format { kOpenCv, kRos };
 
 // OpenCV's distortion vector, in order (cv::calibrateCamera's distCoeffs).
-constexpr std::array<const char*, 14> kCoefficientNames = {"k1", "k2", "p1", "p2", "k3", "k4", "k5",
+constexpr std::array<const char*, 14> kCoefficientNames = {"k1", "k2", "p1", "p2", "k3", "k4",    "k5",
                                                            "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y"};
 
 Format detectFormat(const YAML::Node& root) {
@@ -71,9 +71,9 @@ Result<void> readCameraMatrix(const std::string& file, const YAML::Node& root, F
     const std::string key = "camera_matrix";
     CL_TRY(const Matrix k, readMatrix(file, root, key, format));
     if (k.rows != 3 || k.cols != 3) {
-        return fail(yaml::keyError(file, k.key_node, key,
-                                   "expected a 3 x 3 matrix, found " + std::to_string(k.rows) + " x " +
-                                       std::to_string(k.cols)));
+        return fail(yaml::keyError(
+            file, k.key_node, key,
+            "expected a 3 x 3 matrix, found " + std::to_string(k.rows) + " x " + std::to_string(k.cols)));
     }
     // [fx s cx; 0 fy cy; 0 0 1]
     if (k.data[1] != 0.0) {
@@ -104,9 +104,9 @@ Result<void> readDistortion(const std::string& file, const YAML::Node& root, For
     const std::string key = "distortion_coefficients";
     CL_TRY(const Matrix d, readMatrix(file, root, key, format));
     if (!d.data.empty() && d.rows != 1 && d.cols != 1) {
-        return fail(yaml::keyError(file, d.key_node, key,
-                                   "expected a vector (rows or cols 1), found " + std::to_string(d.rows) + " x " +
-                                       std::to_string(d.cols)));
+        return fail(yaml::keyError(
+            file, d.key_node, key,
+            "expected a vector (rows or cols 1), found " + std::to_string(d.rows) + " x " + std::to_string(d.cols)));
     }
     const std::size_t n = d.data.size();
     if (n != 0 && n != 4 && n != 5 && n != 8 && n != 12 && n != 14) {
@@ -120,9 +120,9 @@ Result<void> readDistortion(const std::string& file, const YAML::Node& root, For
         const YAML::Node model_node = root["distortion_model"];
         if (model_name == "plumb_bob") {
             if (n != 0 && n != 4 && n != 5) {
-                return fail(yaml::keyError(file, d.data_node, key + ".data",
-                                           "plumb_bob takes 5 coefficients (k1 k2 p1 p2 k3), found " +
-                                               std::to_string(n)));
+                return fail(
+                    yaml::keyError(file, d.data_node, key + ".data",
+                                   "plumb_bob takes 5 coefficients (k1 k2 p1 p2 k3), found " + std::to_string(n)));
             }
         } else if (model_name == "rational_polynomial") {
             if (n != 8) {
@@ -186,8 +186,8 @@ std::vector<double> distortionVector(const CameraModel& m) {
 Result<void> checkWritable(const std::filesystem::path& file, const CameraModel& model,
                            const CalibrationExtras* extras) {
     if (auto valid = model.validate(); !valid) {
-        return fail(ErrorCode::kBadInput, file.string() + ": refusing to write an invalid camera model: " +
-                                              valid.error().message);
+        return fail(ErrorCode::kBadInput,
+                    file.string() + ": refusing to write an invalid camera model: " + valid.error().message);
     }
     if (extras == nullptr) return {};
     bool finite = !extras->rms_reprojection_error_px || std::isfinite(*extras->rms_reprojection_error_px);

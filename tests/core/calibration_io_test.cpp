@@ -107,21 +107,22 @@ TEST(CalibrationIo, ReadsRosCameraInfo) {
 
 TEST(CalibrationIo, AcceptsFourAndEightCoefficientsAndRowVectors) {
     const std::string five = kFiveCoefficients;
-    const std::string four = replaced(openCvSample(), five, "rows: 1\n   cols: 4\n   dt: d\n   data: [ -0.25, 0.1, 0.001, 0.002 ]");
+    const std::string four =
+        replaced(openCvSample(), five, "rows: 1\n   cols: 4\n   dt: d\n   data: [ -0.25, 0.1, 0.001, 0.002 ]");
     auto model = parseCalibration(four, "four.yaml");
     ASSERT_TRUE(model) << model.error().message;
     EXPECT_EQ(model->distortion, (Distortion{-0.25, 0.1, 0.001, 0.002, 0.0}));
 
-    const std::string eight =
-        replaced(openCvSample(), five, "rows: 8\n   cols: 1\n   dt: d\n   data: [ -0.25, 0.1, 0.001, 0.002, 0.03, 0., 0., 0. ]");
+    const std::string eight = replaced(
+        openCvSample(), five, "rows: 8\n   cols: 1\n   dt: d\n   data: [ -0.25, 0.1, 0.001, 0.002, 0.03, 0., 0., 0. ]");
     model = parseCalibration(eight, "eight.yaml");
     ASSERT_TRUE(model) << model.error().message;
     EXPECT_EQ(model->distortion, (Distortion{-0.25, 0.1, 0.001, 0.002, 0.03}));
 
-    const std::string rational = replaced(
-        replaced(rosSample(), "distortion_model: plumb_bob", "distortion_model: rational_polynomial"),
-        "cols: 5\n  data: [-0.339812, 0.097628, 0.001248, -0.000478, 0.000000]",
-        "cols: 8\n  data: [-0.339812, 0.097628, 0.001248, -0.000478, 0.01, 0, 0, 0]");
+    const std::string rational =
+        replaced(replaced(rosSample(), "distortion_model: plumb_bob", "distortion_model: rational_polynomial"),
+                 "cols: 5\n  data: [-0.339812, 0.097628, 0.001248, -0.000478, 0.000000]",
+                 "cols: 8\n  data: [-0.339812, 0.097628, 0.001248, -0.000478, 0.01, 0, 0, 0]");
     model = parseCalibration(rational, "rational.yaml");
     ASSERT_TRUE(model) << model.error().message;
     EXPECT_EQ(model->distortion.k3, 0.01);
@@ -246,21 +247,21 @@ TEST(CalibrationIoBadInput, MissingCameraMatrixInRos) {
 }
 
 TEST(CalibrationIoBadInput, WrongNumberOfCameraMatrixEntries) {
-    expectBadInput(replaced(rosSample(), "0.00000, 0.00000, 1.00000]\ndistortion_model", "0.00000, 1.00000]\ndistortion_model"),
-                   "camera_matrix.data", "rows x cols = 3 x 3 = 9 but data has 8 numbers", "data: [423.52693");
+    expectBadInput(
+        replaced(rosSample(), "0.00000, 0.00000, 1.00000]\ndistortion_model", "0.00000, 1.00000]\ndistortion_model"),
+        "camera_matrix.data", "rows x cols = 3 x 3 = 9 but data has 8 numbers", "data: [423.52693");
 }
 
 TEST(CalibrationIoBadInput, CameraMatrixMustBeThreeByThree) {
-    expectBadInput(replaced(rosSample(), "rows: 3\n  cols: 3\n  data: [423.52693",
-                            "rows: 1\n  cols: 9\n  data: [423.52693"),
-                   "camera_matrix", "expected a 3 x 3 matrix, found 1 x 9", "camera_matrix:");
+    expectBadInput(
+        replaced(rosSample(), "rows: 3\n  cols: 3\n  data: [423.52693", "rows: 1\n  cols: 9\n  data: [423.52693"),
+        "camera_matrix", "expected a 3 x 3 matrix, found 1 x 9", "camera_matrix:");
 }
 
 TEST(CalibrationIoBadInput, RowsTimesColsMismatchInDistortion) {
     expectBadInput(replaced(openCvSample(), "rows: 5\n   cols: 1\n   dt: d\n   data: [ -2.66",
                             "rows: 5\n   cols: 2\n   dt: d\n   data: [ -2.66"),
-                   "distortion_coefficients.data", "rows x cols = 5 x 2 = 10 but data has 5 numbers",
-                   "data: [ -2.66");
+                   "distortion_coefficients.data", "rows x cols = 5 x 2 = 10 but data has 5 numbers", "data: [ -2.66");
 }
 
 TEST(CalibrationIoBadInput, UnsupportedCoefficientCount) {
@@ -287,8 +288,8 @@ TEST(CalibrationIoBadInput, NonzeroK4IsUnsupported) {
 }
 
 TEST(CalibrationIoBadInput, RosUnsupportedDistortionModel) {
-    expectBadInput(replaced(rosSample(), "plumb_bob", "equidistant"), "distortion_model", "'equidistant' is not supported",
-                   "distortion_model:");
+    expectBadInput(replaced(rosSample(), "plumb_bob", "equidistant"), "distortion_model",
+                   "'equidistant' is not supported", "distortion_model:");
 }
 
 TEST(CalibrationIoBadInput, OpenCvMatrixNeedsDt) {
