@@ -233,14 +233,18 @@ Result<YAML::Node> getList(const std::string& file, const YAML::Node& parent, st
     return node;
 }
 
-std::string formatDouble(double value) {
+std::string formatNumber(double value) {
     if (std::isnan(value)) return ".nan";
     if (std::isinf(value)) return value > 0 ? ".inf" : "-.inf";
     // Shortest representation that reads back as the same double (at most 17 significant digits).
     std::array<char, 64> buffer{};
     const auto [end, ec] = std::to_chars(buffer.data(), buffer.data() + buffer.size(), value);
-    std::string text(buffer.data(), ec == std::errc() ? end : buffer.data());
-    if (text.find_first_of(".eE") == std::string::npos) text += '.';
+    return std::string(buffer.data(), ec == std::errc() ? end : buffer.data());
+}
+
+std::string formatDouble(double value) {
+    std::string text = formatNumber(value);
+    if (text.find_first_of(".eEn") == std::string::npos) text += '.';
     return text;
 }
 

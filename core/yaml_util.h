@@ -63,8 +63,11 @@ Result<void> checkKeys(const std::string& file, const YAML::Node& node, std::str
 Result<YAML::Node> getMap(const std::string& file, const YAML::Node& parent, std::string_view key);
 Result<YAML::Node> getList(const std::string& file, const YAML::Node& parent, std::string_view key);
 
-// Formats a double so that reading it back gives the same bits ("%.17g"), with a trailing "." on
-// integral values ("1.", "-0.") as OpenCV writes them, so the value stays a float in any reader.
+// The shortest text that reads back as the same double (never more than 17 significant digits,
+// like "%.17g"): "0.1", "1", "1e-20"; ".nan", ".inf", "-.inf" for the non-finite.
+std::string formatNumber(double value);
+// Same, with a trailing "." on integral values ("1.", "-0.") as OpenCV writes them, so the value
+// stays a floating-point number for any reader.
 std::string formatDouble(double value);
 // A YAML scalar for `text`: plain when that reads back as the same string, otherwise double-quoted.
 std::string quoteString(std::string_view text);
