@@ -3,7 +3,7 @@
 # Compile options applied to every target of the project.
 add_library(commonlight_options INTERFACE)
 target_compile_options(commonlight_options INTERFACE -Wall -Wextra -Wpedantic -Wshadow
-                       -Wnon-virtual-dtor -Wcast-align -Woverloaded-virtual -Wnull-dereference)
+                       -Wnon-virtual-dtor -Wcast-align -Woverloaded-virtual)
 if(COMMONLIGHT_WERROR)
   target_compile_options(commonlight_options INTERFACE -Werror)
 endif()

@@ -103,10 +103,23 @@ double CameraModel::maxValidRadius() const {
     return std::numeric_limits<double>::infinity();
 }
 
+bool CameraModel::radialMonotonicUpTo(double r2) const {
+    const auto& d = distortion;
+    if (d.k1 >= 0 && d.k2 >= 0 && d.k3 >= 0) return true;
+    // The slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 (s = r^2) is 1 at s = 0; sample it up to r2.
+    // A cubic that dips below zero and recovers between two of 64 samples would need a root
+    // pair closer than r2 / 64; no calibrated lens has that.
+    constexpr int kSamples = 64;
+    for (int i = 1; i <= kSamples; ++i) {
+        const double s = r2 * i / kSamples;
+        if (1.0 + s * (3.0 * d.k1 + s * (5.0 * d.k2 + s * 7.0 * d.k3)) <= 0.0) return false;
+    }
+    return true;
+}
+
 std::optional<Eigen::Vector2d> CameraModel::undistortNormalized(const Eigen::Vector2d& xy_distorted) const {
     if (!xy_distorted.allFinite()) return std::nullopt;
     if (distortion.isZero()) return xy_distorted;
-    const double max_radius = maxValidRadius();
     // Damped Newton on f(x) = distort(x) - x_d. The fixed-point iteration OpenCV uses
     // (x = (x_d - tangential) / radial) diverges for strong barrel distortion (k1 = -0.4 near the
     // image corners); Newton with step halving converges there in a handful of iterations.
@@ -137,7 +150,7 @@ std::optional<Eigen::Vector2d> CameraModel::undistortNormalized(const Eigen::Vec
     // Converged relative to the size of the point (tolerance scales for points far off-axis).
     if (!(residual.norm() <= 1e-9 * std::max(1.0, xy_distorted.norm()))) return std::nullopt;
     // Past the fold, a second preimage exists; it is not the one a real ray took.
-    if (x.norm() > max_radius) return std::nullopt;
+    if (!radialMonotonicUpTo(x.squaredNorm())) return std::nullopt;
     return x;
 }
 
@@ -145,7 +158,7 @@ std::optional<Eigen::Vector2d> CameraModel::project(const Eigen::Vector3d& p_in_
     // Hard case: points on or behind the image plane have no image.
     if (!p_in_cam.allFinite() || p_in_cam.z() <= 1e-12) return std::nullopt;
     const Eigen::Vector2d xy = p_in_cam.head<2>() / p_in_cam.z();
-    if (xy.norm() > maxValidRadius()) return std::nullopt;
+    if (!radialMonotonicUpTo(xy.squaredNorm())) return std::nullopt;
     const Eigen::Vector2d d = distortNormalized(xy);
     return Eigen::Vector2d(fx * d.x() + cx, fy * d.y() + cy);
 }

@@ -55,6 +55,8 @@ public:
     // Largest undistorted radius (in normalised coordinates) up to which the radial part of the
     // model is monotonic; infinity when it is monotonic everywhere.
     double maxValidRadius() const;
+    // True when the radial part is monotonic for every squared radius in [0, r2].
+    bool radialMonotonicUpTo(double r2) const;
 
     bool inImage(const Eigen::Vector2d& pixel, double margin = 0.0) const {
         return pixel.x() >= -0.5 + margin && pixel.y() >= -0.5 + margin && pixel.x() <= width - 0.5 - margin &&
