@@ -2,7 +2,6 @@
 
 #include <cstring>
 #include <fstream>
-#include <iostream>
 #include <string>
 #include <vector>
 
@@ -131,7 +130,6 @@ void expectWindingMatchesNormals(const Mesh& mesh) {
 void expectError(const Result<Mesh>& mesh, const std::filesystem::path& file, const std::string& problem,
                  ErrorCode code = ErrorCode::kBadInput) {
     ASSERT_FALSE(mesh) << "accepted " << file;
-    std::cout << "  message: " << mesh.error().message << "\n";
     EXPECT_EQ(mesh.error().code, code) << mesh.error().message;
     EXPECT_NE(mesh.error().message.find(file.string()), std::string::npos) << mesh.error().message;
     EXPECT_NE(mesh.error().message.find(problem), std::string::npos) << mesh.error().message;
