@@ -1,0 +1,52 @@
+#include "apps/app.h"
+
+#include <csignal>
+#include <cstdio>
+#include <thread>
+
+#include <pthread.h>
+
+#include "core/log.h"
+#include "mocks/register.h"
+
+namespace commonlight::apps {
+
+int reportError(const Error& error) {
+    log::error(error.message);
+    return exitCodeFor(error.code);
+}
+
+hal::CameraRegistry makeCameraRegistry() {
+    hal::CameraRegistry registry;
+    mocks::registerMockBackends(registry);
+    return registry;
+}
+
+namespace {
+std::stop_source g_stop;
+}
+
+void installStopSignals() {
+    sigset_t set;
+    sigemptyset(&set);
+    sigaddset(&set, SIGINT);
+    sigaddset(&set, SIGTERM);
+    pthread_sigmask(SIG_BLOCK, &set, nullptr);  // inherited by every thread started later
+    std::thread([set] {
+        int signal = 0;
+        while (sigwait(&set, &signal) == 0) {
+            if (g_stop.stop_requested()) {
+                // Second Ctrl-C: the user insists. Files written so far are complete (see
+                // docs/formats-sequence.md), so leaving at once loses nothing committed.
+                std::_Exit(130);
+            }
+            log::warning(signal == SIGINT ? "interrupted (Ctrl-C): finishing; press again to quit at once"
+                                          : "terminated: finishing");
+            g_stop.request_stop();
+        }
+    }).detach();
+}
+
+std::stop_token stopToken() { return g_stop.get_token(); }
+
+}  // namespace commonlight::apps
