@@ -14,6 +14,7 @@
 #include "capture/convert.h"
 #include "capture/stage_timings.h"
 #include "core/log.h"
+#include "core/scene_io.h"
 #include "mocks/replay_camera.h"
 
 namespace commonlight::apps {
@@ -22,6 +23,7 @@ namespace {
 
 struct PlayOptions {
     std::string sequence;
+    std::string scene;  // default: SEQ/scene.yaml when present
     std::string metrics;
     bool sync = false;
     std::size_t slots = 4;
@@ -46,6 +48,18 @@ int runPlay(const PlayOptions& options) {
     auto replay = mocks::ReplayCamera::open(options.sequence, playback, SteadyClock::instance());
     if (!replay) return reportError(replay.error());
     mocks::ReplayCamera* camera = replay->get();  // borrowed; the session owns it
+
+    // The scene the later stages will use; read and validated now so a broken file stops us
+    // before any work.
+    std::optional<std::filesystem::path> scene_path = camera->sequence().scenePath();
+    if (!options.scene.empty()) scene_path = options.scene;
+    if (scene_path) {
+        auto scene = readScene(*scene_path);
+        if (!scene) return reportError(scene.error());
+        std::printf("scene %s: %zu tags, %zu real objects, %zu lights, %zu virtual objects\n", scene_path->c_str(),
+                    scene->tags.items.size(), scene->real_objects.size(), scene->lights.size(),
+                    scene->virtual_objects.size());
+    }
     const std::size_t recorded = camera->sequence().frames.size();
     const auto timeout = frameTimeout(camera->sequence(), options.sync);
     if (auto configured = camera->configure({}); !configured) return reportError(configured.error());
@@ -122,6 +136,7 @@ void addPlayCommand(CLI::App& app, Runner& runner) {
     auto options = std::make_shared<PlayOptions>();
     CLI::App* sub = app.add_subcommand("play", "Run the pipeline on a recorded sequence (docs/formats-sequence.md)");
     sub->add_option("sequence", options->sequence, "Sequence folder (SEQ, SEQ/cam0 or a EuRoC mav0 folder)")->required();
+    sub->add_option("--scene", options->scene, "Scene file (default: SEQ/scene.yaml when present)");
     sub->add_option("--metrics", options->metrics, "Write the metrics JSON here (docs/cli.md)");
     sub->add_flag("--sync", options->sync,
                   "Process every frame in order as fast as possible (deterministic), instead of at the recorded rate");

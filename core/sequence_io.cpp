@@ -240,8 +240,8 @@ Result<void> writePosesCsv(const fs::path& file, const std::vector<PoseRecord>& 
 Result<Sequence> readSequence(const fs::path& dir) {
     std::error_code ec;
     if (!fs::is_directory(dir, ec)) {
-        return fail(fs::exists(dir, ec) ? ErrorCode::kBadInput : ErrorCode::kNotFound,
-                    dir.string() + ": not a sequence folder (expected a folder with cam0/data.csv)");
+        if (!fs::exists(dir, ec)) return fail(ErrorCode::kNotFound, dir.string() + ": no such sequence folder");
+        return fail(ErrorCode::kBadInput, dir.string() + ": not a sequence folder (expected a folder with cam0/data.csv)");
     }
     Sequence seq;
     if (fs::is_regular_file(dir / "data.csv", ec)) {

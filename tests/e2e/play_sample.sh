@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# play replays the bundled sample through the capture pipeline and writes the metrics JSON.
+source "$(dirname "$0")/lib.sh"
+
+expect_exit 0 "$COMMONLIGHT" play "$SAMPLE" --sync --metrics "$TMP/m.json"
+expect_text "played 60 of 60 frames" "$TMP/out"
+[[ $(json_get "$TMP/m.json" frames) == 60 ]] || fail "metrics frames"
+[[ $(json_get "$TMP/m.json" dropped_frames) == 0 ]] || fail "metrics dropped_frames"
+[[ $(json_get "$TMP/m.json" corrupt_frames) == 0 ]] || fail "metrics corrupt_frames"
+python3 - "$TMP/m.json" <<'PY'
+import json, sys
+m = json.load(open(sys.argv[1]))
+for key in ("frames", "fps", "dropped_frames", "stages_ms", "latency_ms"):
+    assert key in m, key
+for stage in m["stages_ms"].values():
+    assert set(stage) == {"p50", "p95", "max"}, stage
+assert abs(m["fps"] - 30.0) < 0.01, m["fps"]
+PY
+# The realtime default plays at the recorded rate: 60 frames at 30 fps take about 2 s.
+expect_exit 0 "$COMMONLIGHT" play "$SAMPLE" --metrics "$TMP/r.json"
+python3 -c 'import json,sys; d=json.load(open(sys.argv[1]))["duration_s"]; assert 1.8 < d < 4.0, d' "$TMP/r.json"
+echo PASS
