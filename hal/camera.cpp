@@ -57,7 +57,12 @@ Result<StreamFormat> negotiate(const std::vector<StreamFormat>& offered, const S
         return fail(ErrorCode::kUnsupported, msg.str());
     }
     StreamFormat chosen = *best;
-    if (wanted.fps > 0) {
+    if (wanted.fps > 0 && !chosen.frame_rates.empty()) {
+        // The device runs at the rate it offers (30, not the 29.97 that matched it within 1%).
+        chosen.fps = *std::min_element(chosen.frame_rates.begin(), chosen.frame_rates.end(), [&](double a, double b) {
+            return std::abs(a - wanted.fps) < std::abs(b - wanted.fps);
+        });
+    } else if (wanted.fps > 0) {
         chosen.fps = wanted.fps;
     } else if (!chosen.frame_rates.empty()) {
         chosen.fps = *std::max_element(chosen.frame_rates.begin(), chosen.frame_rates.end());
