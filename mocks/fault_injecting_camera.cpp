@@ -10,8 +10,8 @@ Result<std::uint64_t> count(const hal::CameraUri& uri, std::string_view key, std
     CL_TRY(const auto value, uri.integer(key));
     if (!value) return fallback;
     if (*value < 0) {
-        return fail(ErrorCode::kUsage, "camera URI '" + uri.text + "': option '" + std::string(key) +
-                                           "' must not be negative");
+        return fail(ErrorCode::kUsage,
+                    "camera URI '" + uri.text + "': option '" + std::string(key) + "' must not be negative");
     }
     return static_cast<std::uint64_t>(*value);
 }

@@ -27,11 +27,11 @@
 namespace commonlight::mocks {
 
 struct FaultOptions {
-    std::uint64_t drop_every = 0;                       // drop every Nth frame; 0: none
-    std::int64_t stall_ms = 0;                          // block this long (on the clock) ...
-    std::uint64_t stall_at = 0;                         // ... before frame K; 0: no stall
-    std::uint64_t corrupt_at = 0;                       // corrupt frame K; 0: none
-    std::optional<std::uint64_t> disconnect_after;      // disconnect after N delivered frames
+    std::uint64_t drop_every = 0;                   // drop every Nth frame; 0: none
+    std::int64_t stall_ms = 0;                      // block this long (on the clock) ...
+    std::uint64_t stall_at = 0;                     // ... before frame K; 0: no stall
+    std::uint64_t corrupt_at = 0;                   // corrupt frame K; 0: none
+    std::optional<std::uint64_t> disconnect_after;  // disconnect after N delivered frames
 
     bool any() const noexcept {
         return drop_every > 0 || stall_at > 0 || corrupt_at > 0 || disconnect_after.has_value();
@@ -92,8 +92,8 @@ private:
     std::unique_ptr<hal::Camera> inner_;
 
     // Set by doStart() before the wrapped camera starts, then used on its thread only.
-    std::uint64_t received_ = 0;              // frames that reached us in this stream
-    std::uint64_t delivered_in_stream_ = 0;   // frames we passed on in this stream
+    std::uint64_t received_ = 0;             // frames that reached us in this stream
+    std::uint64_t delivered_in_stream_ = 0;  // frames we passed on in this stream
     // Requested by doStop(): interrupts a stall and silences what the wrapped camera still
     // delivers before its own stop() returns.
     std::stop_source stop_source_;

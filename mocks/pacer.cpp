@@ -24,7 +24,8 @@ Result<PlaybackOptions> PlaybackOptions::fromUri(const hal::CameraUri& uri) {
         } else if (*rate == "step") {
             options.rate = PlaybackRate::kStep;
         } else {
-            return fail(ErrorCode::kUsage, "camera URI '" + uri.text + "': option 'rate' must be realtime, max or step, got '" +
+            return fail(ErrorCode::kUsage, "camera URI '" + uri.text +
+                                               "': option 'rate' must be realtime, max or step, got '" +
                                                std::string(*rate) + "'");
         }
     }
@@ -38,7 +39,8 @@ Result<PlaybackOptions> PlaybackOptions::fromUri(const hal::CameraUri& uri) {
     return options;
 }
 
-std::int64_t nominalIntervalNs(double rate_hz, std::int64_t first_ns, std::int64_t last_ns, std::size_t count) noexcept {
+std::int64_t nominalIntervalNs(double rate_hz, std::int64_t first_ns, std::int64_t last_ns,
+                               std::size_t count) noexcept {
     if (rate_hz > 0.0) return std::max<std::int64_t>(1, std::llround(1e9 / rate_hz));
     if (count >= 2 && last_ns > first_ns) {
         return std::max<std::int64_t>(1, (last_ns - first_ns) / static_cast<std::int64_t>(count - 1));
@@ -72,9 +74,10 @@ bool Pacer::waitUntilDue(std::int64_t timestamp_ns, std::stop_token stop) {
     const std::int64_t since_first = timestamp_ns - *first_timestamp_ns_;
     // speed 1 stays in integers, so a clock advanced by exactly one recorded interval releases
     // exactly one frame.
-    const std::int64_t offset = options_.speed == 1.0 ? since_first
-                                                      : static_cast<std::int64_t>(std::llround(
-                                                            static_cast<double>(since_first) / options_.speed));
+    const std::int64_t offset =
+        options_.speed == 1.0
+            ? since_first
+            : static_cast<std::int64_t>(std::llround(static_cast<double>(since_first) / options_.speed));
     return clock_.sleepUntil(anchor_ns_ + offset, stop);
 }
 

@@ -38,7 +38,8 @@ void registerMockBackends(hal::CameraRegistry& registry, Clock& clock) {
     registry.addWrapper(hal::Wrapper{
         "fault",
         std::vector<std::string>(std::begin(kFaultOptionNames), std::end(kFaultOptionNames)),
-        [&clock](std::unique_ptr<hal::Camera> camera, const hal::CameraUri& uri) -> Result<std::unique_ptr<hal::Camera>> {
+        [&clock](std::unique_ptr<hal::Camera> camera,
+                 const hal::CameraUri& uri) -> Result<std::unique_ptr<hal::Camera>> {
             CL_TRY(const FaultOptions options, FaultOptions::fromUri(uri));
             return asCamera(FaultInjectingCamera::wrap(std::move(camera), options, clock));
         },

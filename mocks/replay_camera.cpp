@@ -67,7 +67,9 @@ Result<std::unique_ptr<ReplayCamera>> ReplayCamera::open(const fs::path& dir, Pl
 }
 
 Result<std::unique_ptr<ReplayCamera>> ReplayCamera::open(const hal::CameraUri& uri, Clock& clock) {
-    if (uri.path.empty()) return fail(ErrorCode::kUsage, "camera URI '" + uri.text + "': expected replay:<sequence folder>");
+    if (uri.path.empty()) {
+        return fail(ErrorCode::kUsage, "camera URI '" + uri.text + "': expected replay:<sequence folder>");
+    }
     CL_TRY(const PlaybackOptions options, PlaybackOptions::fromUri(uri));
     return open(fs::path(uri.path), options, clock);
 }
@@ -106,9 +108,10 @@ Result<void> ReplayCamera::doSetControl(hal::Control control, double) {
 
 void ReplayCamera::run(std::stop_token stop) {
     const auto& frames = sequence_.frames;
-    const std::int64_t interval_ns =
-        nominalIntervalNs(sequence_.sensor.rate_hz, frames.front().timestamp_ns, frames.back().timestamp_ns, frames.size());
-    const std::int64_t time_period_ns = loopPeriodNs(frames.front().timestamp_ns, frames.back().timestamp_ns, interval_ns);
+    const std::int64_t interval_ns = nominalIntervalNs(sequence_.sensor.rate_hz, frames.front().timestamp_ns,
+                                                       frames.back().timestamp_ns, frames.size());
+    const std::int64_t time_period_ns =
+        loopPeriodNs(frames.front().timestamp_ns, frames.back().timestamp_ns, interval_ns);
     const std::uint64_t sequence_period = sequence_numbers_.back() - sequence_numbers_.front() + 1;
 
     std::int64_t time_offset_ns = 0;

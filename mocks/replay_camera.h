@@ -63,7 +63,7 @@ private:
     void emitOne(std::size_t index, std::int64_t timestamp_ns, std::uint64_t sequence_offset);
 
     const Sequence sequence_;
-    const std::vector<std::filesystem::path> paths_;  // one per frame, built once
+    const std::vector<std::filesystem::path> paths_;     // one per frame, built once
     const std::vector<std::uint64_t> sequence_numbers_;  // meta.csv's, or the frame index
     const hal::StreamFormat format_;
     Clock& clock_;

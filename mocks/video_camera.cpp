@@ -62,8 +62,8 @@ Result<std::unique_ptr<VideoCamera>> VideoCamera::open(const hal::CameraUri& uri
     return open(fs::path(uri.path), options, clock);
 }
 
-VideoCamera::VideoCamera(fs::path file, int width, int height, double fps, std::int64_t frames,
-                         PlaybackOptions options, Clock& clock)
+VideoCamera::VideoCamera(fs::path file, int width, int height, double fps, std::int64_t frames, PlaybackOptions options,
+                         Clock& clock)
     : Camera("video:" + file.string()),
       file_(std::move(file)),
       width_(width),
@@ -117,17 +117,18 @@ void VideoCamera::run(std::stop_token stop) {
         if (!decoded) {
             // Step 1: a pass ended; say so when it ended before the container's announced end.
             if (announced_frames_ > 0 && in_pass < announced_frames_) {
-                log::warning(id() + ": frame " + std::to_string(in_pass) + " could not be decoded (the file announces " +
-                             std::to_string(announced_frames_) + " frames); the video ends early");
+                log::warning(id() + ": frame " + std::to_string(in_pass) +
+                             " could not be decoded (the file announces " + std::to_string(announced_frames_) +
+                             " frames); the video ends early");
             }
             if (!pacer_.options().loop || in_pass == 0) break;
             // Step 2: loop from the start, timestamps offset past this pass.
             time_offset_ns += loopPeriodNs(first_ns, last_ns, interval_ns_);
             in_pass = 0;
             if (auto reopened = openCapture(capture_, file_); !reopened) {
-                emitEvent(hal::CameraEvent{hal::CameraEvent::Type::kDeviceError,
-                                           Error{ErrorCode::kIo, id() + ": cannot reopen for the next loop: " +
-                                                                     reopened.error().message}});
+                emitEvent(hal::CameraEvent{
+                    hal::CameraEvent::Type::kDeviceError,
+                    Error{ErrorCode::kIo, id() + ": cannot reopen for the next loop: " + reopened.error().message}});
                 return;
             }
             continue;

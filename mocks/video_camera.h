@@ -61,14 +61,14 @@ private:
     const std::filesystem::path file_;
     const int width_;
     const int height_;
-    const double fps_;                    // 0 when the container does not say
+    const double fps_;  // 0 when the container does not say
     const std::int64_t announced_frames_;
-    const std::int64_t interval_ns_;      // nominal frame interval
+    const std::int64_t interval_ns_;  // nominal frame interval
     Clock& clock_;
     Pacer pacer_;
     // Camera thread only while streaming (control thread before start).
     cv::VideoCapture capture_;
-    cv::Mat bgr_;                         // decoder output, reused between frames
+    cv::Mat bgr_;  // decoder output, reused between frames
     std::uint64_t next_sequence_ = 0;
     std::jthread thread_;  // last: joined before the members above are destroyed
 };

@@ -22,7 +22,9 @@ public:
 
 private:
     std::vector<StreamFormat> doFormats() const override { return {{PixelFormat::kGray8, 8, 8, {}, 0}}; }
-    Result<StreamFormat> doConfigure(const StreamConfig& config) override { return negotiate(doFormats(), config, id()); }
+    Result<StreamFormat> doConfigure(const StreamConfig& config) override {
+        return negotiate(doFormats(), config, id());
+    }
     Result<void> doStart() override { return {}; }
     void doStop() noexcept override {}
 };

@@ -54,9 +54,7 @@ TEST(CameraUri, EmptyPairsAreSkipped) {
     EXPECT_TRUE(parsed("replay:seq?").options.empty());
 }
 
-TEST(CameraUri, EmptyValuesAreKept) {
-    EXPECT_EQ(parsed("replay:seq?rate=").option("rate"), "");
-}
+TEST(CameraUri, EmptyValuesAreKept) { EXPECT_EQ(parsed("replay:seq?rate=").option("rate"), ""); }
 
 TEST(CameraUri, MalformedUrisAreUsageErrorsNamingTheUri) {
     expectUsageError("/dev/video0", "expected <scheme>:<device>");

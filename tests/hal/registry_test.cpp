@@ -9,10 +9,11 @@ namespace {
 
 using testing::FakeCamera;
 
-// Marks a camera as wrapped: a decorator that only renames nothing but is a distinct type.
+// What the test wrapper returns: a decorator that remembers its tag, so tests see it was applied.
 class TaggedCamera final : public Camera {
 public:
-    TaggedCamera(std::unique_ptr<Camera> inner, std::string tag) : Camera(inner->id()), inner_(std::move(inner)), tag_(std::move(tag)) {}
+    TaggedCamera(std::unique_ptr<Camera> inner, std::string tag)
+        : Camera(inner->id()), inner_(std::move(inner)), tag_(std::move(tag)) {}
     const std::string& tag() const { return tag_; }
     Camera& inner() { return *inner_; }
 
@@ -28,28 +29,30 @@ private:
     std::string tag_;
 };
 
+Result<std::unique_ptr<Camera>> openFake(const CameraUri& uri) {
+    if (uri.path == "missing") return fail(ErrorCode::kNotFound, uri.text + ": no such camera");
+    return std::unique_ptr<Camera>(std::make_unique<FakeCamera>(uri.text));
+}
+
+Result<std::vector<CameraInfo>> listFakes() {
+    return std::vector<CameraInfo>{CameraInfo{"fake:0", "Fake", "fake", {}}, CameraInfo{"fake:1", "Fake", "fake", {}}};
+}
+
+Result<std::vector<CameraInfo>> listBroken() { return fail(ErrorCode::kDevice, "broken: bus error"); }
+
+Result<std::unique_ptr<Camera>> wrapTagged(std::unique_ptr<Camera> camera, const CameraUri& uri) {
+    const auto tag = uri.option("tag");
+    if (tag == "bad") return fail(ErrorCode::kUsage, uri.text + ": bad tag");
+    return std::unique_ptr<Camera>(std::make_unique<TaggedCamera>(std::move(camera), std::string(tag.value_or(""))));
+}
+
 class Registry : public ::testing::Test {
 protected:
     void SetUp() override {
-        registry_.add(Backend{"fake", "a fake camera", {"mode"},
-                              [](const CameraUri& uri) -> Result<std::unique_ptr<Camera>> {
-                                  if (uri.path == "missing") return fail(ErrorCode::kNotFound, uri.text + ": no such camera");
-                                  return std::unique_ptr<Camera>(std::make_unique<FakeCamera>(uri.text));
-                              },
-                              [] {
-                                  return Result<std::vector<CameraInfo>>(std::vector<CameraInfo>{
-                                      CameraInfo{"fake:0", "Fake", "fake", {}}, CameraInfo{"fake:1", "Fake", "fake", {}}});
-                              }});
-        registry_.add(Backend{"broken", "cannot enumerate", {}, nullptr,
-                              [] { return Result<std::vector<CameraInfo>>(fail(ErrorCode::kDevice, "broken: bus error")); }});
+        registry_.add(Backend{"fake", "a fake camera", {"mode"}, openFake, listFakes});
+        registry_.add(Backend{"broken", "cannot enumerate", {}, nullptr, listBroken});
         registry_.add(Backend{"quiet", "no enumeration", {}, nullptr, {}});
-        registry_.addWrapper(Wrapper{"tag", {"tag", "tag_twice"},
-                                     [](std::unique_ptr<Camera> camera, const CameraUri& uri) -> Result<std::unique_ptr<Camera>> {
-                                         const auto tag = uri.option("tag");
-                                         if (tag == "bad") return fail(ErrorCode::kUsage, uri.text + ": bad tag");
-                                         return std::unique_ptr<Camera>(
-                                             std::make_unique<TaggedCamera>(std::move(camera), std::string(tag.value_or(""))));
-                                     }});
+        registry_.addWrapper(Wrapper{"tag", {"tag", "tag_twice"}, wrapTagged});
     }
     CameraRegistry registry_;
 };

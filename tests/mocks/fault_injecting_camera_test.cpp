@@ -61,7 +61,8 @@ TEST_F(FaultInjection, DropEveryThirdLeavesSequenceGaps) {
     EXPECT_EQ(faults(*camera).framesDropped(), 3u);
     EXPECT_EQ(faults(*camera).framesDelivered(), 7u);
     EXPECT_EQ(camera->framesWithoutSlot(), 0u) << "a drop at the device is not a pool shortage";
-    EXPECT_EQ(sink_.events()[0].type, hal::CameraEvent::Type::kEndOfStream) << "the end of the recording passes through";
+    EXPECT_EQ(sink_.events()[0].type, hal::CameraEvent::Type::kEndOfStream)
+        << "the end of the recording passes through";
 }
 
 TEST_F(FaultInjection, StallBlocksTheCameraThreadOnTheClock) {
@@ -212,7 +213,7 @@ TEST_F(FaultInjection, PoolShortageIsCountedOnTheWrapper) {
 TEST_F(FaultInjection, BadOptionsAreUsageErrors) {
     const std::string seq = "replay:" + dir_.path().string() + "?";
     for (const std::string options : {"fault_stall_ms=100", "fault_stall_at=3", "fault_drop_every=-1",
-                                       "fault_corrupt_at=x", "fault_disconnect_after=1.5", "fault_bogus=1"}) {
+                                      "fault_corrupt_at=x", "fault_disconnect_after=1.5", "fault_bogus=1"}) {
         const auto camera = registry_.open(seq + options);
         ASSERT_FALSE(camera) << options;
         EXPECT_EQ(camera.error().code, ErrorCode::kUsage) << options;

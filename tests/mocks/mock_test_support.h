@@ -2,11 +2,11 @@
 // and a builder for small sequences. Header-only; used by tests/mocks and tests/hal.
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <filesystem>
-#include <algorithm>
 #include <mutex>
 #include <stdexcept>
 #include <string>
@@ -155,8 +155,9 @@ inline Image patternImage(PixelFormat format, int width, int height, int seed) {
         cv::Mat bgr(height, width, CV_8UC3);
         for (int y = 0; y < height; ++y) {
             for (int x = 0; x < width; ++x) {
-                bgr.at<cv::Vec3b>(y, x) = cv::Vec3b(static_cast<std::uint8_t>(x * 4 + seed * 20),
-                                                    static_cast<std::uint8_t>(y * 4), static_cast<std::uint8_t>(seed * 50));
+                bgr.at<cv::Vec3b>(y, x) =
+                    cv::Vec3b(static_cast<std::uint8_t>(x * 4 + seed * 20), static_cast<std::uint8_t>(y * 4),
+                              static_cast<std::uint8_t>(seed * 50));
             }
         }
         std::vector<std::uint8_t> jpeg;
@@ -181,9 +182,8 @@ struct TestSequence {
 // Writes `count` frames to `root` (a SequenceWriter sequence with meta.csv): timestamps
 // first_ns + i * interval_ns, sequence numbers first_sequence + i.
 inline TestSequence writeTestSequence(const std::filesystem::path& root, PixelFormat format, int count,
-                                      std::int64_t interval_ns, double rate_hz = 30.0, int width = 32,
-                                      int height = 24, std::uint64_t first_sequence = 0,
-                                      std::int64_t first_ns = 1'000'000'000) {
+                                      std::int64_t interval_ns, double rate_hz = 30.0, int width = 32, int height = 24,
+                                      std::uint64_t first_sequence = 0, std::int64_t first_ns = 1'000'000'000) {
     SensorInfo sensor;
     sensor.rate_hz = rate_hz;
     auto writer = SequenceWriter::create(root, sensor, SequenceWriterOptions{.sync = false});

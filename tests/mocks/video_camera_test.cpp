@@ -98,7 +98,8 @@ TEST(VideoCamera, ReplaysAWrittenVideoFrameByFrame) {
         ASSERT_EQ(frame.image.width(), kWidth);
         ASSERT_EQ(frame.image.height(), kHeight);
         const cv::Vec3b bgr = frameColour(i);
-        for (int c = 0; c < 3; ++c) EXPECT_NEAR(channelMean(frame.image, c), bgr[2 - c], 4.0) << "frame " << i << " channel " << c;
+        for (int c = 0; c < 3; ++c)
+            EXPECT_NEAR(channelMean(frame.image, c), bgr[2 - c], 4.0) << "frame " << i << " channel " << c;
     }
 }
 
