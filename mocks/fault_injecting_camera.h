@@ -33,9 +33,6 @@ struct FaultOptions {
     std::uint64_t corrupt_at = 0;                   // corrupt frame K; 0: none
     std::optional<std::uint64_t> disconnect_after;  // disconnect after N delivered frames
 
-    bool any() const noexcept {
-        return drop_every > 0 || stall_at > 0 || corrupt_at > 0 || disconnect_after.has_value();
-    }
     Result<void> validate() const;
     // Reads the fault_* options; errors (kUsage) name the URI and the key.
     static Result<FaultOptions> fromUri(const hal::CameraUri& uri);

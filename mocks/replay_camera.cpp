@@ -112,7 +112,10 @@ void ReplayCamera::run(std::stop_token stop) {
                                                        frames.back().timestamp_ns, frames.size());
     const std::int64_t time_period_ns =
         loopPeriodNs(frames.front().timestamp_ns, frames.back().timestamp_ns, interval_ns);
-    const std::uint64_t sequence_period = sequence_numbers_.back() - sequence_numbers_.front() + 1;
+    // Recorded sequence numbers normally increase; if they do not, count frames instead.
+    const std::uint64_t sequence_period = sequence_numbers_.back() >= sequence_numbers_.front()
+                                              ? sequence_numbers_.back() - sequence_numbers_.front() + 1
+                                              : sequence_numbers_.size();
 
     std::int64_t time_offset_ns = 0;
     std::uint64_t sequence_offset = 0;
