@@ -76,6 +76,11 @@ bool Recorder::push(const Frame& frame) {
     slot.meta = frame.meta;
     {
         std::lock_guard lock(mutex_);
+        if (finishing_) {  // finish() began while we copied: the writer may be gone
+            free_.push_back(index);
+            ++summary_.dropped;
+            return false;
+        }
         queue_[(queue_head_ + queued_) % queue_.size()] = index;
         ++queued_;
         ++summary_.frames_queued;
