@@ -47,6 +47,18 @@ function(commonlight_sources name)
   target_sources(commonlight_${name} PRIVATE ${ARGN})
 endfunction()
 
+# Environment of every test: where the sources and binaries are, and the sanitizer settings
+# (TSan reads the project's suppressions of third-party false alarms from tests/tsan.supp).
+set(COMMONLIGHT_TEST_ENV "COMMONLIGHT_SOURCE_DIR=${PROJECT_SOURCE_DIR}" "COMMONLIGHT_BINARY_DIR=${PROJECT_BINARY_DIR}")
+if(COMMONLIGHT_TSAN)
+  list(APPEND COMMONLIGHT_TEST_ENV
+       "TSAN_OPTIONS=halt_on_error=1 second_deadlock_stack=1 suppressions=${PROJECT_SOURCE_DIR}/tests/tsan.supp")
+endif()
+if(COMMONLIGHT_ASAN)
+  list(APPEND COMMONLIGHT_TEST_ENV "ASAN_OPTIONS=detect_leaks=1:abort_on_error=1"
+       "UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1")
+endif()
+
 # commonlight_test(<module> <name> SOURCES ... [DEPS ...] [LABELS ...] [TIMEOUT s])
 # A GoogleTest executable registered with CTest as "<module>/<name>". Exit code 77 means
 # "skipped" (hardware, display or namespace not available).
@@ -61,8 +73,7 @@ function(commonlight_test module name)
     set(ARG_TIMEOUT 300)
   endif()
   set_tests_properties(${module}/${name} PROPERTIES SKIP_RETURN_CODE 77 TIMEOUT ${ARG_TIMEOUT}
-                       LABELS "${module};${ARG_LABELS}"
-                       ENVIRONMENT "COMMONLIGHT_SOURCE_DIR=${PROJECT_SOURCE_DIR};COMMONLIGHT_BINARY_DIR=${PROJECT_BINARY_DIR}")
+                       LABELS "${module};${ARG_LABELS}" ENVIRONMENT "${COMMONLIGHT_TEST_ENV}")
 endfunction()
 
 # commonlight_script_test(<module> <name> COMMAND ... [LABELS ...] [TIMEOUT s])
@@ -75,5 +86,5 @@ function(commonlight_script_test module name)
   endif()
   set_tests_properties(${module}/${name} PROPERTIES SKIP_RETURN_CODE 77 TIMEOUT ${ARG_TIMEOUT}
                        LABELS "${module};${ARG_LABELS}"
-                       ENVIRONMENT "COMMONLIGHT_SOURCE_DIR=${PROJECT_SOURCE_DIR};COMMONLIGHT_BINARY_DIR=${PROJECT_BINARY_DIR};COMMONLIGHT=$<TARGET_FILE:commonlight>")
+                       ENVIRONMENT "${COMMONLIGHT_TEST_ENV};COMMONLIGHT=$<TARGET_FILE:commonlight>")
 endfunction()

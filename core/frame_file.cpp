@@ -49,7 +49,10 @@ Result<void> FrameFileReader::read(const fs::path& file, PixelFormat stored, int
     if (stored == PixelFormat::kMjpeg) return fail(corrupt(file, "not a JPEG file, but the sequence is mjpeg"));
     if (stored == PixelFormat::kRgbF32) return fail(ErrorCode::kUnsupported, file.string() + ": rgbf32 frames are not supported in sequences");
 
-    // imdecode reuses decoded_ when the size and type repeat (no allocation per frame).
+    // imdecode leaves its output untouched when it cannot even read the header (garbage, a
+    // broken signature): release it first so a failure can never pass off the previous frame's
+    // pixels as this one's. Costs one allocation per decoded frame.
+    decoded_.release();
     try {
         cv::imdecode(cv::Mat(1, static_cast<int>(bytes_.size()), CV_8UC1, bytes_.data()), cv::IMREAD_UNCHANGED,
                      &decoded_);

@@ -13,13 +13,6 @@
 #include "core/sequence_io.h"
 #include "tests/test_support.h"
 
-#if defined(__SANITIZE_THREAD__)
-// libgdal, loaded by OpenCV's imgcodecs (which SequenceWriter uses to encode PNG), takes its own
-// mutexes in CPLCreateOrAcquireMutexEx / CPLAcquireMutex in an order ThreadSanitizer reports as
-// a lock-order inversion, on the writer thread alone. Those are GDAL's locks, not ours: hide
-// only deadlock reports inside libgdal.
-extern "C" const char* __tsan_default_suppressions() { return "deadlock:libgdal.so\n"; }
-#endif
 
 namespace commonlight::capture {
 namespace {

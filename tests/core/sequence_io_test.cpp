@@ -252,9 +252,16 @@ TEST(FrameFile, CorruptAndTruncatedFilesAreErrorsNamingTheFile) {
     auto r = reader.read(dir / "t.png", PixelFormat::kRgb8, 32, 32, out);
     ASSERT_FALSE(r);
     EXPECT_NE(r.error().message.find("t.png"), std::string::npos);
-    // Garbage.
+    // Garbage, right after a good frame: the decoder must not hand back the previous pixels.
+    {
+        std::ofstream f(dir / "good.png", std::ios::binary);
+        f.write(reinterpret_cast<const char*>(png.data()), static_cast<std::streamsize>(png.size()));
+    }
+    ASSERT_TRUE(reader.read(dir / "good.png", PixelFormat::kRgb8, 32, 32, out));
     writeText(dir / "g.png", "this is not an image at all");
-    EXPECT_FALSE(reader.read(dir / "g.png", PixelFormat::kInvalid, 0, 0, out));
+    EXPECT_FALSE(reader.read(dir / "g.png", PixelFormat::kRgb8, 32, 32, out));
+    writeText(dir / "sig.png", "\x89PNG\r\n\x1a\n not a PNG body");
+    EXPECT_FALSE(reader.read(dir / "sig.png", PixelFormat::kRgb8, 32, 32, out));
     // Missing.
     r = reader.read(dir / "missing.png", PixelFormat::kRgb8, 32, 32, out);
     ASSERT_FALSE(r);
