@@ -1,5 +1,5 @@
 // Counts heap allocations of the whole process (every thread), for "allocations per frame".
-// Linking alloc_counter.cpp replaces the global operator new/delete of the binary.
+// Linking commonlight_alloc_counter replaces the global operator new/delete of the binary.
 #pragma once
 
 #include <cstdint>

@@ -14,7 +14,6 @@
 #include <cstring>
 #include <filesystem>
 #include <memory>
-#include <thread>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
@@ -23,6 +22,7 @@
 #include "capture/capture_session.h"
 #include "capture/convert.h"
 #include "core/sequence_writer.h"
+#include "mocks/memory_camera.h"
 #include "mocks/replay_camera.h"
 
 namespace commonlight::bench {
@@ -32,48 +32,6 @@ namespace fs = std::filesystem;
 constexpr int kWidth = 1280;
 constexpr int kHeight = 720;
 constexpr int kSequenceFrames = 30;
-
-// A camera whose thread emits copies of one prepared frame as fast as the session takes them.
-class MemoryCamera final : public hal::Camera {
-public:
-    explicit MemoryCamera(Image frame) : hal::Camera("memory:bench"), frame_(std::move(frame)) {}
-    ~MemoryCamera() override { doStop(); }
-
-private:
-    std::vector<hal::StreamFormat> doFormats() const override {
-        return {{frame_.format(), frame_.width(), frame_.height(), {30.0}, 0.0}};
-    }
-    Result<hal::StreamFormat> doConfigure(const hal::StreamConfig& config) override {
-        return hal::negotiate(doFormats(), config, id());
-    }
-    Result<void> doStart() override {
-        thread_ = std::jthread([this](std::stop_token stop) {
-            for (std::uint64_t n = 0; !stop.stop_requested(); ++n) {
-                FrameHandle slot = acquireFrame();
-                if (!slot) {
-                    std::this_thread::yield();
-                    continue;
-                }
-                slot->image.assign(frame_);
-                slot->meta.sequence = n;
-                slot->meta.timestamp_ns = static_cast<std::int64_t>(n) * 33'333'333;
-                slot->meta.arrival_ns = monotonicNowNs();
-                slot->meta.status = FrameStatus::kOk;
-                emitFrame(std::move(slot));
-            }
-        });
-        return {};
-    }
-    void doStop() noexcept override {
-        if (thread_.joinable()) {
-            thread_.request_stop();
-            thread_.join();
-        }
-    }
-
-    Image frame_;
-    std::jthread thread_;
-};
 
 Image testFrame(PixelFormat format) {
     Image image(format, kWidth, kHeight);
@@ -115,7 +73,9 @@ void consume(benchmark::State& state, capture::CaptureSession& session) {
 }
 
 void BM_Pipeline(benchmark::State& state, PixelFormat format) {
-    auto camera = std::make_unique<MemoryCamera>(testFrame(format));
+    mocks::PlaybackOptions max_rate;
+    max_rate.rate = mocks::PlaybackRate::kMax;
+    auto camera = std::make_unique<mocks::MemoryCamera>(testFrame(format), 30.0, max_rate);
     if (!camera->configure({})) return state.SkipWithError("configure failed");
     capture::CaptureOptions options;
     options.sync = true;
