@@ -9,6 +9,7 @@
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/progress.h"
 #include "apps/report.h"
 #include "capture/capture_session.h"
 #include "capture/convert.h"
@@ -84,6 +85,8 @@ int runPlay(const PlayOptions& options) {
     std::uint64_t undecodable = 0;
     std::optional<Error> failure;
     const std::int64_t start_ns = monotonicNowNs();
+    Progress progress("play", recorded);
+    std::uint64_t handled = 0;
     while (true) {
         capture::NextFrame next = (*session)->next(stopToken(), timeout);
         if (!next) {
@@ -92,6 +95,7 @@ int runPlay(const PlayOptions& options) {
         }
         if (!next->has_value()) break;  // end of the recording
         FrameHandle frame = std::move(**next);
+        progress.update(++handled);
         capture::StageTimer pipeline_timer(timings, pipeline_stage);
         if (frame->meta.status != FrameStatus::kOk) continue;  // counted by the session's stats
         capture::StageTimer convert_timer(timings, convert_stage);
@@ -101,6 +105,7 @@ int runPlay(const PlayOptions& options) {
         }
     }
     const double seconds = static_cast<double>(monotonicNowNs() - start_ns) / 1e9;
+    progress.finish();
     (*session)->stop();
     const capture::CaptureStats stats = (*session)->stats();
     const std::uint64_t corrupt = stats.drops.corrupt + undecodable;

@@ -6,6 +6,7 @@
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/progress.h"
 #include "apps/report.h"
 #include "capture/capture_session.h"
 #include "capture/recorder.h"
@@ -66,6 +67,7 @@ int runRecord(const RecordOptions& options) {
     std::optional<Error> failure;
     std::uint64_t taken = 0;
     const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(options.timeout_s));
+    Progress progress("record", options.frames);
     while (options.frames == 0 || taken < options.frames) {
         capture::NextFrame next = (*session)->next(stopToken(), timeout);
         if (!next) {
@@ -80,8 +82,10 @@ int runRecord(const RecordOptions& options) {
         }
         (*recorder)->push(***next);
         ++taken;
+        progress.update(taken);
         if ((*recorder)->summary().write_error) break;
     }
+    progress.finish();
     (*session)->stop();
     const capture::RecorderSummary summary = (*recorder)->finish();
     const capture::CaptureStats stats = (*session)->stats();
