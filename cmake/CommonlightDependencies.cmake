@@ -35,11 +35,14 @@ if(NOT TARGET yaml-cpp::yaml-cpp)
 endif()
 
 # Optional camera backends.
-if(EXISTS /usr/include/linux/videodev2.h)
+# The V4L2 backend talks to the kernel API directly (linux/videodev2.h); libv4l2's pkg-config
+# file stands for "the V4L2 development files are installed".
+pkg_check_modules(V4L2 IMPORTED_TARGET libv4l2)
+if(V4L2_FOUND AND EXISTS /usr/include/linux/videodev2.h)
   set(COMMONLIGHT_HAVE_V4L2 ON)
 else()
   set(COMMONLIGHT_HAVE_V4L2 OFF)
-  message(STATUS "V4L2 backend left out: linux/videodev2.h not found (linux-libc-dev)")
+  message(STATUS "V4L2 backend left out: libv4l2 / linux/videodev2.h not found (libv4l-dev, linux-libc-dev)")
 endif()
 pkg_check_modules(LIBCAMERA IMPORTED_TARGET libcamera)
 if(LIBCAMERA_FOUND)
