@@ -80,4 +80,70 @@ Rigid3d interpolate(const Rigid3d& a, const Rigid3d& b, double t) {
     return {a.rotation.slerp(t, b.rotation), (1.0 - t) * a.translation + t * b.translation};
 }
 
+namespace {
+
+Eigen::Matrix3d hat(const Eigen::Vector3d& w) {
+    Eigen::Matrix3d m;
+    m << 0, -w.z(), w.y(), w.z(), 0, -w.x(), -w.y(), w.x(), 0;
+    return m;
+}
+
+// Rotation vector of a unit quaternion; the w >= 0 hemisphere gives angles in [0, pi].
+Eigen::Vector3d rotationVector(Eigen::Quaterniond q) {
+    if (q.w() < 0) q.coeffs() = -q.coeffs();
+    const Eigen::Vector3d xyz = q.vec();
+    const double s = xyz.norm();
+    // Hard case: near the identity angle/s -> 2/w; atan2 keeps full precision there too.
+    if (s < 1e-12) return 2.0 * xyz / q.w();
+    const double angle = 2.0 * std::atan2(s, q.w());
+    return xyz * (angle / s);
+}
+
+}  // namespace
+
+Rigid3d expSe3(const Vector6d& xi) {
+    const Eigen::Vector3d w = xi.head<3>();
+    const Eigen::Vector3d v = xi.tail<3>();
+    const double theta = w.norm();
+    const Eigen::Matrix3d w_hat = hat(w);
+    double a = 0.0;  // (1 - cos theta) / theta^2
+    double b = 0.0;  // (theta - sin theta) / theta^3
+    Eigen::Quaterniond q;
+    // Hard case: small angles, where both coefficients are 0/0; use their Taylor series.
+    if (theta < 1e-6) {
+        const double t2 = theta * theta;
+        a = 0.5 - t2 / 24.0;
+        b = 1.0 / 6.0 - t2 / 120.0;
+        q = Eigen::Quaterniond(1.0, 0.5 * w.x(), 0.5 * w.y(), 0.5 * w.z()).normalized();
+    } else {
+        a = (1.0 - std::cos(theta)) / (theta * theta);
+        b = (theta - std::sin(theta)) / (theta * theta * theta);
+        q = Eigen::Quaterniond(Eigen::AngleAxisd(theta, w / theta));
+    }
+    const Eigen::Matrix3d v_matrix = Eigen::Matrix3d::Identity() + a * w_hat + b * w_hat * w_hat;
+    return {q, v_matrix * v};
+}
+
+Vector6d logSe3(const Rigid3d& pose) {
+    const Eigen::Vector3d w = rotationVector(pose.rotation);
+    const double theta = w.norm();
+    const Eigen::Matrix3d w_hat = hat(w);
+    // V^-1 = I - 1/2 w^ + c w^2 with c = (1 - theta sin(theta) / (2 (1 - cos theta))) / theta^2.
+    double c = 0.0;
+    if (theta < 1e-6) {
+        c = 1.0 / 12.0 + theta * theta / 720.0;  // Taylor series of the 0/0 above
+    } else {
+        c = (1.0 - theta * std::sin(theta) / (2.0 * (1.0 - std::cos(theta)))) / (theta * theta);
+    }
+    const Eigen::Matrix3d v_inverse = Eigen::Matrix3d::Identity() - 0.5 * w_hat + c * w_hat * w_hat;
+    Vector6d xi;
+    xi.head<3>() = w;
+    xi.tail<3>() = v_inverse * pose.translation;
+    return xi;
+}
+
+Rigid3d interpolateSe3(const Rigid3d& a, const Rigid3d& b, double t) {
+    return a * expSe3(t * logSe3(a.inverse() * b));
+}
+
 }  // namespace commonlight

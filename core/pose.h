@@ -47,4 +47,14 @@ double translationError(const Rigid3d& a, const Rigid3d& b);
 // Geodesic interpolation: slerp for rotation, linear for translation; t in [0, 1].
 Rigid3d interpolate(const Rigid3d& a, const Rigid3d& b, double t);
 
+// se(3) tangent vectors: (omega, v), rotation vector (radians) first, then translation part.
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+// Exponential and logarithm maps of SE(3). Exact near the identity (Taylor terms below 1e-6 rad)
+// and at rotations of pi (the rotation vector is taken from the quaternion with w >= 0).
+Rigid3d expSe3(const Vector6d& xi);
+Vector6d logSe3(const Rigid3d& pose);
+// Interpolation on SE(3) along the screw motion from a to b: a * exp(t * log(a^-1 * b)).
+// t outside [0, 1] extrapolates along the same screw.
+Rigid3d interpolateSe3(const Rigid3d& a, const Rigid3d& b, double t);
+
 }  // namespace commonlight

@@ -1,5 +1,6 @@
 #include "core/pose.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <gtest/gtest.h>
@@ -71,5 +72,33 @@ TEST(Pose, InterpolateEndpointsAndMidpoint) {
     EXPECT_LT(rotationErrorDeg(interpolate(a, b, 1.0), b), 1e-9);
 }
 
+TEST(Pose, Se3ExpLogRoundTripIncludingHardCases) {
+    const Rigid3d cases[] = {
+        Rigid3d::identity(),
+        Rigid3d::fromRpyDeg({1, -2, 3}, {10, 20, 30}),
+        Rigid3d::fromRpyDeg({0.5, 0, 0}, {0, 0, 1e-9}),   // tiny rotation: Taylor branch
+        Rigid3d::fromRpyDeg({0.5, 0.1, 0}, {0, 0, 180}),  // rotation of pi
+        Rigid3d::fromRpyDeg({1000.0, -2000.0, 5.0}, {-170, 80, 45}),
+    };
+    for (const Rigid3d& pose : cases) {
+        const Rigid3d back = expSe3(logSe3(pose));
+        EXPECT_LT(rotationErrorDeg(back, pose), 1e-9);
+        EXPECT_LT(translationError(back, pose), 1e-9 * std::max(1.0, pose.translation.norm()));
+        EXPECT_TRUE(logSe3(pose).allFinite());
+    }
+}
+
+TEST(Pose, Se3InterpolationFollowsTheScrew) {
+    // A pure rotation about an axis through (1, 0, 0): the midpoint stays on the circle of radius 1.
+    const Rigid3d about_x1 = Rigid3d(Eigen::Quaterniond::Identity(), {1, 0, 0}) *
+                             Rigid3d::fromRpyDeg({0, 0, 0}, {0, 0, 90}) *
+                             Rigid3d(Eigen::Quaterniond::Identity(), {-1, 0, 0});
+    const Rigid3d mid = interpolateSe3(Rigid3d::identity(), about_x1, 0.5);
+    EXPECT_NEAR(rotationErrorDeg(mid, Rigid3d::identity()), 45.0, 1e-9);
+    // The origin moves on the circle around (1, 0, 0): it stays at distance 1 from it.
+    EXPECT_NEAR((mid.translation - Eigen::Vector3d(1, 0, 0)).norm(), 1.0, 1e-12);
+    EXPECT_LT(translationError(interpolateSe3(Rigid3d::identity(), about_x1, 1.0), about_x1), 1e-12);
+    EXPECT_LT(translationError(interpolateSe3(about_x1, about_x1, 0.3), about_x1), 1e-12);
+}
 }  // namespace
 }  // namespace commonlight
