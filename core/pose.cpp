@@ -80,6 +80,26 @@ Rigid3d interpolate(const Rigid3d& a, const Rigid3d& b, double t) {
     return {a.rotation.slerp(t, b.rotation), (1.0 - t) * a.translation + t * b.translation};
 }
 
+Result<Rigid3d> worldFromCamLookingAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target,
+                                      const Eigen::Vector3d& up) {
+    const Eigen::Vector3d forward = target - eye;
+    if (!forward.allFinite() || forward.norm() < 1e-12) {
+        return fail(ErrorCode::kBadInput, "look-at: eye and target coincide");
+    }
+    const Eigen::Vector3d z = forward.normalized();
+    const Eigen::Vector3d x_unnormalised = z.cross(up);
+    // Hard case: looking straight along `up` leaves the roll undefined.
+    if (x_unnormalised.norm() < 1e-9 * std::max(1.0, up.norm())) {
+        return fail(ErrorCode::kBadInput, "look-at: the view direction is parallel to the up vector");
+    }
+    const Eigen::Vector3d x = x_unnormalised.normalized();
+    Eigen::Matrix3d r;
+    r.col(0) = x;
+    r.col(1) = z.cross(x);  // image down
+    r.col(2) = z;
+    return Rigid3d(Eigen::Quaterniond(r), eye);
+}
+
 namespace {
 
 Eigen::Matrix3d hat(const Eigen::Vector3d& w) {

@@ -47,6 +47,12 @@ double translationError(const Rigid3d& a, const Rigid3d& b);
 // Geodesic interpolation: slerp for rotation, linear for translation; t in [0, 1].
 Rigid3d interpolate(const Rigid3d& a, const Rigid3d& b, double t);
 
+// The pose of a camera (OpenCV axes: x right, y down, z forward) at `eye` looking at `target`,
+// with image "up" towards `up` (world z by default). Fails when eye == target or the view
+// direction is parallel to `up` (the roll is undefined there).
+Result<Rigid3d> worldFromCamLookingAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target,
+                                      const Eigen::Vector3d& up = Eigen::Vector3d::UnitZ());
+
 // se(3) tangent vectors: (omega, v), rotation vector (radians) first, then translation part.
 using Vector6d = Eigen::Matrix<double, 6, 1>;
 // Exponential and logarithm maps of SE(3). Exact near the identity (Taylor terms below 1e-6 rad)

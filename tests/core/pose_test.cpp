@@ -72,6 +72,17 @@ TEST(Pose, InterpolateEndpointsAndMidpoint) {
     EXPECT_LT(rotationErrorDeg(interpolate(a, b, 1.0), b), 1e-9);
 }
 
+TEST(Pose, LookAtUsesOpenCvCameraAxes) {
+    auto pose = worldFromCamLookingAt({0, -2, 1}, {0, 0, 1});
+    ASSERT_TRUE(pose);
+    // Looking along +y: camera x is world +x, camera y (down) is world -z.
+    EXPECT_LT((pose->rotation * Eigen::Vector3d::UnitX() - Eigen::Vector3d::UnitX()).norm(), 1e-12);
+    EXPECT_LT((pose->rotation * Eigen::Vector3d::UnitY() + Eigen::Vector3d::UnitZ()).norm(), 1e-12);
+    EXPECT_LT((pose->inverse() * Eigen::Vector3d(0, 0, 1) - Eigen::Vector3d(0, 0, 2)).norm(), 1e-12);
+    EXPECT_FALSE(worldFromCamLookingAt({0, 0, 1}, {0, 0, 1}));
+    EXPECT_FALSE(worldFromCamLookingAt({0, 0, 2}, {0, 0, 1}));  // straight down: roll undefined
+}
+
 TEST(Pose, Se3ExpLogRoundTripIncludingHardCases) {
     const Rigid3d cases[] = {
         Rigid3d::identity(),
