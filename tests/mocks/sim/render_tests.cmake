@@ -1,0 +1,4 @@
+# Tests of the simulated camera's renderer (mocks/sim/{embree_scene,path_tracer,lights,materials,sampling,
+# tag_texture,camera_rays,render}). Closed-form validations; times in docs/sim-rendering.md.
+commonlight_test(sim render_irradiance SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/render_irradiance_test.cpp
+                 DEPS commonlight::sim TIMEOUT 600)
