@@ -25,6 +25,7 @@ using Runner = std::function<int()>;
 void addCamerasCommand(CLI::App& app, Runner& runner);
 void addRecordCommand(CLI::App& app, Runner& runner);
 void addPlayCommand(CLI::App& app, Runner& runner);
+void addSimCommand(CLI::App& app, Runner& runner);
 
 // Prints "commonlight: error: <message>" and returns the exit code for the error.
 int reportError(const Error& error);

@@ -23,6 +23,7 @@ int main(int argc, char** argv) {
     apps::addCamerasCommand(app, runner);
     apps::addRecordCommand(app, runner);
     apps::addPlayCommand(app, runner);
+    apps::addSimCommand(app, runner);
 
     try {
         app.parse(argc, argv);

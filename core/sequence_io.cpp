@@ -222,18 +222,21 @@ Result<std::vector<PoseRecord>> readPosesCsv(const fs::path& file) {
     return poses;
 }
 
+std::string poseCsvRow(const PoseRecord& pose) {
+    const auto& t = pose.world_from_cam.translation;
+    const auto& q = pose.world_from_cam.rotation;
+    std::string row = std::to_string(pose.timestamp_ns);
+    for (double v : {t.x(), t.y(), t.z(), q.w(), q.x(), q.y(), q.z()}) {
+        row += ',';
+        row += formatDouble(v);
+    }
+    row += '\n';
+    return row;
+}
+
 Result<void> writePosesCsv(const fs::path& file, const std::vector<PoseRecord>& poses) {
     std::string text = kPosesCsvHeader;
-    for (const auto& p : poses) {
-        const auto& t = p.world_from_cam.translation;
-        const auto& q = p.world_from_cam.rotation;
-        text += std::to_string(p.timestamp_ns);
-        for (double v : {t.x(), t.y(), t.z(), q.w(), q.x(), q.y(), q.z()}) {
-            text += ',';
-            text += formatDouble(v);
-        }
-        text += '\n';
-    }
+    for (const auto& p : poses) text += poseCsvRow(p);
     return writeTextFileAtomic(file, text);
 }
 

@@ -83,6 +83,8 @@ Result<std::vector<SequenceFrame>> readDataCsv(const std::filesystem::path& file
 Result<std::vector<FrameMetaRecord>> readMetaCsv(const std::filesystem::path& file);
 Result<std::vector<PoseRecord>> readPosesCsv(const std::filesystem::path& file);
 Result<void> writePosesCsv(const std::filesystem::path& file, const std::vector<PoseRecord>& poses);
+// One row of cam_poses.csv (with its newline), as writePosesCsv writes it: exact round trip.
+std::string poseCsvRow(const PoseRecord& pose);
 
 // The fixed headers, written by SequenceWriter and expected by the readers.
 inline constexpr const char* kDataCsvHeader = "#timestamp [ns],filename\n";
