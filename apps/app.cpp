@@ -8,6 +8,7 @@
 
 #include "core/log.h"
 #include "mocks/register.h"
+#include "mocks/sim/sim_camera.h"
 
 namespace commonlight::apps {
 
@@ -19,6 +20,7 @@ int reportError(const Error& error) {
 hal::CameraRegistry makeCameraRegistry() {
     hal::CameraRegistry registry;
     mocks::registerMockBackends(registry);
+    mocks::sim::registerSimBackend(registry);
     return registry;
 }
 
