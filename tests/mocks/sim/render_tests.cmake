@@ -2,3 +2,7 @@
 # tag_texture,camera_rays,render}). Closed-form validations; times in docs/sim-rendering.md.
 commonlight_test(sim render_irradiance SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/render_irradiance_test.cpp
                  DEPS commonlight::sim TIMEOUT 600)
+commonlight_test(sim render_furnace SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/render_furnace_test.cpp
+                 DEPS commonlight::sim TIMEOUT 600)
+commonlight_test(sim render_projection SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/render_projection_test.cpp
+                 DEPS commonlight::sim TIMEOUT 600)
