@@ -152,28 +152,39 @@ TEST(RenderDeterminism, MotionBlurAndRollingShutterAreDeterministicToo) {
     EXPECT_FALSE(samePixels(a.radiance.view(), renderWithThreads(still, 2).radiance.view()));
 }
 
-TEST(RenderFrame, LitFloorHasRadianceRhoETimesCosOverPi) {
-    // A floor of albedo rho under a directional light of irradiance E at angle theta, direct
-    // light only: every floor pixel is rho E cos(theta) / pi, whatever the view. Also reports the
-    // render speed at 640 x 480 (samples per second per core).
-    constexpr double kRho = 0.6;
-    constexpr double kIrradiance = 10.0;
-    const Vector3d direction = Vector3d(0.2, 0.3, -1.0).normalized();
+constexpr double kFloorRho = 0.6;
+constexpr double kSunIrradiance = 10.0;
+const Vector3d kSunDirection = Vector3d(0.2, 0.3, -1.0).normalized();
+
+// A large floor under a directional light.
+Scene floorScene() {
     Scene scene;
     scene.real_objects.push_back(
-        {"floor", PlaneShape{{20, 20}}, Rigid3d::identity(), RgbOrEstimate::constant(Vector3d::Constant(kRho))});
-    scene.lights.push_back(light("sun", DirectionalLightShape{direction}, Rigid3d::identity(), kIrradiance));
-    auto sim = SimScene::build(scene);
-    ASSERT_TRUE(sim) << sim.error().message;
+        {"floor", PlaneShape{{20, 20}}, Rigid3d::identity(), RgbOrEstimate::constant(Vector3d::Constant(kFloorRho))});
+    scene.lights.push_back(light("sun", DirectionalLightShape{kSunDirection}, Rigid3d::identity(), kSunIrradiance));
+    return scene;
+}
+
+// The floor at 640 x 480, direct light only.
+RenderRequest floorRequest(const SimScene& scene) {
     RenderRequest r;
-    r.scene = &*sim;
+    r.scene = &scene;
     r.camera = smallCamera(640, 480);
     r.world_from_cam = lookAt({0, -2, 1.5}, {0, 0, 0});
     r.spp = 4;
     r.max_depth = 1;
-    auto out = render(r);
+    return r;
+}
+
+TEST(RenderFrame, LitFloorHasRadianceRhoETimesCosOverPi) {
+    // A floor of albedo rho under a directional light of irradiance E at angle theta, direct
+    // light only: every floor pixel is rho E cos(theta) / pi, whatever the view. Also reports the
+    // render speed at 640 x 480 (samples per second per core).
+    auto sim = SimScene::build(floorScene());
+    ASSERT_TRUE(sim) << sim.error().message;
+    auto out = render(floorRequest(*sim));
     ASSERT_TRUE(out) << out.error().message;
-    const double expected = kRho * kIrradiance * -direction.z() / std::numbers::pi;
+    const double expected = kFloorRho * kSunIrradiance * -kSunDirection.z() / std::numbers::pi;
     int floor_pixels = 0;
     double worst = 0.0;
     for (int v = 0; v < 480; ++v) {
@@ -211,6 +222,12 @@ TEST(RenderFrame, SpeedOnOneCore) {
     EXPECT_EQ(out->nonfinite_samples, 0);
     std::printf("  room, 640x480, %d spp, max depth %d: %.0f samples/s on one core (%.2f s)\n", r.spp, r.max_depth,
                 out->samples / out->seconds, out->seconds);
+    auto floor = SimScene::build(floorScene());
+    ASSERT_TRUE(floor) << floor.error().message;
+    auto lit = render(floorRequest(*floor));
+    ASSERT_TRUE(lit) << lit.error().message;
+    std::printf("  floor, 640x480, %d spp, direct light only: %.0f samples/s on one core (%.2f s)\n",
+                floorRequest(*floor).spp, lit->samples / lit->seconds, lit->seconds);
 }
 
 }  // namespace
