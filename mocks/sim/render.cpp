@@ -4,8 +4,10 @@
 #include <tbb/combinable.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 namespace commonlight::mocks::sim {
@@ -101,7 +103,9 @@ Result<RenderOutput> render(const RenderRequest& request) {
                         if (primary.is_virtual) ++virtual_hits;
                     }
                     const Eigen::Vector3d mean = sum / spp;
-                    for (int c = 0; c < 3; ++c) row[3 * u + c] = static_cast<float>(mean[c]);
+                    // Hard case: a finite double beyond float's range would become infinity.
+                    constexpr double kMaxFloat = std::numeric_limits<float>::max();
+                    for (int c = 0; c < 3; ++c) row[3 * u + c] = static_cast<float>(std::min(mean[c], kMaxFloat));
                     out.virtual_coverage[index] = static_cast<float>(virtual_hits) / static_cast<float>(spp);
                     if (const std::optional<Ray> centre = rays.centreRay(u, v)) {
                         if (const auto hit = request.scene->intersect(centre->origin, centre->dir)) {

@@ -214,6 +214,28 @@ TEST(RenderHardCases, DegenerateMeshTrianglesAreHarmless) {
     EXPECT_TRUE(estimateIrradiance(*sim, {0.25, 0.25, 0.5}, -Vector3d::UnitZ(), 16, 1).allFinite());
 }
 
+TEST(RenderHardCases, RaysFromInsideASphereHitItsFarSide) {
+    // A camera (or a bounce) inside an analytic sphere: the hit is the exit point, refined in
+    // double precision, with the outward normal (the ray arrives on its back side).
+    Scene scene;
+    scene.real_objects.push_back({"dome", SphereShape{2.0}, Rigid3d({1, 0, 0, 0}, {0.1, 0.2, 0.3}),
+                                  RgbOrEstimate::constant(Vector3d::Constant(0.5))});
+    auto sim = SimScene::build(scene);
+    ASSERT_TRUE(sim) << sim.error().message;
+    for (const Vector3d& dir : {Vector3d(1, 0, 0), Vector3d(0.3, -0.4, 0.866).normalized(), Vector3d(0, 0, -1)}) {
+        const auto hit = sim->intersect({0.1, 0.2, 0.3}, dir);
+        ASSERT_TRUE(hit);
+        EXPECT_NEAR(hit->t, 2.0, 1e-12);
+        EXPECT_FALSE(hit->front);
+        EXPECT_NEAR(hit->n.dot(dir), 1.0, 1e-12);
+    }
+    // From outside, the near side.
+    const auto outside = sim->intersect({0.1, 0.2, 5.3}, -Vector3d::UnitZ());
+    ASSERT_TRUE(outside);
+    EXPECT_NEAR(outside->t, 3.0, 1e-12);
+    EXPECT_TRUE(outside->front);
+}
+
 TEST(RenderHardCases, BadScenesFailWithTheirNames) {
     Scene estimated;
     estimated.lights.push_back(
