@@ -31,8 +31,16 @@ struct SimCommandOptions {
     mocks::sim::SimulationOptions sim;
 };
 
+// Sensor parameters, later sources overriding earlier ones: the scene file's `sensor:` map, the
+// --sensor-file, the --sensor KEY=VALUE settings, --exposure-us and --gain.
 Result<mocks::sim::SensorParams> sensorParams(const SimCommandOptions& options) {
     mocks::sim::SensorParams params;
+    {
+        CL_TRY(const YAML::Node scene_root, yaml::loadFile(options.scene));
+        if (yaml::has(scene_root, "sensor")) {
+            CL_TRY(params, mocks::sim::parseSensorParams(options.scene, scene_root["sensor"]));
+        }
+    }
     if (!options.sensor_file.empty()) {
         CL_TRY(const YAML::Node root, yaml::loadFile(options.sensor_file));
         CL_TRY_VOID(yaml::checkKeys(options.sensor_file, root, "", {"sensor"}));

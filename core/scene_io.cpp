@@ -34,7 +34,9 @@ public:
 
     Result<Scene> parse(const YAML::Node& root) {
         if (!root.IsDefined() || root.IsNull()) return fail(ErrorCode::kBadInput, file_ + ": the scene file is empty");
-        CL_TRY_VOID(yaml::checkKeys(file_, root, "", {"camera", "tags", "real", "lights", "virtual", "lighting"}));
+        // `sensor` belongs to the simulated camera (docs/sim-sensor.md): `commonlight sim` reads it
+        // from the same file; the scene itself does not use it.
+        CL_TRY_VOID(yaml::checkKeys(file_, root, "", {"camera", "tags", "real", "lights", "virtual", "lighting", "sensor"}));
         Scene scene;
         // Step 1: the camera.
         if (present(root, "camera")) CL_TRY_VOID(parseCamera(root, scene));
