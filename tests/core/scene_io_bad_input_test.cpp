@@ -122,7 +122,7 @@ TEST(SceneIoBadInput, UnknownKeyInTransform) {
 
 TEST(SceneIoBadInput, UnknownTopLevelKey) {
     expectSceneError("virtuals:\n  - {name: ball, sphere: {radius: 0.1}}\n", "virtuals",
-                     "unknown key (expected camera, tags, real, lights, virtual or lighting)", "virtuals:");
+                     "unknown key (expected camera, tags, real, lights, virtual, lighting or sensor)", "virtuals:");
 }
 
 TEST(SceneIoBadInput, DuplicateKey) {

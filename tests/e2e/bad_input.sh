@@ -21,7 +21,7 @@ expect_text "data.csv:6: decreasing timestamp" "$TMP/err"
 fresh
 printf '1800000000000000000' >> "$TMP/seq/cam0/data.csv"
 expect_exit 3 "$COMMONLIGHT" play "$TMP/seq" --sync
-expect_text "data.csv:62: expected 2 columns, found 1 (the file looks truncated)" "$TMP/err"
+expect_text "data.csv:$((SAMPLE_FRAMES + 2)): expected 2 columns, found 1 (the file looks truncated)" "$TMP/err"
 
 # Malformed sensor.yaml.
 fresh

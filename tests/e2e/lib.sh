@@ -45,3 +45,6 @@ frame_file() {
 }
 
 rows() { grep -vc '^#' "$1"; }
+
+# Frames in the bundled sample.
+SAMPLE_FRAMES=$(rows "$SAMPLE/cam0/data.csv")

@@ -3,15 +3,15 @@
 source "$(dirname "$0")/lib.sh"
 
 expect_exit 0 "$COMMONLIGHT" record --camera "replay:$SAMPLE?rate=max" --out "$TMP/rec" --sync
-expect_text "recorded 60 frames" "$TMP/out"
+expect_text "recorded $SAMPLE_FRAMES frames" "$TMP/out"
 diff <(grep -v '^#' "$SAMPLE/cam0/data.csv") <(grep -v '^#' "$TMP/rec/cam0/data.csv") || fail "data.csv differs"
-for i in $(seq 0 59); do
+for i in $(seq 0 $((SAMPLE_FRAMES - 1))); do
     cmp "$(frame_file "$SAMPLE" "$i")" "$(frame_file "$TMP/rec" "$i")" || fail "frame $i differs"
 done
 # Exposure, gain and sequence numbers survive too.
 diff <(grep -v '^#' "$SAMPLE/cam0/meta.csv") <(grep -v '^#' "$TMP/rec/cam0/meta.csv") || fail "meta.csv differs"
 expect_exit 0 "$COMMONLIGHT" play "$TMP/rec" --sync
-expect_text "played 60 of 60 frames" "$TMP/out"
+expect_text "played $SAMPLE_FRAMES of $SAMPLE_FRAMES frames" "$TMP/out"
 
 # --frames stops early; an existing sequence is never overwritten.
 expect_exit 0 "$COMMONLIGHT" record --camera "replay:$SAMPLE?rate=max" --out "$TMP/few" --sync --frames 7
