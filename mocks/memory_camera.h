@@ -7,17 +7,17 @@
 #pragma once
 
 #include <cstdint>
-#include <thread>
 #include <vector>
 
 #include "core/clock.h"
 #include "core/image.h"
 #include "hal/camera.h"
 #include "mocks/pacer.h"
+#include "mocks/paced_camera.h"
 
 namespace commonlight::mocks {
 
-class MemoryCamera final : public hal::Camera {
+class MemoryCamera final : public PacedCamera {
 public:
     // `frame` is the image every frame carries (owned); `fps` its nominal rate (timestamps are
     // n / fps); `clock` paces and stamps arrival_ns (borrowed, must outlive the camera).
@@ -27,16 +27,10 @@ public:
 private:
     std::vector<hal::StreamFormat> doFormats() const override;
     Result<hal::StreamFormat> doConfigure(const hal::StreamConfig& config) override;
-    Result<void> doStart() override;
-    void doStop() noexcept override;
-    Result<void> doTrigger() override { return pacer_.trigger(id()); }
-    void run(std::stop_token stop);  // the camera thread
+    void run(std::stop_token stop) override;  // the camera thread
 
     Image frame_;
     double fps_;
-    Clock& clock_;
-    Pacer pacer_;
-    std::jthread thread_;
 };
 
 }  // namespace commonlight::mocks

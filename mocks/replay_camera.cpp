@@ -76,29 +76,16 @@ Result<std::unique_ptr<ReplayCamera>> ReplayCamera::open(const hal::CameraUri& u
 
 ReplayCamera::ReplayCamera(std::string id, Sequence sequence, hal::StreamFormat format, PlaybackOptions options,
                            Clock& clock)
-    : Camera(std::move(id)),
+    : PacedCamera(std::move(id), clock, options),
       sequence_(std::move(sequence)),
       paths_(framePaths(sequence_)),
       sequence_numbers_(sequenceNumbers(sequence_)),
-      format_(std::move(format)),
-      clock_(clock),
-      pacer_(clock, options) {}
+      format_(std::move(format)) {}
 
 ReplayCamera::~ReplayCamera() { stop(); }
 
 Result<hal::StreamFormat> ReplayCamera::doConfigure(const hal::StreamConfig& config) {
     return hal::negotiate({format_}, config, id());
-}
-
-Result<void> ReplayCamera::doStart() {
-    pacer_.reset();
-    thread_ = std::jthread([this](std::stop_token stop) { run(std::move(stop)); });
-    return {};
-}
-
-void ReplayCamera::doStop() noexcept {
-    thread_.request_stop();
-    if (thread_.joinable()) thread_.join();
 }
 
 Result<void> ReplayCamera::doSetControl(hal::Control control, double) {
@@ -122,10 +109,10 @@ void ReplayCamera::run(std::stop_token stop) {
     for (;;) {
         for (std::size_t i = 0; i < frames.size(); ++i) {
             const std::int64_t timestamp_ns = frames[i].timestamp_ns + time_offset_ns;
-            if (!pacer_.waitUntilDue(timestamp_ns, stop)) return;
+            if (!pacer().waitUntilDue(timestamp_ns, stop)) return;
             emitOne(i, timestamp_ns, sequence_offset);
         }
-        if (!pacer_.options().loop) break;
+        if (!pacer().options().loop) break;
         time_offset_ns += time_period_ns;
         sequence_offset += sequence_period;
     }
@@ -152,7 +139,7 @@ void ReplayCamera::emitOne(std::size_t index, std::int64_t timestamp_ns, std::ui
         corrupt_frames_.fetch_add(1, std::memory_order_relaxed);
         log::warning(id() + ": frame " + std::to_string(index) + " delivered as corrupt: " + read.error().message);
     }
-    meta.arrival_ns = clock_.nowNs();
+    meta.arrival_ns = clock().nowNs();
     emitFrame(std::move(frame));
 }
 

@@ -27,10 +27,11 @@
 #include "hal/camera.h"
 #include "hal/camera_uri.h"
 #include "mocks/pacer.h"
+#include "mocks/paced_camera.h"
 
 namespace commonlight::mocks {
 
-class ReplayCamera final : public hal::Camera {
+class ReplayCamera final : public PacedCamera {
 public:
     // Reads the sequence at `dir` (SEQ, SEQ/cam0 or a EuRoC mav0 folder). Errors name the file:
     // kNotFound for a missing folder, kBadInput for a malformed sequence. `clock` paces playback
@@ -53,24 +54,18 @@ private:
 
     std::vector<hal::StreamFormat> doFormats() const override { return {format_}; }
     Result<hal::StreamFormat> doConfigure(const hal::StreamConfig& config) override;
-    Result<void> doStart() override;
-    void doStop() noexcept override;
     Result<void> doSetControl(hal::Control control, double value) override;
-    Result<void> doTrigger() override { return pacer_.trigger(id()); }
 
     // The camera thread: paces and emits every frame, pass after pass when looping.
-    void run(std::stop_token stop);
+    void run(std::stop_token stop) override;
     void emitOne(std::size_t index, std::int64_t timestamp_ns, std::uint64_t sequence_offset);
 
     const Sequence sequence_;
     const std::vector<std::filesystem::path> paths_;     // one per frame, built once
     const std::vector<std::uint64_t> sequence_numbers_;  // meta.csv's, or the frame index
     const hal::StreamFormat format_;
-    Clock& clock_;
-    Pacer pacer_;
     FrameFileReader reader_;  // camera thread only; keeps its buffers between frames
     std::atomic<std::uint64_t> corrupt_frames_{0};
-    std::jthread thread_;  // last: joined before the members above are destroyed
 };
 
 }  // namespace commonlight::mocks

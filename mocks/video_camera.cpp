@@ -64,15 +64,13 @@ Result<std::unique_ptr<VideoCamera>> VideoCamera::open(const hal::CameraUri& uri
 
 VideoCamera::VideoCamera(fs::path file, int width, int height, double fps, std::int64_t frames, PlaybackOptions options,
                          Clock& clock)
-    : Camera("video:" + file.string()),
+    : PacedCamera("video:" + file.string(), clock, options),
       file_(std::move(file)),
       width_(width),
       height_(height),
       fps_(fps),
       announced_frames_(frames),
-      interval_ns_(nominalIntervalNs(fps, 0, 0, 1)),
-      clock_(clock),
-      pacer_(clock, options) {}
+      interval_ns_(nominalIntervalNs(fps, 0, 0, 1)) {}
 
 VideoCamera::~VideoCamera() { stop(); }
 
@@ -87,20 +85,14 @@ Result<hal::StreamFormat> VideoCamera::doConfigure(const hal::StreamConfig& conf
     return hal::negotiate(doFormats(), config, id());
 }
 
-Result<void> VideoCamera::doStart() {
+Result<void> VideoCamera::beforeStart() {
     // Every start() plays from the first frame.
     CL_TRY_VOID(openCapture(capture_, file_));
-    pacer_.reset();
     next_sequence_ = 0;
-    thread_ = std::jthread([this](std::stop_token stop) { run(std::move(stop)); });
     return {};
 }
 
-void VideoCamera::doStop() noexcept {
-    thread_.request_stop();
-    if (thread_.joinable()) thread_.join();
-    capture_.release();
-}
+void VideoCamera::afterStop() noexcept { capture_.release(); }
 
 void VideoCamera::run(std::stop_token stop) {
     std::int64_t time_offset_ns = 0;
@@ -121,7 +113,7 @@ void VideoCamera::run(std::stop_token stop) {
                              " could not be decoded (the file announces " + std::to_string(announced_frames_) +
                              " frames); the video ends early");
             }
-            if (!pacer_.options().loop || in_pass == 0) break;
+            if (!pacer().options().loop || in_pass == 0) break;
             // Step 2: loop from the start, timestamps offset past this pass.
             time_offset_ns += loopPeriodNs(first_ns, last_ns, interval_ns_);
             in_pass = 0;
@@ -141,7 +133,7 @@ void VideoCamera::run(std::stop_token stop) {
         last_ns = t_ns;
         ++in_pass;
         // Step 4: wait until it is due, then hand it over.
-        if (!pacer_.waitUntilDue(t_ns + time_offset_ns, stop)) return;
+        if (!pacer().waitUntilDue(t_ns + time_offset_ns, stop)) return;
         emitOne(t_ns + time_offset_ns);
     }
     if (!stop.stop_requested()) emitEvent(hal::CameraEvent{hal::CameraEvent::Type::kEndOfStream, {}});
@@ -172,7 +164,7 @@ void VideoCamera::emitOne(std::int64_t timestamp_ns) {
             bgr_.copyTo(out);
         }
     }
-    meta.arrival_ns = clock_.nowNs();
+    meta.arrival_ns = clock().nowNs();
     emitFrame(std::move(frame));
 }
 

@@ -27,10 +27,11 @@
 #include "hal/camera.h"
 #include "hal/camera_uri.h"
 #include "mocks/pacer.h"
+#include "mocks/paced_camera.h"
 
 namespace commonlight::mocks {
 
-class VideoCamera final : public hal::Camera {
+class VideoCamera final : public PacedCamera {
 public:
     // Opens `file` and decodes its first frame to learn the format. `clock` paces playback and
     // stamps arrival_ns; it is borrowed and must outlive the camera.
@@ -50,12 +51,11 @@ private:
 
     std::vector<hal::StreamFormat> doFormats() const override;
     Result<hal::StreamFormat> doConfigure(const hal::StreamConfig& config) override;
-    Result<void> doStart() override;
-    void doStop() noexcept override;
-    Result<void> doTrigger() override { return pacer_.trigger(id()); }
+    Result<void> beforeStart() override;
+    void afterStop() noexcept override;
 
     // The camera thread: decodes, paces and emits every frame, pass after pass when looping.
-    void run(std::stop_token stop);
+    void run(std::stop_token stop) override;
     void emitOne(std::int64_t timestamp_ns);
 
     const std::filesystem::path file_;
@@ -64,13 +64,10 @@ private:
     const double fps_;  // 0 when the container does not say
     const std::int64_t announced_frames_;
     const std::int64_t interval_ns_;  // nominal frame interval
-    Clock& clock_;
-    Pacer pacer_;
     // Camera thread only while streaming (control thread before start).
     cv::VideoCapture capture_;
     cv::Mat bgr_;  // decoder output, reused between frames
     std::uint64_t next_sequence_ = 0;
-    std::jthread thread_;  // last: joined before the members above are destroyed
 };
 
 }  // namespace commonlight::mocks

@@ -44,16 +44,14 @@ Result<std::unique_ptr<SimCamera>> SimCamera::open(const hal::CameraUri& uri, Cl
 
 SimCamera::SimCamera(std::string id, SimScene scene, CameraModel camera, Trajectory trajectory, SensorModel sensor,
                      const SimCameraOptions& options, Clock& clock)
-    : hal::Camera(std::move(id)),
+    : PacedCamera(std::move(id), clock, options.playback),
       scene_(std::move(scene)),
       camera_(camera),
       trajectory_(std::move(trajectory)),
       sensor_(std::make_shared<const SensorModel>(std::move(sensor))),
-      options_(options),
-      clock_(clock),
-      pacer_(clock, options.playback) {}
+      options_(options) {}
 
-SimCamera::~SimCamera() { doStop(); }
+SimCamera::~SimCamera() { stop(); }
 
 std::vector<hal::StreamFormat> SimCamera::doFormats() const {
     return {{PixelFormat::kRgb8, camera_.width, camera_.height, {trajectory_.rateHz()}, 0.0}};
@@ -61,19 +59,6 @@ std::vector<hal::StreamFormat> SimCamera::doFormats() const {
 
 Result<hal::StreamFormat> SimCamera::doConfigure(const hal::StreamConfig& config) {
     return hal::negotiate(doFormats(), config, id());
-}
-
-Result<void> SimCamera::doStart() {
-    pacer_.reset();
-    thread_ = std::jthread([this](std::stop_token stop) { run(stop); });
-    return {};
-}
-
-void SimCamera::doStop() noexcept {
-    if (thread_.joinable()) {
-        thread_.request_stop();
-        thread_.join();
-    }
 }
 
 std::vector<hal::ControlInfo> SimCamera::doControls() const {
@@ -126,7 +111,7 @@ void SimCamera::run(std::stop_token stop) {
         const double pass = std::floor(static_cast<double>(n) / frames);
         const double t = trajectory_.startTime() + index / trajectory_.rateHz();
         const auto timestamp_ns = std::llround((t - trajectory_.startTime() + pass * period_s) * 1e9);
-        if (!pacer_.waitUntilDue(timestamp_ns, stop)) return;
+        if (!pacer().waitUntilDue(timestamp_ns, stop)) return;
 
         RenderRequest request;
         request.scene = &scene_;
@@ -154,7 +139,7 @@ void SimCamera::run(std::stop_token stop) {
         } else {
             sensor->encode8(raw, slot->image);
         }
-        slot->meta.arrival_ns = clock_.nowNs();
+        slot->meta.arrival_ns = clock().nowNs();
         emitFrame(std::move(slot));
     }
 }

@@ -11,7 +11,6 @@
 #include <memory>
 #include <mutex>
 #include <optional>
-#include <thread>
 
 #include "core/clock.h"
 #include "core/scene.h"
@@ -19,6 +18,7 @@
 #include "hal/camera_uri.h"
 #include "hal/registry.h"
 #include "mocks/pacer.h"
+#include "mocks/paced_camera.h"
 #include "mocks/sim/embree_scene.h"
 #include "mocks/sim/sensor.h"
 #include "mocks/sim/trajectory.h"
@@ -33,7 +33,7 @@ struct SimCameraOptions {
     SensorParams sensor;
 };
 
-class SimCamera final : public hal::Camera {
+class SimCamera final : public PacedCamera {
 public:
     // The scene must have a camera; its lights must be known. `clock` stamps arrival_ns and paces
     // (borrowed, outlives the camera).
@@ -47,15 +47,12 @@ private:
               const SimCameraOptions& options, Clock& clock);
     std::vector<hal::StreamFormat> doFormats() const override;
     Result<hal::StreamFormat> doConfigure(const hal::StreamConfig& config) override;
-    Result<void> doStart() override;
-    void doStop() noexcept override;
-    Result<void> doTrigger() override { return pacer_.trigger(id()); }
     std::vector<hal::ControlInfo> doControls() const override;
     // Exposure and gain change the sensor model for the next frame (any thread but the camera's).
     Result<void> doSetControl(hal::Control control, double value) override;
     Result<double> doGetControl(hal::Control control) const override;
     std::shared_ptr<const SensorModel> currentSensor() const;
-    void run(std::stop_token stop);  // the camera thread
+    void run(std::stop_token stop) override;  // the camera thread
 
     SimScene scene_;
     CameraModel camera_;
@@ -63,9 +60,6 @@ private:
     mutable std::mutex sensor_mutex_;                 // guards sensor_ and options_.sensor
     std::shared_ptr<const SensorModel> sensor_;      // replaced (never modified) when a control changes
     SimCameraOptions options_;
-    Clock& clock_;
-    Pacer pacer_;
-    std::jthread thread_;
 };
 
 // The URI options sim: accepts besides the common ones.
