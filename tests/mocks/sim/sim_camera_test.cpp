@@ -1,6 +1,7 @@
 #include "mocks/sim/sim_camera.h"
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include "capture/capture_session.h"
 #include "core/scene_io.h"
@@ -39,6 +40,11 @@ lights:
 }
 
 TEST(SimCamera, DeliversEveryFrameOfTheTrajectoryThenEnds) {
+    // This test is about the camera's own thread and the capture session (it runs under TSan).
+    // The renderer's TBB parallelism is kept to the calling thread: libtbb is not instrumented,
+    // so TSan would report the scheduler's internals; render_determinism tests the parallel
+    // renderer.
+    tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
     TempDir dir;
     writeScene(dir.path());
     hal::CameraRegistry registry;
