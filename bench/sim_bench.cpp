@@ -6,6 +6,8 @@
 //     Carlo noise as the relative standard deviation of a pixel (from two renders with different
 //     seeds: std(a - b) / sqrt(2) / mean, so neither the lighting gradient nor a reference
 //     image enters it), and samples per second per core. Noise should fall as 1/sqrt(spp).
+//   BM_SensorExpose: the EMVA 1288 sensor on a 640x480 RGB radiance image (noise, fixed pattern,
+//     quantisation) plus the 8-bit response, with the default parameters; time per frame.
 //
 // Run from the repository root or set COMMONLIGHT_SOURCE_DIR.
 #include <benchmark/benchmark.h>
@@ -20,6 +22,7 @@
 #include "core/scene_io.h"
 #include "mocks/sim/embree_scene.h"
 #include "mocks/sim/render.h"
+#include "mocks/sim/sensor.h"
 #include "mocks/sim/trajectory.h"
 
 namespace commonlight::bench {
@@ -129,6 +132,33 @@ void BM_WallNoise(benchmark::State& state) {
     state.counters["samples_per_s_per_core"] = static_cast<double>(samples) / seconds;
 }
 BENCHMARK(BM_WallNoise)->RangeMultiplier(4)->Range(4, 1024)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+void BM_SensorExpose(benchmark::State& state) {
+    constexpr int kWidth = 640, kHeight = 480;
+    const mocks::sim::SensorParams params;
+    auto sensor = mocks::sim::SensorModel::create(params, kWidth, kHeight);
+    if (!sensor) return state.SkipWithError(sensor.error().message.c_str());
+    Image radiance(PixelFormat::kRgbF32, kWidth, kHeight);
+    for (int y = 0; y < kHeight; ++y) {
+        auto* row = reinterpret_cast<float*>(radiance.mutableView().row(y));
+        for (int x = 0; x < kWidth; ++x) {  // a gradient, so both dark and bright pixels are exposed
+            const float v = 0.2f + 4.0f * static_cast<float>(x) / kWidth;
+            row[3 * x] = v;
+            row[3 * x + 1] = 0.8f * v;
+            row[3 * x + 2] = 0.5f * v;
+        }
+    }
+    mocks::sim::RawFrame raw;
+    Image pixels;
+    std::uint64_t frame = 0;
+    for (auto _ : state) {
+        auto ok = sensor->expose(radiance.view(), ++frame, raw);
+        if (!ok) return state.SkipWithError(ok.error().message.c_str());
+        sensor->encode8(raw, pixels);
+        benchmark::DoNotOptimize(pixels.data());
+    }
+}
+BENCHMARK(BM_SensorExpose)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 }  // namespace commonlight::bench
