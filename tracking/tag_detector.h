@@ -1,0 +1,83 @@
+// AprilTag detection with libapriltag.
+//
+// The detector runs on the distorted 8-bit image. Corners are reported in OpenCV's pixel
+// convention (centre of the top-left pixel at (0, 0)): libapriltag's corners minus 0.5.
+// Corner order is libapriltag's: counter-clockwise in the image starting at the tag's bottom
+// left, which in the tag frame of docs/formats-scene.md (x right, y towards the tag image's top,
+// z out of the printed side) is (-s/2, -s/2), (s/2, -s/2), (s/2, s/2), (-s/2, s/2); see
+// tagCornerInTag().
+#pragma once
+
+#include <array>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/image.h"
+#include "core/result.h"
+
+namespace commonlight::tracking {
+
+struct TagDetectorOptions {
+    std::string family = "tag36h11";  // any libapriltag family by name (tagFamilyNames())
+    double decimate = 2.0;            // quad_decimate: detect quads on an image this many times smaller (>= 1)
+    double sigma = 0.0;               // quad_sigma: Gaussian blur in pixels before quad detection (>= 0)
+    int threads = 1;                  // libapriltag's worker threads (>= 1)
+    bool refine_edges = true;         // snap quad edges to the full-resolution gradient
+    int max_hamming = 1;              // reject decodings with more corrected bits than this (0..2)
+    double min_decision_margin = 20;  // reject weaker decodings (libapriltag's decision_margin)
+
+    // Names the offending field.
+    Result<void> validate() const;
+};
+
+// The families libapriltag 3.3 ships: tag36h11, tag25h9, tag16h5, tagCircle21h7, ...
+std::span<const char* const> tagFamilyNames();
+
+struct TagDetection {
+    int id = -1;
+    std::array<Eigen::Vector2d, 4> corners;  // distorted pixels, OpenCV convention, libapriltag's order
+    Eigen::Vector2d center = Eigen::Vector2d::Zero();  // distorted pixels, OpenCV convention
+    int hamming = 0;                                   // bits corrected
+    double decision_margin = 0.0;                      // libapriltag's decoding confidence
+};
+
+// A rectangle of the image, pixels; clipped to the image by the detector.
+struct PixelWindow {
+    int x = 0, y = 0, width = 0, height = 0;
+};
+
+// Where the tag corner `index` (0..3, libapriltag's order) lies in the tag frame, metres, for a tag
+// whose black square has edge `size`.
+Eigen::Vector3d tagCornerInTag(int index, double size);
+
+class TagDetector {
+public:
+    // Fails (kUsage) for an unknown family or an invalid option, naming it.
+    static Result<TagDetector> create(const TagDetectorOptions& options);
+    TagDetector(TagDetector&&) noexcept;
+    TagDetector& operator=(TagDetector&&) noexcept;
+    ~TagDetector();
+
+    // Detects every tag in an 8-bit grey image (kGray8; other formats fail with kBadInput).
+    // An image without tags gives an empty vector; a failure of the detector itself (libapriltag's
+    // worker pool, an allocation) is an error, not an empty result.
+    Result<std::vector<TagDetection>> detect(const ImageView& gray8);
+    // Detects only inside the windows (clipped to the image; empty windows are skipped), without
+    // copying pixels; corners are in full-image pixels. A tag seen by two overlapping windows is
+    // reported once (the detection with the larger decision margin).
+    Result<std::vector<TagDetection>> detectInWindows(const ImageView& gray8, std::span<const PixelWindow> windows);
+
+    const TagDetectorOptions& options() const noexcept { return options_; }
+
+private:
+    struct Impl;
+    TagDetector(std::unique_ptr<Impl> impl, TagDetectorOptions options);
+    std::unique_ptr<Impl> impl_;
+    TagDetectorOptions options_;
+};
+
+}  // namespace commonlight::tracking
