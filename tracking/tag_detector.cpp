@@ -1,6 +1,7 @@
 #include "tracking/tag_detector.h"
 
 #include <apriltag/apriltag.h>
+#include <apriltag/apriltag_pose.h>
 #include <apriltag/tag16h5.h>
 #include <apriltag/tag25h9.h>
 #include <apriltag/tag36h11.h>
@@ -13,6 +14,9 @@
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
+#include <cstdlib>
+
+#include <Eigen/SVD>
 #include <string_view>
 
 namespace commonlight::tracking {
@@ -86,6 +90,38 @@ Eigen::Vector3d tagCornerInTag(int index, double size) {
     return {0.5 * size * kSigns[i][0], 0.5 * size * kSigns[i][1], 0.0};
 }
 
+// libapriltag's estimate_tag_pose for one of its detections. Its tag frame has y down and z into
+// the tag (our frame rotated by pi about x); its pixels put the top-left centre at (0.5, 0.5).
+// It allocates R and t with malloc; they are freed here with free (matd_destroy is not exported
+// by Debian's library).
+std::optional<Rigid3d> referencePose(apriltag_detection_t* det, const TagDetectorOptions::ReferencePose& ref, int x0,
+                                     int y0) {
+    // The detection is in window pixels: shift the principal point instead of the corners.
+    apriltag_detection_info_t info{det, ref.tag_size, ref.fx, ref.fy, ref.cx + 0.5 - x0, ref.cy + 0.5 - y0};
+    apriltag_pose_t pose{nullptr, nullptr};
+    estimate_tag_pose(&info, &pose);
+    std::optional<Rigid3d> result;
+    if (pose.R && pose.t) {
+        Eigen::Matrix3d r;
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) r(i, j) = pose.R->data[3 * i + j];
+        }
+        const Eigen::Vector3d t(pose.t->data[0], pose.t->data[1], pose.t->data[2]);
+        const Eigen::Matrix3d ours_to_theirs = Eigen::Vector3d(1, -1, -1).asDiagonal();
+        const Eigen::Matrix3d rotation = r * ours_to_theirs;
+        if (rotation.allFinite() && t.allFinite()) {
+            // Orthonormalise what the library returns before making a quaternion of it.
+            Eigen::JacobiSVD<Eigen::Matrix3d> svd(rotation, Eigen::ComputeFullU | Eigen::ComputeFullV);
+            Eigen::Matrix3d u = svd.matrixU();
+            if ((u * svd.matrixV().transpose()).determinant() < 0) u.col(2) *= -1;
+            result = Rigid3d(Eigen::Quaterniond(u * svd.matrixV().transpose()), t);
+        }
+    }
+    std::free(pose.R);
+    std::free(pose.t);
+    return result;
+}
+
 struct TagDetector::Impl {
     const FamilyEntry* entry = nullptr;
     apriltag_family_t* family = nullptr;      // owned: entry->destroy
@@ -126,7 +162,9 @@ struct TagDetector::Impl {
                 finite = finite && d.corners[c].allFinite();
             }
             d.center = Eigen::Vector2d(det->c[0] - 0.5 + x0, det->c[1] - 0.5 + y0);
-            if (finite && d.center.allFinite()) out.push_back(d);
+            if (!finite || !d.center.allFinite()) continue;
+            if (options.reference_pose) d.reference_cam_from_tag = referencePose(det, *options.reference_pose, x0, y0);
+            out.push_back(d);
         }
         apriltag_detections_destroy(detections);
         return {};

@@ -10,6 +10,7 @@
 
 #include <array>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -17,6 +18,7 @@
 #include <Eigen/Core>
 
 #include "core/image.h"
+#include "core/pose.h"
 #include "core/result.h"
 
 namespace commonlight::tracking {
@@ -29,6 +31,16 @@ struct TagDetectorOptions {
     bool refine_edges = true;         // snap quad edges to the full-resolution gradient
     int max_hamming = 1;              // reject decodings with more corrected bits than this (0..2)
     double min_decision_margin = 20;  // reject weaker decodings (libapriltag's decision_margin)
+
+    // For comparisons (bench tracking): when set, each detection also carries libapriltag's own
+    // estimate_tag_pose, computed from libapriltag's corners and homography with these pinhole
+    // intrinsics (OpenCV convention; the detector adds libapriltag's half-pixel offset). It
+    // knows no lens distortion.
+    struct ReferencePose {
+        double tag_size = 0.0;  // metres, edge of the black square
+        double fx = 0.0, fy = 0.0, cx = 0.0, cy = 0.0;
+    };
+    std::optional<ReferencePose> reference_pose;
 
     // Names the offending field.
     Result<void> validate() const;
@@ -43,6 +55,8 @@ struct TagDetection {
     Eigen::Vector2d center = Eigen::Vector2d::Zero();  // distorted pixels, OpenCV convention
     int hamming = 0;                                   // bits corrected
     double decision_margin = 0.0;                      // libapriltag's decoding confidence
+    // libapriltag's estimate_tag_pose as cam_from_tag in our tag frame, when the options ask for it.
+    std::optional<Rigid3d> reference_cam_from_tag;
 };
 
 // A rectangle of the image, pixels; clipped to the image by the detector.

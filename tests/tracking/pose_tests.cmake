@@ -1,0 +1,1 @@
+commonlight_test(tracking tag_pose SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/tag_pose_test.cpp DEPS commonlight::tracking)

@@ -1,0 +1,226 @@
+// Single-tag pose: both planar candidates, LM refinement, the choice, and the hard cases of
+// issue 4 (fronto-parallel noise-free, 80 degrees, 12 px, strong distortion, degenerate corners).
+// Ground truth: corners projected from known poses with CameraModel::project.
+#include <cmath>
+#include <numbers>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "tracking/tag_pose.h"
+
+namespace commonlight::tracking {
+namespace {
+
+using Eigen::Vector2d;
+using Eigen::Vector3d;
+using Corners = std::array<Vector2d, 4>;
+
+CameraModel camera(double k1 = 0.0) {
+    CameraModel c;
+    c.width = 1280;
+    c.height = 720;
+    c.fx = c.fy = 900;
+    c.cx = 639.5;
+    c.cy = 359.5;
+    c.distortion.k1 = k1;
+    return c;
+}
+
+// A tag of edge `size` at distance `distance` on the optical axis (shifted by `offset`), tilted
+// by `tilt_deg` about its x axis and turned by `roll_deg` about the viewing axis.
+Rigid3d tagPose(double distance, double tilt_deg, double roll_deg = 0.0, const Vector3d& offset = Vector3d::Zero()) {
+    // Tag facing the camera: its +z towards the camera (camera looks along +z), so flip about x.
+    const Eigen::Quaterniond facing(Eigen::AngleAxisd(std::numbers::pi, Vector3d::UnitX()));
+    const Eigen::Quaterniond tilt(Eigen::AngleAxisd(tilt_deg * std::numbers::pi / 180, Vector3d::UnitX()));
+    const Eigen::Quaterniond roll(Eigen::AngleAxisd(roll_deg * std::numbers::pi / 180, Vector3d::UnitZ()));
+    return {roll * facing * tilt, Vector3d(0, 0, distance) + offset};
+}
+
+Corners project(const CameraModel& cam, const Rigid3d& cam_from_tag, double size) {
+    Corners c;
+    for (int i = 0; i < 4; ++i) {
+        const auto p = cam.project(cam_from_tag * tagCornerInTag(i, size));
+        EXPECT_TRUE(p);
+        c[i] = *p;
+    }
+    return c;
+}
+
+TEST(TagPose, ExactlyFrontoParallelNoiseFree) {
+    // OpenCV 4.6's IPPE misbehaves on exactly this input; the result must still be exact.
+    const CameraModel cam = camera();
+    for (const double roll : {0.0, 90.0, 37.0}) {
+        const Rigid3d truth = tagPose(0.8, 0.0, roll);
+        const Corners corners = project(cam, truth, 0.1);
+        auto pose = solveTagPose(3, corners, 0.1, cam);
+        ASSERT_TRUE(pose) << pose.error().message;
+        EXPECT_TRUE(pose->cam_from_tag.isValid());
+        EXPECT_LT(rotationErrorDeg(pose->cam_from_tag, truth), 1e-6) << "roll " << roll;
+        EXPECT_LT(translationError(pose->cam_from_tag, truth), 1e-9);
+        EXPECT_LT(pose->rms_px, 1e-6);
+        EXPECT_TRUE(pose->covariance.allFinite());
+    }
+}
+
+TEST(TagPose, FrontoParallelOffAxisAndOnTheOpticalCentre) {
+    const CameraModel cam = camera(-0.2);
+    const Rigid3d truth = tagPose(1.2, 0.0, 0.0, Vector3d(0.3, -0.2, 0));
+    auto pose = solveTagPose(1, project(cam, truth, 0.16), 0.16, cam);
+    ASSERT_TRUE(pose) << pose.error().message;
+    EXPECT_LT(rotationErrorDeg(pose->cam_from_tag, truth), 1e-6);
+}
+
+TEST(TagPose, Tag80DegreesFromTheView) {
+    const CameraModel cam = camera();
+    const Rigid3d truth = tagPose(0.6, 80.0, 15.0);
+    const Corners corners = project(cam, truth, 0.1);
+    auto pose = solveTagPose(0, corners, 0.1, cam);
+    ASSERT_TRUE(pose) << pose.error().message;
+    EXPECT_LT(rotationErrorDeg(pose->cam_from_tag, truth), 1e-5);
+    EXPECT_LT(translationError(pose->cam_from_tag, truth), 1e-8);
+    EXPECT_LT(pose->ambiguity_ratio, 1e-3) << "an 80-degree view is not ambiguous without noise";
+}
+
+TEST(TagPose, TwelvePixelTagWithNoiseStaysFiniteAndClose) {
+    const CameraModel cam = camera();
+    // 0.1 m at 7.5 m with f = 900 px: 12 px.
+    const Rigid3d truth = tagPose(7.5, 30.0, 10.0);
+    const Corners clean = project(cam, truth, 0.1);
+    EXPECT_NEAR((clean[1] - clean[0]).norm(), 12.0, 0.5);
+    std::mt19937 rng(5);
+    std::normal_distribution<double> noise(0.0, 0.2);
+    int solved = 0;
+    for (int trial = 0; trial < 200; ++trial) {
+        Corners noisy = clean;
+        for (auto& c : noisy) c += Vector2d(noise(rng), noise(rng));
+        auto pose = solveTagPose(0, noisy, 0.1, cam);
+        ASSERT_TRUE(pose) << pose.error().message;
+        ASSERT_TRUE(pose->cam_from_tag.isValid());
+        ASSERT_EQ(pose->candidates.size() == 2 || pose->candidates.size() == 1, true);
+        EXPECT_LE(pose->ambiguity_ratio, 1.0);
+        // Position along the ray is known to a few percent; the tilt may flip (ambiguity).
+        EXPECT_LT(translationError(pose->cam_from_tag, truth), 0.05 * 7.5);
+        // One of the two candidates is near the truth.
+        double best = 1e9;
+        for (const auto& c : pose->candidates) best = std::min(best, rotationErrorDeg(c.cam_from_tag, truth));
+        EXPECT_LT(best, 25.0);
+        ++solved;
+    }
+    EXPECT_EQ(solved, 200);
+}
+
+TEST(TagPose, PredictionResolvesTheAmbiguity) {
+    const CameraModel cam = camera();
+    const Rigid3d truth = tagPose(3.0, 20.0, 5.0);
+    const Corners clean = project(cam, truth, 0.08);
+    std::mt19937 rng(11);
+    std::normal_distribution<double> noise(0.0, 0.3);
+    int wrong_by_residual = 0, wrong_with_prediction = 0;
+    for (int trial = 0; trial < 300; ++trial) {
+        Corners noisy = clean;
+        for (auto& c : noisy) c += Vector2d(noise(rng), noise(rng));
+        auto alone = solveTagPose(0, noisy, 0.08, cam);
+        // The prediction is the truth disturbed by 3 degrees (a filter's typical error).
+        const Rigid3d predicted = expSe3((Vector6d() << 0.05, 0.0, 0.0, 0.01, 0.0, 0.0).finished()) * truth;
+        auto guided = solveTagPose(0, noisy, 0.08, cam, predicted);
+        ASSERT_TRUE(alone && guided);
+        if (rotationErrorDeg(alone->cam_from_tag, truth) > 20) ++wrong_by_residual;  // the mirror is ~40 deg away
+        if (rotationErrorDeg(guided->cam_from_tag, truth) > 20) {
+            ++wrong_with_prediction;
+            for (const auto& c : guided->candidates) {
+                std::printf("    candidate: %.2f deg from the truth, rms %.3f px\n", rotationErrorDeg(c.cam_from_tag, truth),
+                            c.rms_px);
+            }
+        }
+        if (guided->candidates.size() == 2) {
+            EXPECT_EQ(guided->choice, PoseChoice::kPrediction);
+        }
+    }
+    std::printf("  flipped poses in 300 noisy frames: %d by residual, %d with a prediction\n", wrong_by_residual,
+                wrong_with_prediction);
+    EXPECT_GT(wrong_by_residual, 10) << "the case should be ambiguous";
+    EXPECT_EQ(wrong_with_prediction, 0);
+}
+
+TEST(TagPose, StrongDistortionCornersAreUndistortedAndFitted) {
+    const CameraModel cam = camera(-0.4);
+    // Near the image corner, where k1 = -0.4 moves points by tens of pixels.
+    const Rigid3d truth = tagPose(0.9, 25.0, 10.0, Vector3d(0.38, 0.2, 0));
+    const Corners corners = project(cam, truth, 0.1);
+    for (const Vector2d& c : corners) {
+        const auto ideal = cam.undistortPixel(c);
+        ASSERT_TRUE(ideal);
+        EXPECT_LT((cam.distortPixel(*ideal) - c).norm(), 0.05) << "undistortion round trip";
+    }
+    auto pose = solveTagPose(2, corners, 0.1, cam);
+    ASSERT_TRUE(pose) << pose.error().message;
+    EXPECT_LT(rotationErrorDeg(pose->cam_from_tag, truth), 1e-5);
+    EXPECT_LT(pose->rms_px, 1e-6);
+}
+
+TEST(TagPose, DegenerateCornersAreErrorsNotNan) {
+    const CameraModel cam = camera();
+    const Corners good = project(cam, tagPose(1.0, 10.0), 0.1);
+    Corners duplicated = good;
+    duplicated[2] = duplicated[1];
+    Corners collinear = good;
+    collinear[2] = 0.5 * (collinear[1] + collinear[3]);
+    Corners all_on_a_line = {Vector2d(10, 10), Vector2d(20, 20), Vector2d(30, 30), Vector2d(40, 40)};
+    Corners crossing = good;
+    std::swap(crossing[1], crossing[2]);
+    Corners not_finite = good;
+    not_finite[0].x() = std::nan("");
+    Corners point = {Vector2d(5, 5), Vector2d(5, 5), Vector2d(5, 5), Vector2d(5, 5)};
+    for (const auto& [name, corners] : {std::pair{"duplicated", duplicated}, std::pair{"collinear", collinear},
+                                        std::pair{"all on a line", all_on_a_line}, std::pair{"crossing", crossing},
+                                        std::pair{"NaN", not_finite}, std::pair{"a point", point}}) {
+        auto pose = solveTagPose(4, corners, 0.1, cam);
+        ASSERT_FALSE(pose) << name;
+        EXPECT_EQ(pose.error().code, ErrorCode::kBadInput) << name;
+        EXPECT_NE(pose.error().message.find("tag 4"), std::string::npos) << pose.error().message;
+    }
+    EXPECT_FALSE(solveTagPose(4, good, 0.0, cam));
+    EXPECT_FALSE(solveTagPose(4, good, std::nan(""), cam));
+    Rigid3d nan_prediction;
+    nan_prediction.translation.x() = std::nan("");
+    EXPECT_FALSE(solveTagPose(4, good, 0.1, cam, nan_prediction));
+}
+
+TEST(TagPose, CornersBeyondTheLensFoldAreAnError) {
+    CameraModel cam = camera(-0.6);  // folds at a normalised radius of ~0.75
+    const Corners far_out = {Vector2d(-400, -300), Vector2d(-350, -300), Vector2d(-350, -250), Vector2d(-400, -250)};
+    auto pose = solveTagPose(1, far_out, 0.1, cam);
+    ASSERT_FALSE(pose);
+    EXPECT_EQ(pose.error().code, ErrorCode::kBadInput);
+}
+
+TEST(TagPose, CovarianceMatchesTheScatterOfNoisySolutions) {
+    const CameraModel cam = camera();
+    const Rigid3d truth = tagPose(1.0, 35.0, 20.0);
+    const Corners clean = project(cam, truth, 0.12);
+    std::mt19937 rng(3);
+    std::normal_distribution<double> noise(0.0, 0.5);
+    TagPoseOptions options;
+    options.corner_sigma_px = 0.5;
+    Matrix6d scatter = Matrix6d::Zero();
+    Matrix6d predicted = Matrix6d::Zero();
+    constexpr int kTrials = 2000;
+    for (int trial = 0; trial < kTrials; ++trial) {
+        Corners noisy = clean;
+        for (auto& c : noisy) c += Vector2d(noise(rng), noise(rng));
+        auto pose = solveTagPose(0, noisy, 0.12, cam, truth, options);
+        ASSERT_TRUE(pose);
+        const Vector6d xi = logSe3(truth * pose->cam_from_tag.inverse());
+        scatter += xi * xi.transpose();
+        predicted += pose->covariance;
+    }
+    scatter /= kTrials;
+    predicted /= kTrials;
+    for (int k = 0; k < 6; ++k) {
+        EXPECT_NEAR(std::sqrt(scatter(k, k) / predicted(k, k)), 1.0, 0.15) << "axis " << k;
+    }
+}
+
+}  // namespace
+}  // namespace commonlight::tracking

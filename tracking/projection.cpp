@@ -1,0 +1,41 @@
+#include "tracking/projection.h"
+
+#include <cmath>
+
+namespace commonlight::tracking {
+
+std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p) {
+    if (!(p.z() > 1e-9) || !p.allFinite()) return std::nullopt;
+    const auto pixel = camera.project(p);
+    if (!pixel) return std::nullopt;
+    const double inv_z = 1.0 / p.z();
+    const Eigen::Vector2d xy(p.x() * inv_z, p.y() * inv_z);
+    // d(xy)/d(p): the pinhole.
+    Eigen::Matrix<double, 2, 3> d_xy_d_p;
+    d_xy_d_p << inv_z, 0, -xy.x() * inv_z, 0, inv_z, -xy.y() * inv_z;
+    // d(distorted xy)/d(xy): central differences; the model is a polynomial, so h = 1e-6 leaves
+    // a truncation error of order h^2 * (third derivative) ~ 1e-12.
+    Eigen::Matrix2d d_dist;
+    if (camera.distortion.isZero()) {
+        d_dist.setIdentity();
+    } else {
+        constexpr double h = 1e-6;
+        for (int k = 0; k < 2; ++k) {
+            Eigen::Vector2d step = Eigen::Vector2d::Zero();
+            step[k] = h;
+            d_dist.col(k) = (camera.distortNormalized(xy + step) - camera.distortNormalized(xy - step)) / (2 * h);
+        }
+    }
+    const Eigen::Matrix2d d_pix_d_dist = Eigen::Vector2d(camera.fx, camera.fy).asDiagonal();
+    // d(p)/d(xi) = [ -[p]x | I ].
+    Eigen::Matrix<double, 3, 6> d_p_d_xi;
+    d_p_d_xi << 0, p.z(), -p.y(), 1, 0, 0,  //
+        -p.z(), 0, p.x(), 0, 1, 0,          //
+        p.y(), -p.x(), 0, 0, 0, 1;
+    ProjectionWithJacobian out;
+    out.pixel = *pixel;
+    out.d_pixel_d_xi = d_pix_d_dist * d_dist * d_xy_d_p * d_p_d_xi;
+    return out;
+}
+
+}  // namespace commonlight::tracking

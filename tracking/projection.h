@@ -1,0 +1,24 @@
+// Projection of camera-frame points through the lens model with the Jacobian that pose solvers
+// need: d(pixel) / d(xi) for the left perturbation p_in_cam' = expSe3(xi) * p_in_cam, xi = (omega, v).
+#pragma once
+
+#include <optional>
+
+#include <Eigen/Core>
+
+#include "core/camera_model.h"
+
+namespace commonlight::tracking {
+
+using Matrix26d = Eigen::Matrix<double, 2, 6>;
+
+struct ProjectionWithJacobian {
+    Eigen::Vector2d pixel;  // distorted, OpenCV convention
+    Matrix26d d_pixel_d_xi;
+};
+
+// nullopt when the point is behind the camera (z <= 1e-9 m) or beyond the lens model's valid
+// radius. The distortion's 2x2 Jacobian is taken by central differences (exact to ~1e-9 px).
+std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p_in_cam);
+
+}  // namespace commonlight::tracking

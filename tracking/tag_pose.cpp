@@ -1,0 +1,285 @@
+#include "tracking/tag_pose.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include <Eigen/Cholesky>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core/eigen.hpp>
+
+#include "tracking/projection.h"
+
+namespace commonlight::tracking {
+namespace {
+
+std::string px(const Eigen::Vector2d& p) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "(%.2f, %.2f)", p.x(), p.y());
+    return buf;
+}
+
+double cross2(const Eigen::Vector2d& a, const Eigen::Vector2d& b) { return a.x() * b.y() - a.y() * b.x(); }
+
+Rigid3d fromRvecTvec(const cv::Mat& rvec, const cv::Mat& tvec) {
+    cv::Mat rmat;
+    cv::Rodrigues(rvec, rmat);
+    Eigen::Matrix3d r;
+    cv::cv2eigen(rmat, r);
+    Eigen::Vector3d t;
+    cv::cv2eigen(tvec, t);
+    return {Eigen::Quaterniond(r), t};
+}
+
+void toRvecTvec(const Rigid3d& pose, cv::Mat& rvec, cv::Mat& tvec) {
+    cv::Mat rmat;
+    cv::eigen2cv(Eigen::Matrix3d(pose.rotationMatrix()), rmat);
+    cv::Rodrigues(rmat, rvec);
+    cv::eigen2cv(Eigen::Vector3d(pose.translation), tvec);
+}
+
+bool finiteMat(const cv::Mat& m) { return cv::checkRange(m, true, nullptr, -1e12, 1e12); }
+
+// Quad size in pixels (longest side).
+double quadScale(const std::array<Eigen::Vector2d, 4>& c) {
+    double scale = 0.0;
+    for (int i = 0; i < 4; ++i) scale = std::max(scale, (c[i] - c[(i + 1) % 4]).norm());
+    return scale;
+}
+
+// Reprojection RMS of the object points through the ideal pinhole (no distortion).
+double idealRms(const std::vector<cv::Point3d>& object, const std::vector<cv::Point2d>& ideal, const CameraModel& camera,
+                const Rigid3d& pose) {
+    double sum = 0.0;
+    for (std::size_t k = 0; k < object.size(); ++k) {
+        const Eigen::Vector3d p = pose * Eigen::Vector3d(object[k].x, object[k].y, object[k].z);
+        if (!(p.z() > 0)) return std::numeric_limits<double>::infinity();
+        const double u = camera.fx * p.x() / p.z() + camera.cx - ideal[k].x;
+        const double v = camera.fy * p.y() / p.z() + camera.cy - ideal[k].y;
+        sum += u * u + v * v;
+    }
+    return std::sqrt(sum / static_cast<double>(object.size()));
+}
+
+}  // namespace
+
+const char* poseChoiceName(PoseChoice choice) noexcept {
+    switch (choice) {
+        case PoseChoice::kOnlyCandidate: return "only_candidate";
+        case PoseChoice::kResidual: return "residual";
+        case PoseChoice::kPrediction: return "prediction";
+    }
+    return "?";
+}
+
+Result<void> TagPoseOptions::validate() const {
+    if (!(corner_sigma_px > 0) || !std::isfinite(corner_sigma_px)) {
+        return fail(ErrorCode::kUsage, "corner_sigma_px must be > 0");
+    }
+    if (!(prediction_gate_deg > 0) || !(prediction_gate_deg <= 180)) {
+        return fail(ErrorCode::kUsage, "prediction_gate_deg must be in (0, 180]");
+    }
+    return {};
+}
+
+Result<void> checkQuadCorners(const std::array<Eigen::Vector2d, 4>& c, double min_separation_px) {
+    for (int i = 0; i < 4; ++i) {
+        if (!c[i].allFinite()) return fail(ErrorCode::kBadInput, "corner " + std::to_string(i) + " is not finite");
+    }
+    for (int i = 0; i < 4; ++i) {
+        for (int j = i + 1; j < 4; ++j) {
+            if ((c[i] - c[j]).norm() < min_separation_px) {
+                return fail(ErrorCode::kBadInput, "corners " + std::to_string(i) + " and " + std::to_string(j) +
+                                                      " coincide at " + px(c[i]));
+            }
+        }
+    }
+    // Convex and not self-crossing: the turn at every corner has the same sign, and no three
+    // corners are (nearly) collinear: each turn's triangle has an area above a tiny fraction of
+    // the quad's scale squared.
+    const double scale = quadScale(c);
+    int sign = 0;
+    for (int i = 0; i < 4; ++i) {
+        const Eigen::Vector2d& a = c[i];
+        const Eigen::Vector2d& b = c[(i + 1) % 4];
+        const Eigen::Vector2d& d = c[(i + 2) % 4];
+        const double turn = cross2(b - a, d - b);
+        if (std::abs(turn) < 1e-3 * scale * scale) {
+            return fail(ErrorCode::kBadInput, "corners " + std::to_string(i) + ", " + std::to_string((i + 1) % 4) +
+                                                  " and " + std::to_string((i + 2) % 4) + " are collinear");
+        }
+        const int s = turn > 0 ? 1 : -1;
+        if (sign != 0 && s != sign) return fail(ErrorCode::kBadInput, "the corners do not form a convex quad");
+        sign = s;
+    }
+    return {};
+}
+
+double tagReprojectionRms(const std::array<Eigen::Vector2d, 4>& corners, double size, const CameraModel& camera,
+                          const Rigid3d& cam_from_tag) {
+    double sum = 0.0;
+    for (int i = 0; i < 4; ++i) {
+        const auto p = camera.project(cam_from_tag * tagCornerInTag(i, size));
+        if (!p) return std::numeric_limits<double>::infinity();
+        sum += (*p - corners[i]).squaredNorm();
+    }
+    return std::sqrt(sum / 4.0);
+}
+
+Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corners, double size,
+                             const CameraModel& camera, const std::optional<Rigid3d>& predicted,
+                             const TagPoseOptions& options) {
+    const std::string what = "tag " + std::to_string(id);
+    if (!(size > 0) || !std::isfinite(size)) {
+        return fail(ErrorCode::kBadInput, what + ": tag size must be a positive number of metres");
+    }
+    if (auto ok = checkQuadCorners(corners); !ok) return fail(std::move(ok).error().prepend(what));
+    if (predicted && !predicted->isValid()) return fail(ErrorCode::kBadInput, what + ": the predicted pose is not finite");
+
+    // Step 1: undistort the corners (accurately: our damped Newton, not OpenCV's fixed 5 steps).
+    // IPPE_SQUARE's object points are (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2): our
+    // corners 3, 2, 1, 0 (tag frame of docs/formats-scene.md; the same axes).
+    constexpr int kIppeOrder[4] = {3, 2, 1, 0};
+    std::vector<cv::Point3d> object(4);
+    std::vector<cv::Point2d> ideal(4), distorted(4);
+    for (int k = 0; k < 4; ++k) {
+        const int i = kIppeOrder[k];
+        const Eigen::Vector3d o = tagCornerInTag(i, size);
+        object[k] = {o.x(), o.y(), o.z()};
+        const auto u = camera.undistortPixel(corners[i]);
+        if (!u) {
+            return fail(ErrorCode::kBadInput, what + ": corner " + std::to_string(i) + " at " + px(corners[i]) +
+                                                  " lies beyond the lens model's valid radius");
+        }
+        ideal[k] = {u->x(), u->y()};
+        distorted[k] = {corners[i].x(), corners[i].y()};
+    }
+    cv::Mat k_mat;
+    cv::eigen2cv(camera.K(), k_mat);
+    const cv::Mat dist = (cv::Mat_<double>(1, 5) << camera.distortion.k1, camera.distortion.k2, camera.distortion.p1,
+                          camera.distortion.p2, camera.distortion.k3);
+
+    // Step 2: both planar candidates from IPPE.
+    std::vector<Rigid3d> initial;
+    try {
+        std::vector<cv::Mat> rvecs, tvecs;
+        cv::solvePnPGeneric(object, ideal, k_mat, cv::noArray(), rvecs, tvecs, false, cv::SOLVEPNP_IPPE_SQUARE);
+        for (std::size_t s = 0; s < rvecs.size(); ++s) {
+            // OpenCV 4.6's IPPE can return NaN (or garbage) on exactly fronto-parallel, noise-free
+            // corners: drop what is not finite or puts the tag behind the camera.
+            if (!finiteMat(rvecs[s]) || !finiteMat(tvecs[s])) continue;
+            const Rigid3d pose = fromRvecTvec(rvecs[s], tvecs[s]);
+            if (pose.isValid() && pose.translation.z() > 0) initial.push_back(pose);
+        }
+        // Exactly fronto-parallel, noise-free corners can also give finite garbage (metres off):
+        // judge the candidates by their reprojection of the ideal corners.
+        double best_rms = std::numeric_limits<double>::infinity();
+        for (const Rigid3d& pose : initial) best_rms = std::min(best_rms, idealRms(object, ideal, camera, pose));
+        if (!(best_rms < 1.0 + 0.05 * quadScale(corners))) {
+            initial.clear();
+            // Fallback: SQPnP (globally optimal, no planar special case) on the same points.
+            cv::Mat rvec, tvec;
+            if (cv::solvePnP(object, ideal, k_mat, cv::noArray(), rvec, tvec, false, cv::SOLVEPNP_SQPNP) &&
+                finiteMat(rvec) && finiteMat(tvec)) {
+                const Rigid3d pose = fromRvecTvec(rvec, tvec);
+                if (pose.isValid() && pose.translation.z() > 0) initial.push_back(pose);
+            }
+        }
+    } catch (const cv::Exception& e) {
+        return fail(ErrorCode::kInternal, what + ": OpenCV's pose solver failed: " + e.what());
+    }
+    if (initial.empty()) return fail(ErrorCode::kBadInput, what + ": no pose explains the corners");
+    // The prediction is a third start: with noise, both IPPE starts can fall into the mirrored
+    // minimum while the true one is still a minimum near the prediction.
+    if (predicted && predicted->translation.z() > 0) initial.push_back(*predicted);
+
+    // Step 3: refine each with Levenberg-Marquardt on the reprojection error in the distorted image.
+    std::vector<TagPoseCandidate> candidates;
+    for (const Rigid3d& start : initial) {
+        cv::Mat rvec, tvec;
+        toRvecTvec(start, rvec, tvec);
+        Rigid3d refined = start;
+        try {
+            cv::solvePnPRefineLM(object, distorted, k_mat, dist, rvec, tvec,
+                                 cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 30, 1e-12));
+            if (finiteMat(rvec) && finiteMat(tvec)) refined = fromRvecTvec(rvec, tvec);
+        } catch (const cv::Exception&) {
+            // keep the IPPE pose; its residual decides below
+        }
+        // The refinement must not make things worse (it can wander when the start is poor).
+        const double rms_start = tagReprojectionRms(corners, size, camera, start);
+        const double rms_refined = tagReprojectionRms(corners, size, camera, refined);
+        TagPoseCandidate c{rms_refined <= rms_start ? refined : start, std::min(rms_refined, rms_start)};
+        if (!c.cam_from_tag.isValid() || !std::isfinite(c.rms_px) || c.cam_from_tag.translation.z() <= 0) continue;
+        // Both starts can converge to the same minimum: keep one.
+        const bool duplicate = std::any_of(candidates.begin(), candidates.end(), [&](const TagPoseCandidate& o) {
+            return rotationErrorDeg(o.cam_from_tag, c.cam_from_tag) < 1e-4 &&
+                   translationError(o.cam_from_tag, c.cam_from_tag) < 1e-7 * (1.0 + c.cam_from_tag.translation.norm());
+        });
+        if (!duplicate) candidates.push_back(c);
+    }
+    if (candidates.empty()) return fail(ErrorCode::kBadInput, what + ": no pose candidate reprojects its corners");
+    // Only plausible alternatives stay: a candidate far worse than the best is not the other
+    // side of an ambiguity but a failed start.
+    {
+        double best = std::numeric_limits<double>::infinity();
+        for (const auto& c : candidates) best = std::min(best, c.rms_px);
+        std::erase_if(candidates, [&](const TagPoseCandidate& c) { return c.rms_px > 3.0 * best + 2.0; });
+    }
+    if (candidates.size() > 2) {
+        // Three starts, three minima (rare): keep the best by residual and, of the rest, the one
+        // nearest the prediction (the third start exists only with a prediction).
+        std::sort(candidates.begin(), candidates.end(),
+                  [](const TagPoseCandidate& a, const TagPoseCandidate& b) { return a.rms_px < b.rms_px; });
+        auto nearest = std::min_element(candidates.begin() + 1, candidates.end(), [&](const auto& a, const auto& b) {
+            return rotationErrorDeg(a.cam_from_tag, *predicted) < rotationErrorDeg(b.cam_from_tag, *predicted);
+        });
+        std::iter_swap(candidates.begin() + 1, nearest);
+        candidates.resize(2);
+    }
+
+    // Step 4: choose.
+    std::sort(candidates.begin(), candidates.end(),
+              [](const TagPoseCandidate& a, const TagPoseCandidate& b) { return a.rms_px < b.rms_px; });
+    TagPose out;
+    out.id = id;
+    out.choice = candidates.size() == 1 ? PoseChoice::kOnlyCandidate : PoseChoice::kResidual;
+    if (candidates.size() == 2 && predicted) {
+        const Rigid3d& p = *predicted;
+        const double d0 = rotationErrorDeg(candidates[0].cam_from_tag, p);
+        const double d1 = rotationErrorDeg(candidates[1].cam_from_tag, p);
+        if (d1 < d0 && d1 < options.prediction_gate_deg) {
+            std::swap(candidates[0], candidates[1]);
+            out.choice = PoseChoice::kPrediction;
+        } else if (d0 < options.prediction_gate_deg) {
+            out.choice = PoseChoice::kPrediction;
+        }
+    }
+    constexpr double kFloor = 1e-6;
+    const auto sq = [](double rms) { return 4.0 * rms * rms; };
+    out.ambiguity_ratio = candidates.size() == 2 ? (sq(candidates[0].rms_px) + kFloor) / (sq(candidates[1].rms_px) + kFloor)
+                                                 : 0.0;
+    out.cam_from_tag = candidates[0].cam_from_tag;
+    out.rms_px = candidates[0].rms_px;
+    out.candidates = std::move(candidates);
+
+    // Covariance: sigma^2 (J^T J)^-1 at the chosen pose; a (near-)singular information matrix
+    // (it should not be with 4 corners of a proper quad) is regularised, never inverted blindly.
+    Matrix6d info = Matrix6d::Zero();
+    for (int i = 0; i < 4; ++i) {
+        const auto proj = projectWithJacobian(camera, out.cam_from_tag * tagCornerInTag(i, size));
+        if (!proj) return fail(ErrorCode::kBadInput, what + ": the chosen pose puts a corner outside the lens model");
+        info += proj->d_pixel_d_xi.transpose() * proj->d_pixel_d_xi;
+    }
+    info += 1e-12 * info.trace() * Matrix6d::Identity();
+    const double s2 = options.corner_sigma_px * options.corner_sigma_px;
+    out.covariance = s2 * info.ldlt().solve(Matrix6d::Identity());
+    out.covariance = 0.5 * (out.covariance + out.covariance.transpose()).eval();
+    if (!out.covariance.allFinite() || !out.cam_from_tag.isValid()) {
+        return fail(ErrorCode::kBadInput, what + ": the pose is not finite");
+    }
+    return out;
+}
+
+}  // namespace commonlight::tracking

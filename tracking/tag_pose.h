@@ -1,0 +1,79 @@
+// The pose of one tag from its four corners, with the planar ambiguity kept and resolved.
+//
+// A square seen from far away or nearly head-on has two poses that reproject almost equally well
+// (the tag tilted one way or mirrored the other way). Step 1 undistorts the corners with the
+// calibration; step 2 gets both candidates from OpenCV's IPPE for squares (solvePnPGeneric,
+// SOLVEPNP_IPPE_SQUARE); step 3 refines each with Levenberg-Marquardt on the reprojection error in
+// the distorted image (solvePnPRefineLM with the lens model); step 4 chooses by the temporal
+// prediction when there is one, else by the residual, and reports the ambiguity ratio.
+//
+// Hard cases handled on purpose (each has a test in tests/tracking/tag_pose_test.cpp):
+// - exactly fronto-parallel, noise-free corners, where OpenCV 4.6's IPPE can return NaN or a
+//   degenerate second solution: non-finite or duplicate candidates are dropped, and when none is
+//   left the pose comes from the homography decomposition instead;
+// - degenerate corners (duplicated, collinear, self-crossing, a corner beyond the lens model):
+//   an error, never NaN;
+// - very small tags (~12 px): solved; the ambiguity ratio says how far to trust the choice.
+#pragma once
+
+#include <optional>
+#include <vector>
+
+#include "core/camera_model.h"
+#include "core/result.h"
+#include "tracking/pose_types.h"
+#include "tracking/tag_detector.h"
+
+namespace commonlight::tracking {
+
+struct TagPoseOptions {
+    double corner_sigma_px = 0.5;  // assumed corner noise (1 sigma, pixels) for the covariance
+    // With a prediction, a candidate whose rotation is within this of the predicted one wins
+    // over a candidate with a smaller residual (the residuals of the two differ by noise only).
+    double prediction_gate_deg = 20.0;
+    Result<void> validate() const;
+};
+
+struct TagPoseCandidate {
+    Rigid3d cam_from_tag;
+    double rms_px = 0.0;  // reprojection RMS of the 4 corners in the distorted image
+};
+
+enum class PoseChoice {
+    kOnlyCandidate,  // the second candidate did not exist or coincided with the first
+    kResidual,       // the smaller reprojection error won
+    kPrediction,     // the candidate closer to the temporal prediction won
+};
+const char* poseChoiceName(PoseChoice choice) noexcept;
+
+struct TagPose {
+    int id = -1;
+    Rigid3d cam_from_tag;  // the chosen candidate, refined
+    double rms_px = 0.0;
+    // Reprojection error of the chosen candidate over the other's (sum of squares, both floored at
+    // 1e-6 px^2), in [0, 1] when chosen by residual: near 0 unambiguous, near 1 ambiguous. Can
+    // exceed 1 when the prediction chose the candidate with the larger residual.
+    double ambiguity_ratio = 0.0;
+    PoseChoice choice = PoseChoice::kOnlyCandidate;
+    std::vector<TagPoseCandidate> candidates;  // 1 or 2, refined; candidates[0] is the chosen one
+    Matrix6d covariance = Matrix6d::Identity();  // of cam_from_tag (pose_types.h convention)
+};
+
+// `corners` are distorted pixels (OpenCV convention) in libapriltag's order; `size` is the black
+// square's edge in metres. `predicted_cam_from_tag` is the filter's prediction for this frame.
+// Fails with kBadInput for degenerate corners, a non-positive size, or corners the lens model
+// cannot undistort; never returns a non-finite or unrefined pose.
+Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corners, double size,
+                             const CameraModel& camera, const std::optional<Rigid3d>& predicted_cam_from_tag = std::nullopt,
+                             const TagPoseOptions& options = {});
+
+// Checks four image corners of a quad: finite, pairwise at least `min_separation_px` apart, no
+// three (nearly) collinear, convex and not self-crossing. The error names the defect.
+Result<void> checkQuadCorners(const std::array<Eigen::Vector2d, 4>& corners, double min_separation_px = 0.5);
+
+// Reprojection RMS (pixels) of the four corners of a tag of edge `size` at cam_from_tag;
+// infinity when a corner is behind the camera or outside the lens model.
+double tagReprojectionRms(const std::array<Eigen::Vector2d, 4>& corners, double size, const CameraModel& camera,
+                          const Rigid3d& cam_from_tag);
+
+}  // namespace commonlight::tracking
