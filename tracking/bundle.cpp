@@ -1,0 +1,212 @@
+#include "tracking/bundle.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include <Eigen/Cholesky>
+
+#include "tracking/projection.h"
+
+namespace commonlight::tracking {
+namespace {
+
+struct Point {
+    Eigen::Vector3d p_in_local;  // world point minus the centroid
+    Eigen::Vector2d observed;    // distorted pixel
+    int tag = 0;                 // index into the used tags
+};
+
+double huberWeight(double r, double k) { return r <= k ? 1.0 : k / r; }
+double huberCost(double r, double k) { return r <= k ? 0.5 * r * r : k * (r - 0.5 * k); }
+
+// Robust cost of a pose over every point; infinity when a point does not project.
+double robustCost(const std::vector<Point>& points, const CameraModel& camera, const Rigid3d& cam_from_local, double k) {
+    double cost = 0.0;
+    for (const Point& pt : points) {
+        const auto px = camera.project(cam_from_local * pt.p_in_local);
+        if (!px) return std::numeric_limits<double>::infinity();
+        cost += huberCost((*px - pt.observed).norm(), k);
+    }
+    return cost;
+}
+
+struct Fit {
+    Rigid3d cam_from_local;
+    Matrix6d information = Matrix6d::Zero();  // J^T W J
+    double chi2 = 0.0;                        // sum of weighted squared residuals
+    int iterations = 0;
+};
+
+// Levenberg-Marquardt with Huber weights (iteratively reweighted).
+Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d pose, const BundleOptions& options) {
+    Fit fit;
+    double lambda = 1e-3;
+    double cost = robustCost(points, camera, pose, options.huber_px);
+    for (int it = 0; it < options.max_iterations; ++it) {
+        fit.iterations = it + 1;
+        Matrix6d h = Matrix6d::Zero();
+        Vector6d g = Vector6d::Zero();
+        for (const Point& pt : points) {
+            const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
+            if (!proj) continue;
+            const Eigen::Vector2d r = proj->pixel - pt.observed;
+            const double w = huberWeight(r.norm(), options.huber_px);
+            h += w * proj->d_pixel_d_xi.transpose() * proj->d_pixel_d_xi;
+            g += w * proj->d_pixel_d_xi.transpose() * r;
+        }
+        bool improved = false;
+        for (int attempt = 0; attempt < 10 && !improved; ++attempt) {
+            Matrix6d damped = h;
+            damped.diagonal() += lambda * h.diagonal().cwiseMax(1e-9);
+            const Vector6d step = -damped.ldlt().solve(g);
+            if (!step.allFinite()) break;
+            const Rigid3d candidate = expSe3(step) * pose;
+            const double new_cost = robustCost(points, camera, candidate, options.huber_px);
+            if (new_cost < cost) {
+                const bool converged = step.norm() < 1e-10 || (cost - new_cost) < 1e-14 * (1.0 + cost);
+                pose = candidate;
+                cost = new_cost;
+                lambda = std::max(lambda / 10.0, 1e-9);
+                improved = true;
+                if (converged) it = options.max_iterations;
+            } else {
+                lambda *= 10.0;
+            }
+        }
+        if (!improved) break;
+    }
+    fit.cam_from_local = pose;
+    for (const Point& pt : points) {
+        const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
+        if (!proj) continue;
+        const Eigen::Vector2d r = proj->pixel - pt.observed;
+        const double w = huberWeight(r.norm(), options.huber_px);
+        fit.information += w * proj->d_pixel_d_xi.transpose() * proj->d_pixel_d_xi;
+        fit.chi2 += w * r.squaredNorm();
+    }
+    return fit;
+}
+
+}  // namespace
+
+Result<void> BundleOptions::validate() const {
+    if (!(huber_px > 0)) return fail(ErrorCode::kUsage, "bundle huber_px must be > 0");
+    if (!(outlier_px > 0)) return fail(ErrorCode::kUsage, "bundle outlier_px must be > 0");
+    if (!(corner_sigma_px > 0)) return fail(ErrorCode::kUsage, "bundle corner_sigma_px must be > 0");
+    if (max_iterations < 1) return fail(ErrorCode::kUsage, "bundle max_iterations must be >= 1");
+    return {};
+}
+
+Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& scene_tags, const CameraModel& camera,
+                                 const std::optional<Rigid3d>& predicted, const BundleOptions& options) {
+    CL_TRY_VOID(options.validate());
+    if (predicted && !predicted->isValid()) return fail(ErrorCode::kBadInput, "bundle: the predicted pose is not finite");
+    BundleResult result;
+
+    // Step 1: the tags the scene places.
+    struct Used {
+        const BundleTag* tag;
+        const TagItem* item;
+    };
+    std::vector<Used> used;
+    for (const BundleTag& t : tags) {
+        const TagItem* item = scene_tags.find(t.detection->id);
+        if (!item) {
+            result.tags_unknown.push_back(t.detection->id);
+            continue;
+        }
+        const bool finite = std::all_of(t.detection->corners.begin(), t.detection->corners.end(),
+                                        [](const Eigen::Vector2d& c) { return c.allFinite(); });
+        if (finite) used.push_back({&t, item});
+    }
+    if (used.empty()) return fail(ErrorCode::kBadInput, "bundle: none of the detected tags is placed in the scene");
+
+    // Solve about the centroid of the tags (world coordinates may be kilometres from the origin).
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const Used& u : used) centroid += u.item->world_from_tag.translation;
+    centroid /= static_cast<double>(used.size());
+    const Rigid3d world_from_local(Eigen::Quaterniond::Identity(), centroid);
+    const Rigid3d local_from_world(Eigen::Quaterniond::Identity(), -centroid);
+
+    std::vector<int> active(used.size());
+    for (std::size_t i = 0; i < used.size(); ++i) active[i] = static_cast<int>(i);
+
+    while (true) {
+        std::vector<Point> points;
+        for (int i : active) {
+            const Used& u = used[static_cast<std::size_t>(i)];
+            for (int c = 0; c < 4; ++c) {
+                const Eigen::Vector3d p_world = u.item->world_from_tag * tagCornerInTag(c, u.item->size);
+                points.push_back({p_world - centroid, u.tag->detection->corners[c], i});
+            }
+        }
+        // Step 2: the best start.
+        std::vector<Rigid3d> starts;
+        if (predicted) starts.push_back(*predicted * world_from_local);
+        for (int i : active) {
+            const Used& u = used[static_cast<std::size_t>(i)];
+            if (!u.tag->single) continue;
+            // local_from_tag = local_from_world * world_from_tag, exact in double about the centroid.
+            const Rigid3d tag_from_local = (local_from_world * u.item->world_from_tag).inverse();
+            for (const TagPoseCandidate& c : u.tag->single->candidates) starts.push_back(c.cam_from_tag * tag_from_local);
+        }
+        double best_cost = std::numeric_limits<double>::infinity();
+        const Rigid3d* best = nullptr;
+        for (const Rigid3d& s : starts) {
+            const double cost = robustCost(points, camera, s, options.huber_px);
+            if (cost < best_cost) {
+                best_cost = cost;
+                best = &s;
+            }
+        }
+        if (!best) return fail(ErrorCode::kBadInput, "bundle: no start pose puts the tags in front of the camera");
+
+        // Step 3: robust LM.
+        const Fit fit = refine(points, camera, *best, options);
+
+        // Step 4: the worst tag, rejected while it is an outlier and others remain.
+        std::vector<double> sum(used.size(), 0.0);
+        for (const Point& pt : points) {
+            const auto px = camera.project(fit.cam_from_local * pt.p_in_local);
+            sum[static_cast<std::size_t>(pt.tag)] +=
+                px ? (*px - pt.observed).squaredNorm() : std::numeric_limits<double>::infinity();
+        }
+        int worst = -1;
+        double worst_rms = 0.0;
+        double total = 0.0;
+        for (int i : active) {
+            const double rms = std::sqrt(sum[static_cast<std::size_t>(i)] / 4.0);
+            total += sum[static_cast<std::size_t>(i)];
+            if (rms > worst_rms) {
+                worst_rms = rms;
+                worst = i;
+            }
+        }
+        if (worst_rms > options.outlier_px && active.size() > 1) {
+            result.tags_rejected.push_back(used[static_cast<std::size_t>(worst)].tag->detection->id);
+            std::erase(active, worst);
+            continue;
+        }
+        if (!std::isfinite(total) || !fit.cam_from_local.isValid()) {
+            return fail(ErrorCode::kBadInput, "bundle: the solution does not reproject the corners");
+        }
+        result.cam_from_world = fit.cam_from_local * local_from_world;
+        result.iterations = fit.iterations;
+        const auto n = static_cast<double>(points.size());
+        result.rms_px = std::sqrt(total / n);
+        for (int i : active) result.tags_used.push_back(used[static_cast<std::size_t>(i)].tag->detection->id);
+        // Corner noise: the assumed sigma, or more when the residuals say so (2n - 6 dof).
+        const double dof = std::max(1.0, 2.0 * n - 6.0);
+        const double s2 = std::max(options.corner_sigma_px * options.corner_sigma_px, fit.chi2 / dof);
+        Matrix6d info = fit.information;
+        info += 1e-12 * info.trace() * Matrix6d::Identity();
+        result.covariance = s2 * info.ldlt().solve(Matrix6d::Identity());
+        result.covariance = (0.5 * (result.covariance + result.covariance.transpose())).eval();
+        if (!result.covariance.allFinite()) return fail(ErrorCode::kBadInput, "bundle: the covariance is not finite");
+        return result;
+    }
+}
+
+}  // namespace commonlight::tracking
