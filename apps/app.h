@@ -26,6 +26,8 @@ void addCamerasCommand(CLI::App& app, Runner& runner);
 void addRecordCommand(CLI::App& app, Runner& runner);
 void addPlayCommand(CLI::App& app, Runner& runner);
 void addSimCommand(CLI::App& app, Runner& runner);
+void addTrackCommand(CLI::App& app, Runner& runner);
+void addBenchCommand(CLI::App& app, Runner& runner);
 
 // Prints "commonlight: error: <message>" and returns the exit code for the error.
 int reportError(const Error& error);

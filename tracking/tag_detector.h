@@ -25,7 +25,8 @@ namespace commonlight::tracking {
 
 struct TagDetectorOptions {
     std::string family = "tag36h11";  // any libapriltag family by name (tagFamilyNames())
-    double decimate = 2.0;            // quad_decimate: detect quads on an image this many times smaller (>= 1)
+    double decimate = 1.0;            // quad_decimate: detect quads on an image this many times smaller (>= 1);
+                                      // 2 (libapriltag's default) is faster but misses tags under ~40 px
     double sigma = 0.0;               // quad_sigma: Gaussian blur in pixels before quad detection (>= 0)
     int threads = 1;                  // libapriltag's worker threads (>= 1)
     bool refine_edges = true;         // snap quad edges to the full-resolution gradient

@@ -1,0 +1,472 @@
+#include "apps/bench_tracking.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <optional>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "apps/app.h"
+#include "apps/progress.h"
+#include "apps/report.h"
+#include "apps/track_input.h"
+#include "capture/percentiles.h"
+#include "core/calibration_io.h"
+#include "core/file_util.h"
+#include "core/log.h"
+#include "core/scene_io.h"
+#include "mocks/sim/simulation.h"
+#include "mocks/sim/trajectory.h"
+#include "tracking/tracker.h"
+
+namespace commonlight::apps {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+using nlohmann::json;
+
+// Step 0: the sequences. "desk" is the bundled sample; the others are rendered once into the
+// data folder (with the sim's ground truth) and reused while their parameters match.
+struct CaseSpec {
+    const char* name;
+    const char* what;
+    const char* scene;       // relative to the repository; null: the bundled sample
+    const char* trajectory;
+    const char* calib;       // null: the scene's camera
+    bool motion_blur = false;
+    double exposure_us = 0;  // 0: the sensor's default
+    bool noise_free = false;
+    int width = 0, height = 0;  // > 0: the desk camera at this size (same field of view)
+    int frames = 0;             // 0: the whole trajectory
+    bool sweep = false;         // run the decimate x tracking-mode sweep on it
+};
+
+const std::vector<CaseSpec>& cases() {
+    static const std::vector<CaseSpec> list = {
+        {"desk", "bundled sample: desk scene, 640x480, slow pan", nullptr, nullptr, nullptr, false, 0, false, 0, 0, 0,
+         true},
+        {"desk720", "desk scene at 1280x720 (tracking-mode speed)", "data/scenes/desk/scene.yaml",
+         "data/scenes/desk/trajectory.yaml", nullptr, false, 0, false, 1280, 720, 31, true},
+        {"small", "tags of 14-26 px", "data/scenes/hard/scene.yaml", "data/scenes/hard/small.yaml", nullptr},
+        {"fronto", "exactly fronto-parallel tag, noise-free sensor", "data/scenes/hard/scene.yaml",
+         "data/scenes/hard/fronto.yaml", nullptr, false, 0, true},
+        {"oblique75", "tag at 72-78 degrees", "data/scenes/hard/scene.yaml", "data/scenes/hard/oblique75.yaml", nullptr},
+        {"blur", "fast pan, motion blur over 20 ms", "data/scenes/hard/scene.yaml", "data/scenes/hard/blur.yaml", nullptr,
+         true, 20000},
+        {"wide", "strong distortion, k1 = -0.4", "data/scenes/hard/scene.yaml", "data/scenes/hard/wide.yaml",
+         "data/scenes/hard/calib_wide.yaml"},
+        {"occluded", "tag 5 half under a bar", "data/scenes/hard/scene.yaml", "data/scenes/hard/occluded.yaml", nullptr},
+    };
+    return list;
+}
+
+std::string renderKey(const CaseSpec& c, int spp) {
+    return std::string("case=") + c.name + " spp=" + std::to_string(spp) + " version=1";
+}
+
+Result<fs::path> ensureSequence(const CaseSpec& c, const BenchTrackingOptions& options) {
+    if (!c.scene) return options.source_dir / "data/sample";
+    const fs::path out = options.data_dir / c.name;
+    const fs::path marker = out / "bench-render.txt";
+    const int spp = c.noise_free ? std::max(options.spp, 64) : options.spp;
+    {
+        std::ifstream in(marker);
+        std::string key;
+        if (in && std::getline(in, key) && key == renderKey(c, spp)) return out;
+    }
+    std::error_code ec;
+    fs::remove_all(out, ec);
+    CL_TRY(Scene scene, readScene(options.source_dir / c.scene));
+    CL_TRY(auto trajectory, mocks::sim::Trajectory::read(options.source_dir / c.trajectory));
+    mocks::sim::SimulationOptions sim;
+    sim.out = out;
+    sim.spp = spp;
+    sim.max_depth = 4;
+    sim.frames = c.frames;
+    sim.write_composite = false;
+    sim.write_masks = false;
+    sim.write_radiance = false;
+    sim.motion_blur = c.motion_blur;
+    if (c.exposure_us > 0) sim.sensor.exposure_us = c.exposure_us;
+    if (c.noise_free) {
+        sim.sensor.dark_noise_e = 0;
+        sim.sensor.dsnu_e = 0;
+        sim.sensor.prnu = 0;
+    }
+    if (c.calib) {
+        CL_TRY(sim.camera, readCalibration(options.source_dir / c.calib));
+    }
+    if (c.width > 0 && scene.camera) {
+        // The same field of view (horizontal) and lens at another size.
+        CameraModel cam = *scene.camera;
+        const double f = cam.fx * (static_cast<double>(c.width) / cam.width);
+        cam.width = c.width;
+        cam.height = c.height;
+        cam.fx = cam.fy = f;
+        cam.cx = (c.width - 1) / 2.0;
+        cam.cy = (c.height - 1) / 2.0;
+        sim.camera = cam;
+    }
+    const int total = c.frames > 0 ? c.frames : trajectory.frameCount();
+    std::fprintf(stderr, "rendering the '%s' sequence (%d frames, %d spp) into %s\n", c.name, total, spp, out.c_str());
+    Progress progress(std::string("render ") + c.name, static_cast<std::uint64_t>(total));
+    CL_TRY(auto summary, mocks::sim::simulate(scene, trajectory, sim,
+                                             [&](int done, int) { progress.update(static_cast<std::uint64_t>(done)); },
+                                             stopToken()));
+    progress.finish();
+    if (summary.stopped) return fail(ErrorCode::kCancelled, "stopped while rendering " + out.string());
+    std::ofstream(marker) << renderKey(c, spp) << "\n";
+    return out;
+}
+
+// Step 1: a case in memory: grey frames, the camera, the scene's tags and proxies, the truth.
+struct LoadedCase {
+    const CaseSpec* spec = nullptr;
+    fs::path path;
+    std::vector<Image> frames;
+    std::vector<std::int64_t> timestamps;
+    std::vector<Rigid3d> cam_from_world_true;
+    CameraModel camera;
+    Scene scene;
+};
+
+Result<LoadedCase> loadCase(const CaseSpec& spec, const fs::path& path, int max_frames) {
+    LoadedCase out;
+    out.spec = &spec;
+    out.path = path;
+    CL_TRY(TrackInput input, openTrackInput(path));
+    if (!input.sensor_camera) return fail(ErrorCode::kBadInput, path.string() + ": cam0/sensor.yaml has no intrinsics");
+    out.camera = *input.sensor_camera;
+    if (!input.scene_path) return fail(ErrorCode::kBadInput, path.string() + ": no scene.yaml");
+    CL_TRY(out.scene, readScene(*input.scene_path));
+    std::map<std::int64_t, Rigid3d> truth;
+    for (const PoseRecord& p : input.sequence->groundtruth_poses) truth[p.timestamp_ns] = p.world_from_cam.inverse();
+    GreyFrameLoader loader;
+    const std::size_t n = max_frames > 0 ? std::min<std::size_t>(input.frames.size(), max_frames) : input.frames.size();
+    for (std::size_t i = 0; i < n; ++i) {
+        const auto it = truth.find(input.frames[i].timestamp_ns);
+        if (it == truth.end()) {
+            return fail(ErrorCode::kBadInput, path.string() + ": frame " + input.frames[i].name +
+                                                  " has no row in groundtruth/cam_poses.csv");
+        }
+        Image grey;
+        CL_TRY_VOID(loader.load(input, i, grey));
+        out.frames.push_back(std::move(grey));
+        out.timestamps.push_back(input.frames[i].timestamp_ns);
+        out.cam_from_world_true.push_back(it->second);
+    }
+    return out;
+}
+
+// Error statistics of a set of poses against the truth.
+struct ErrorStats {
+    std::vector<double> rot_deg, trans_mm, ms;
+    int attempts = 0;  // frames (or tag detections) that should have had a pose
+
+    void add(const Rigid3d& estimate, const Rigid3d& truth) {
+        rot_deg.push_back(rotationErrorDeg(estimate, truth));
+        trans_mm.push_back(1000.0 * (estimate.translation - truth.translation).norm());
+    }
+    static double pct(std::vector<double> v, double p) {
+        if (v.empty()) return NAN;
+        std::sort(v.begin(), v.end());
+        return capture::nearestRank(v, p);
+    }
+    double gross() const {
+        if (rot_deg.empty()) return NAN;
+        return static_cast<double>(std::count_if(rot_deg.begin(), rot_deg.end(), [](double r) { return r > 5.0; })) /
+               static_cast<double>(rot_deg.size());
+    }
+    json toJson() const {
+        json j;
+        j["count"] = rot_deg.size();
+        j["attempts"] = attempts;
+        j["rot_deg"] = {{"p50", pct(rot_deg, 50)}, {"p95", pct(rot_deg, 95)}, {"max", pct(rot_deg, 100)}};
+        j["trans_mm"] = {{"p50", pct(trans_mm, 50)}, {"p95", pct(trans_mm, 95)}, {"max", pct(trans_mm, 100)}};
+        j["gross_rate"] = gross();
+        if (!ms.empty()) j["ms_per_frame"] = {{"p50", pct(ms, 50)}, {"p95", pct(ms, 95)}, {"max", pct(ms, 100)}};
+        return j;
+    }
+};
+
+std::string fmt(double v, const char* f = "%.3f") {
+    if (!std::isfinite(v)) return "-";
+    char buf[32];
+    std::snprintf(buf, sizeof buf, f, v);
+    return buf;
+}
+
+void printRow(const std::string& name, const ErrorStats& s) {
+    std::printf("| %-26s | %4zu/%-4d | %7s | %7s | %7s | %8s | %8s | %8s | %6s | %7s |\n", name.c_str(), s.rot_deg.size(),
+                s.attempts, fmt(ErrorStats::pct(s.rot_deg, 50)).c_str(), fmt(ErrorStats::pct(s.rot_deg, 95)).c_str(),
+                fmt(ErrorStats::pct(s.rot_deg, 100)).c_str(), fmt(ErrorStats::pct(s.trans_mm, 50), "%.2f").c_str(),
+                fmt(ErrorStats::pct(s.trans_mm, 95), "%.2f").c_str(), fmt(ErrorStats::pct(s.trans_mm, 100), "%.2f").c_str(),
+                fmt(100.0 * s.gross(), "%.1f%%").c_str(), s.ms.empty() ? "-" : fmt(ErrorStats::pct(s.ms, 50), "%.2f").c_str());
+}
+
+void printHeader(const char* first) {
+    std::printf("| %-26s | %9s | %7s | %7s | %7s | %8s | %8s | %8s | %6s | %7s |\n", first, "poses", "rot p50", "rot p95",
+                "rot max", "mm p50", "mm p95", "mm max", "gross", "ms/frm");
+    std::printf("|%s|\n", std::string(131, '-').c_str());
+}
+
+// Step 2: libapriltag's own pose against ours on the same detections; the detector alone timed.
+struct SingleTagComparison {
+    ErrorStats reference, ours, detector_only;
+};
+
+SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
+    SingleTagComparison out;
+    tracking::TagDetectorOptions det;
+    det.family = lc.scene.tags.family;
+    det.decimate = decimate;
+    // estimate_tag_pose is linear in the tag size: run it for size 1 and scale per tag.
+    det.reference_pose = tracking::TagDetectorOptions::ReferencePose{1.0, lc.camera.fx, lc.camera.fy, lc.camera.cx,
+                                                                     lc.camera.cy};
+    auto detector = tracking::TagDetector::create(det);
+    if (!detector) return out;
+    for (std::size_t i = 0; i < lc.frames.size(); ++i) {
+        const auto start = Clock::now();
+        auto detections = detector->detect(lc.frames[i].view());
+        out.detector_only.ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - start).count());
+        if (!detections) continue;
+        for (const auto& d : *detections) {
+            const TagItem* item = lc.scene.tags.find(d.id);
+            if (!item) continue;
+            const Rigid3d truth = lc.cam_from_world_true[i] * item->world_from_tag;
+            ++out.reference.attempts;
+            ++out.ours.attempts;
+            if (d.reference_cam_from_tag) {
+                Rigid3d ref = *d.reference_cam_from_tag;
+                ref.translation *= item->size;
+                out.reference.add(ref, truth);
+            }
+            auto ours = tracking::solveTagPose(d.id, d.corners, item->size, lc.camera);
+            if (ours) out.ours.add(ours->cam_from_tag, truth);
+        }
+    }
+    return out;
+}
+
+// Step 3: the tracker, in a given configuration, over the whole sequence.
+struct TrackerRun {
+    ErrorStats camera;       // cam_from_world per frame
+    ErrorStats single_tags;  // the tracker's chosen single-tag poses
+    double detect_ms_p50 = 0;
+    int full_frame_detections = 0;
+};
+
+Result<TrackerRun> runTracker(const LoadedCase& lc, const tracking::TrackerOptions& options) {
+    CL_TRY(auto tracker, tracking::Tracker::create(lc.camera, lc.scene.tags, &lc.scene, options));
+    TrackerRun run;
+    std::vector<double> detect_ms;
+    for (std::size_t i = 0; i < lc.frames.size(); ++i) {
+        CL_TRY(auto track, tracker.process(lc.frames[i].view(), lc.timestamps[i]));
+        ++run.camera.attempts;
+        run.camera.ms.push_back(track.times.total_ms);
+        detect_ms.push_back(track.times.detect_ms);
+        if (track.full_frame_detection) ++run.full_frame_detections;
+        if (track.cam_from_world) run.camera.add(*track.cam_from_world, lc.cam_from_world_true[i]);
+        for (const auto& t : track.tags) {
+            const TagItem* item = lc.scene.tags.find(t.detection.id);
+            if (!item) continue;
+            ++run.single_tags.attempts;
+            if (t.pose) run.single_tags.add(t.pose->cam_from_tag, lc.cam_from_world_true[i] * item->world_from_tag);
+        }
+    }
+    run.detect_ms_p50 = ErrorStats::pct(detect_ms, 50);
+    return run;
+}
+
+tracking::TrackerOptions baseOptions(const LoadedCase& lc, double decimate) {
+    tracking::TrackerOptions o;
+    o.detector.family = lc.scene.tags.family;
+    o.detector.decimate = decimate;
+    return o;
+}
+
+struct SweepPoint {
+    std::string case_name;
+    double decimate;
+    bool tracking_mode;
+    TrackerRun run;
+};
+
+void drawPlot(const std::vector<SweepPoint>& points, const fs::path& file) {
+    const int w = 900, h = 560, left = 80, right = 30, top = 40, bottom = 60;
+    cv::Mat img(h, w, CV_8UC3, cv::Scalar(255, 255, 255));
+    double max_ms = 0, max_err = 0;
+    for (const auto& p : points) {
+        max_ms = std::max(max_ms, ErrorStats::pct(p.run.camera.ms, 50));
+        max_err = std::max(max_err, ErrorStats::pct(p.run.camera.rot_deg, 50));
+    }
+    max_ms = max_ms > 0 ? max_ms * 1.15 : 1;
+    max_err = max_err > 0 ? max_err * 1.25 : 1;
+    const auto X = [&](double ms) { return left + static_cast<int>((w - left - right) * ms / max_ms); };
+    const auto Y = [&](double e) { return h - bottom - static_cast<int>((h - top - bottom) * e / max_err); };
+    const cv::Scalar black(0, 0, 0), grey(200, 200, 200);
+    for (int k = 0; k <= 5; ++k) {
+        const double ms = max_ms * k / 5, e = max_err * k / 5;
+        cv::line(img, {X(ms), top}, {X(ms), h - bottom}, grey);
+        cv::line(img, {left, Y(e)}, {w - right, Y(e)}, grey);
+        cv::putText(img, fmt(ms, "%.1f"), {X(ms) - 12, h - bottom + 20}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black);
+        cv::putText(img, fmt(e, "%.3f"), {10, Y(e) + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black);
+    }
+    cv::rectangle(img, {left, top}, {w - right, h - bottom}, black);
+    cv::putText(img, "tracking time per frame, ms (p50)", {left + 220, h - 15}, cv::FONT_HERSHEY_SIMPLEX, 0.55, black);
+    cv::putText(img, "camera rotation error p50, deg: decimate x tracking mode", {left, 25}, cv::FONT_HERSHEY_SIMPLEX, 0.55,
+                black);
+    const cv::Scalar colours[] = {{200, 60, 20}, {20, 120, 220}, {40, 160, 40}, {160, 40, 160}};
+    std::map<std::string, int> case_colour;
+    for (const auto& p : points) {
+        const int ci = case_colour.emplace(p.case_name, static_cast<int>(case_colour.size())).first->second % 4;
+        const double ms = ErrorStats::pct(p.run.camera.ms, 50), e = ErrorStats::pct(p.run.camera.rot_deg, 50);
+        if (!std::isfinite(e)) continue;
+        const cv::Point at(X(ms), Y(e));
+        if (p.tracking_mode) {
+            cv::rectangle(img, at - cv::Point(5, 5), at + cv::Point(5, 5), colours[ci], cv::FILLED);
+        } else {
+            cv::circle(img, at, 6, colours[ci], cv::FILLED);
+        }
+        cv::putText(img, p.case_name + " d" + fmt(p.decimate, "%.0f") + (p.tracking_mode ? " trk" : ""),
+                    at + cv::Point(8, -6), cv::FONT_HERSHEY_SIMPLEX, 0.4, colours[ci]);
+    }
+    cv::imwrite(file.string(), img);
+}
+
+}  // namespace
+
+std::vector<std::string> benchTrackingCaseNames() {
+    std::vector<std::string> names;
+    for (const auto& c : cases()) names.push_back(c.name);
+    return names;
+}
+
+int runBenchTracking(const BenchTrackingOptions& options) {
+    std::vector<const CaseSpec*> selected;
+    for (const auto& c : cases()) {
+        if (options.cases.empty() || std::find(options.cases.begin(), options.cases.end(), c.name) != options.cases.end()) {
+            selected.push_back(&c);
+        }
+    }
+    for (const auto& name : options.cases) {
+        if (std::none_of(cases().begin(), cases().end(), [&](const CaseSpec& c) { return name == c.name; })) {
+            return reportError(Error{ErrorCode::kUsage, "unknown case '" + name + "'"});
+        }
+    }
+    json report;
+    report["cases"] = json::object();
+    std::vector<SweepPoint> sweep;
+    for (const CaseSpec* spec : selected) {
+        // Step 0 and 1.
+        auto path = ensureSequence(*spec, options);
+        if (!path) return reportError(path.error());
+        auto lc = loadCase(*spec, *path, options.max_frames);
+        if (!lc) return reportError(lc.error());
+        std::printf("\n## %s: %s (%zu frames, %dx%d)\n\n", spec->name, spec->what, lc->frames.size(), lc->camera.width,
+                    lc->camera.height);
+
+        // Step 2: single tags, same detections (decimate 2, libapriltag's default here).
+        const SingleTagComparison single = compareSingleTag(*lc, 2.0);
+        // Step 3: the stages, decimate 2, full-frame detection.
+        tracking::TrackerOptions bundle_only = baseOptions(*lc, 2.0);
+        bundle_only.filter = false;
+        tracking::TrackerOptions filtered = baseOptions(*lc, 2.0);
+        tracking::TrackerOptions with_edges = filtered;
+        with_edges.edges = true;
+        auto run_bundle = runTracker(*lc, bundle_only);
+        auto run_filter = runTracker(*lc, filtered);
+        auto run_edges = runTracker(*lc, with_edges);
+        if (!run_bundle) return reportError(run_bundle.error());
+        if (!run_filter) return reportError(run_filter.error());
+        if (!run_edges) return reportError(run_edges.error());
+
+        printHeader("method (decimate 2)");
+        printRow("libapriltag estimate_tag_pose", single.reference);
+        printRow("our single tag", single.ours);
+        printRow("our single tag, in tracker", run_filter->single_tags);
+        printRow("bundle", run_bundle->camera);
+        printRow("bundle + filter", run_filter->camera);
+        printRow("bundle + filter + edges", run_edges->camera);
+        const double det_ms = ErrorStats::pct(single.detector_only.ms, 50);
+        const double track_ms = ErrorStats::pct(run_filter->camera.ms, 50);
+        std::printf("\nlibapriltag detector alone: %.2f ms/frame (p50); tracking stage (bundle + filter): %.2f ms = %.2fx\n",
+                    det_ms, track_ms, track_ms / det_ms);
+        const double ref_p50 = ErrorStats::pct(single.reference.rot_deg, 50);
+        const double ours_p50 = ErrorStats::pct(single.ours.rot_deg, 50);
+        std::printf("single-tag rotation p50: ours %.3f deg vs libapriltag %.3f deg = %.2fx\n", ours_p50, ref_p50,
+                    ours_p50 / ref_p50);
+
+        json j;
+        j["what"] = spec->what;
+        j["frames"] = lc->frames.size();
+        j["size"] = {lc->camera.width, lc->camera.height};
+        j["apriltag_estimate_tag_pose"] = single.reference.toJson();
+        j["single_tag"] = single.ours.toJson();
+        j["single_tag_in_tracker"] = run_filter->single_tags.toJson();
+        j["bundle"] = run_bundle->camera.toJson();
+        j["bundle_filter"] = run_filter->camera.toJson();
+        j["bundle_filter_edges"] = run_edges->camera.toJson();
+        j["detector_only_ms_p50"] = det_ms;
+        j["tracking_over_detector"] = track_ms / det_ms;
+        j["single_over_apriltag_rot_p50"] = ours_p50 / ref_p50;
+
+        // Step 4: decimate x tracking mode.
+        if (spec->sweep) {
+            std::printf("\n");
+            printHeader("decimate, mode (bundle+filter)");
+            json js = json::array();
+            for (const double decimate : {1.0, 2.0, 3.0}) {
+                for (const bool tracking_mode : {false, true}) {
+                    tracking::TrackerOptions o = baseOptions(*lc, decimate);
+                    o.tracking_mode = tracking_mode;
+                    auto run = runTracker(*lc, o);
+                    if (!run) return reportError(run.error());
+                    const std::string label =
+                        "d" + fmt(decimate, "%.0f") + (tracking_mode ? " tracking mode" : " full frame");
+                    printRow(label, run->camera);
+                    json e = run->camera.toJson();
+                    e["decimate"] = decimate;
+                    e["tracking_mode"] = tracking_mode;
+                    e["detect_ms_p50"] = run->detect_ms_p50;
+                    e["full_frame_detections"] = run->full_frame_detections;
+                    js.push_back(e);
+                    sweep.push_back({spec->name, decimate, tracking_mode, std::move(*run)});
+                }
+            }
+            j["sweep"] = js;
+            // Tracking mode against full frame at each decimation.
+            for (std::size_t k = 0; k + 1 < sweep.size(); ++k) {
+                const SweepPoint& a = sweep[k];
+                const SweepPoint& b = sweep[k + 1];
+                if (a.case_name != spec->name || a.tracking_mode || !b.tracking_mode || a.decimate != b.decimate) continue;
+                std::printf("decimate %.0f: tracking mode %.2fx faster per frame; rotation p50 %.3f -> %.3f deg\n",
+                            a.decimate, ErrorStats::pct(a.run.camera.ms, 50) / ErrorStats::pct(b.run.camera.ms, 50),
+                            ErrorStats::pct(a.run.camera.rot_deg, 50), ErrorStats::pct(b.run.camera.rot_deg, 50));
+            }
+        }
+        report["cases"][spec->name] = j;
+    }
+    if (!options.plot.empty()) {
+        if (sweep.empty()) {
+            log::warning("--plot: no case with a sweep ran (desk, desk720); no plot written");
+        } else {
+            drawPlot(sweep, options.plot);
+            std::printf("\nplot: %s\n", options.plot.c_str());
+        }
+    }
+    if (!options.json.empty()) {
+        if (auto ok = writeJson(options.json, report); !ok) return reportError(ok.error());
+        std::printf("json: %s\n", options.json.c_str());
+    }
+    return kExitOk;
+}
+
+}  // namespace commonlight::apps

@@ -1,0 +1,169 @@
+// The tracking stage end to end on the bundled sample (the desk scene rendered by mocks/sim,
+// with its true camera poses), and its contract on frames without tags and bad frames.
+#include <cstdlib>
+#include <filesystem>
+#include <map>
+
+#include <gtest/gtest.h>
+
+#include "capture/convert.h"
+#include "core/frame_file.h"
+#include "core/scene_io.h"
+#include "core/sequence_io.h"
+#include "tracking/tracker.h"
+
+namespace commonlight::tracking {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Sample {
+    Sequence seq;
+    Scene scene;
+    std::vector<Image> grey;
+    std::vector<Rigid3d> cam_from_world_true;
+};
+
+const Sample& sample() {
+    static const Sample s = [] {
+        Sample out;
+        const char* src = std::getenv("COMMONLIGHT_SOURCE_DIR");
+        const fs::path root = src ? fs::path(src) : fs::current_path();
+        auto seq = readSequence(root / "data/sample");
+        EXPECT_TRUE(seq) << seq.error().message;
+        out.seq = std::move(*seq);
+        auto scene = readScene(root / "data/sample/scene.yaml");
+        EXPECT_TRUE(scene) << scene.error().message;
+        out.scene = std::move(*scene);
+        FrameFileReader reader;
+        capture::PixelConverter converter;
+        std::map<std::int64_t, Rigid3d> truth;
+        for (const auto& p : out.seq.groundtruth_poses) truth[p.timestamp_ns] = p.world_from_cam.inverse();
+        for (std::size_t i = 0; i < out.seq.frames.size(); ++i) {
+            Image raw, grey;
+            EXPECT_TRUE(reader.read(out.seq.framePath(i), out.seq.sensor.pixel_format, 0, 0, raw));
+            EXPECT_TRUE(converter.convert(raw.view(), PixelFormat::kGray8, grey));
+            out.grey.push_back(std::move(grey));
+            out.cam_from_world_true.push_back(truth.at(out.seq.frames[i].timestamp_ns));
+        }
+        return out;
+    }();
+    return s;
+}
+
+Tracker makeTracker(const TrackerOptions& options) {
+    const Sample& s = sample();
+    auto tracker = Tracker::create(*s.seq.sensor.camera, s.scene.tags, &s.scene, options);
+    EXPECT_TRUE(tracker) << tracker.error().message;
+    return std::move(*tracker);
+}
+
+TEST(Tracker, TracksTheDeskSampleAgainstItsGroundTruth) {
+    const Sample& s = sample();
+    ASSERT_GE(s.grey.size(), 60u);
+    for (const bool filter : {false, true}) {
+        TrackerOptions options;
+        options.filter = filter;
+        Tracker tracker = makeTracker(options);
+        double worst_rot = 0, worst_mm = 0;
+        for (std::size_t i = 0; i < s.grey.size(); ++i) {
+            auto track = tracker.process(s.grey[i].view(), s.seq.frames[i].timestamp_ns);
+            ASSERT_TRUE(track) << track.error().message;
+            ASSERT_EQ(track->status, TrackStatus::kTracked) << "frame " << i;
+            ASSERT_TRUE(track->cam_from_world && track->bundle);
+            EXPECT_EQ(track->bundle->tags_used.size(), 4u) << "frame " << i;
+            worst_rot = std::max(worst_rot, rotationErrorDeg(*track->cam_from_world, s.cam_from_world_true[i]));
+            worst_mm = std::max(worst_mm, 1000 * (track->cam_from_world->inverse().translation -
+                                                  s.cam_from_world_true[i].inverse().translation)
+                                                     .norm());
+        }
+        std::printf("  filter %s: worst rotation error %.3f deg, worst camera position error %.1f mm\n",
+                    filter ? "on" : "off", worst_rot, worst_mm);
+        EXPECT_LT(worst_rot, 0.3);
+        EXPECT_LT(worst_mm, 8.0);
+    }
+}
+
+TEST(Tracker, TrackingModeDetectsInWindowsWithTheSamePoses) {
+    const Sample& s = sample();
+    TrackerOptions full, windowed;
+    windowed.tracking_mode = true;
+    windowed.redetect_every = 10;
+    Tracker a = makeTracker(full), b = makeTracker(windowed);
+    int full_frames = 0;
+    double worst = 0;
+    for (std::size_t i = 0; i < s.grey.size(); ++i) {
+        auto ta = a.process(s.grey[i].view(), s.seq.frames[i].timestamp_ns);
+        auto tb = b.process(s.grey[i].view(), s.seq.frames[i].timestamp_ns);
+        ASSERT_TRUE(ta && tb);
+        ASSERT_TRUE(ta->cam_from_world && tb->cam_from_world) << "frame " << i;
+        EXPECT_EQ(ta->tags.size(), tb->tags.size()) << "frame " << i;
+        if (tb->full_frame_detection) ++full_frames;
+        worst = std::max(worst, rotationErrorDeg(*ta->cam_from_world, *tb->cam_from_world));
+    }
+    // Frame 0 and every 10th after it; the windows find every tag in between.
+    EXPECT_LE(full_frames, static_cast<int>(s.grey.size()) / 10 + 2);
+    EXPECT_LT(worst, 0.05) << "windowed detection should find the same corners";
+}
+
+TEST(Tracker, FramesWithoutTagsArePredictedThenLost) {
+    const Sample& s = sample();
+    Tracker tracker = makeTracker({});
+    Image blank(PixelFormat::kGray8, s.grey[0].width(), s.grey[0].height());
+    std::fill_n(blank.data(), blank.sizeBytes(), std::uint8_t{128});
+    // Nothing seen yet: no pose, not an error.
+    auto first = tracker.process(blank.view(), 0);
+    ASSERT_TRUE(first) << first.error().message;
+    EXPECT_EQ(first->status, TrackStatus::kNoPose);
+    EXPECT_FALSE(first->cam_from_world);
+    EXPECT_FALSE(tracker.predict(0));
+    // Tracked, then the tags vanish: predicted while recent, then no pose.
+    for (int i = 0; i < 5; ++i) {
+        auto t = tracker.process(s.grey[i].view(), s.seq.frames[i].timestamp_ns + 1);
+        ASSERT_TRUE(t && t->status == TrackStatus::kTracked);
+    }
+    const std::int64_t last = s.seq.frames[4].timestamp_ns + 1;
+    auto gone = tracker.process(blank.view(), last + 33'333'333);
+    ASSERT_TRUE(gone);
+    EXPECT_EQ(gone->status, TrackStatus::kPredicted);
+    ASSERT_TRUE(gone->cam_from_world);
+    EXPECT_LT(rotationErrorDeg(*gone->cam_from_world, s.cam_from_world_true[5]), 0.5);
+    auto long_gone = tracker.process(blank.view(), last + 2'000'000'000);
+    ASSERT_TRUE(long_gone);
+    EXPECT_EQ(long_gone->status, TrackStatus::kNoPose);
+    // The renderer asks for any timestamp: between two frames, the pose is in between.
+    ASSERT_TRUE(tracker.predict(last + 16'000'000));
+}
+
+TEST(Tracker, BadFramesAreErrorsNamingTheProblem) {
+    const Sample& s = sample();
+    Tracker tracker = makeTracker({});
+    Image rgb(PixelFormat::kRgb8, s.grey[0].width(), s.grey[0].height());
+    auto wrong_format = tracker.process(rgb.view(), 0);
+    ASSERT_FALSE(wrong_format);
+    EXPECT_EQ(wrong_format.error().code, ErrorCode::kBadInput);
+    Image small(PixelFormat::kGray8, 320, 240);
+    auto wrong_size = tracker.process(small.view(), 0);
+    ASSERT_FALSE(wrong_size);
+    EXPECT_EQ(wrong_size.error().code, ErrorCode::kBadInput);
+    ASSERT_TRUE(tracker.process(s.grey[0].view(), 1000));
+    auto backwards = tracker.process(s.grey[1].view(), 999);
+    ASSERT_FALSE(backwards);
+    EXPECT_NE(backwards.error().message.find("earlier"), std::string::npos);
+}
+
+TEST(Tracker, InvalidOptionsAreUsageErrors) {
+    const Sample& s = sample();
+    TrackerOptions bad;
+    bad.detector.family = "tag99h99";
+    auto t = Tracker::create(*s.seq.sensor.camera, s.scene.tags, &s.scene, bad);
+    ASSERT_FALSE(t);
+    EXPECT_EQ(t.error().code, ErrorCode::kUsage);
+    EXPECT_NE(t.error().message.find("tag99h99"), std::string::npos);
+    TrackerOptions edges_without_scene;
+    edges_without_scene.edges = true;
+    EXPECT_FALSE(Tracker::create(*s.seq.sensor.camera, s.scene.tags, nullptr, edges_without_scene));
+}
+
+}  // namespace
+}  // namespace commonlight::tracking

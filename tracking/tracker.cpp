@@ -1,0 +1,298 @@
+#include "tracking/tracker.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+
+namespace commonlight::tracking {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double msSince(Clock::time_point start) {
+    return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+// The box around image points, grown by `margin` of its size and at least `min_px` pixels.
+PixelWindow grownBox(const std::array<Eigen::Vector2d, 4>& pts, double margin, int min_px) {
+    Eigen::Vector2d lo = pts[0], hi = pts[0];
+    for (const auto& p : pts) {
+        lo = lo.cwiseMin(p);
+        hi = hi.cwiseMax(p);
+    }
+    const double grow = std::max(margin * (hi - lo).maxCoeff(), static_cast<double>(min_px));
+    const int x0 = static_cast<int>(std::floor(lo.x() - grow));
+    const int y0 = static_cast<int>(std::floor(lo.y() - grow));
+    const int x1 = static_cast<int>(std::ceil(hi.x() + grow));
+    const int y1 = static_cast<int>(std::ceil(hi.y() + grow));
+    return {x0, y0, x1 - x0, y1 - y0};
+}
+
+bool overlap(const PixelWindow& a, const PixelWindow& b) {
+    return a.x < b.x + b.width && b.x < a.x + a.width && a.y < b.y + b.height && b.y < a.y + a.height;
+}
+
+// Overlapping windows (the tags of one board) become their bounding box: the detector then
+// sees each tag once, whole, and pays its per-call cost once.
+std::vector<PixelWindow> mergeOverlapping(std::vector<PixelWindow> windows) {
+    bool merged = true;
+    while (merged) {
+        merged = false;
+        for (std::size_t i = 0; i < windows.size() && !merged; ++i) {
+            for (std::size_t j = i + 1; j < windows.size() && !merged; ++j) {
+                if (!overlap(windows[i], windows[j])) continue;
+                const int x0 = std::min(windows[i].x, windows[j].x), y0 = std::min(windows[i].y, windows[j].y);
+                const int x1 = std::max(windows[i].x + windows[i].width, windows[j].x + windows[j].width);
+                const int y1 = std::max(windows[i].y + windows[i].height, windows[j].y + windows[j].height);
+                windows[i] = {x0, y0, x1 - x0, y1 - y0};
+                windows.erase(windows.begin() + static_cast<std::ptrdiff_t>(j));
+                merged = true;
+            }
+        }
+    }
+    return windows;
+}
+
+}  // namespace
+
+const char* trackStatusName(TrackStatus status) noexcept {
+    switch (status) {
+        case TrackStatus::kTracked: return "tracked";
+        case TrackStatus::kEdgesOnly: return "edges_only";
+        case TrackStatus::kPredicted: return "predicted";
+        case TrackStatus::kNoPose: return "no_pose";
+    }
+    return "?";
+}
+
+Result<void> TrackerOptions::validate() const {
+    CL_TRY_VOID(detector.validate());
+    CL_TRY_VOID(tag_pose.validate());
+    CL_TRY_VOID(bundle.validate());
+    if (redetect_every < 1) return fail(ErrorCode::kUsage, "redetect_every must be >= 1");
+    if (!(window_margin >= 0) || window_min_margin_px < 0) return fail(ErrorCode::kUsage, "window margins must be >= 0");
+    if (!(default_tag_size >= 0) || !std::isfinite(default_tag_size)) {
+        return fail(ErrorCode::kUsage, "the tag size must be a positive number of metres");
+    }
+    if (filter) CL_TRY_VOID(filter_options.validate());
+    if (edges) CL_TRY_VOID(edge_options.validate());
+    return {};
+}
+
+struct Tracker::State {
+    CameraModel camera;
+    TagSet tags;
+    TrackerOptions options;
+    TagDetector detector;
+    PoseFilter filter;
+    std::optional<EdgeModel> edge_model;
+    std::int64_t frames = 0;
+    std::int64_t frames_since_full = 0;
+    std::optional<std::int64_t> last_timestamp;
+    std::optional<std::int64_t> last_measurement_timestamp;
+    // Without the filter: the last pose, used as the prediction.
+    std::optional<Rigid3d> last_cam_from_world;
+    // The last frame's detections and single-tag poses (windows and predictions for tags the
+    // scene does not place).
+    std::vector<TagDetection> last_detections;
+    std::map<int, Rigid3d> last_cam_from_tag;
+
+    State(const CameraModel& c, const TagSet& t, const TrackerOptions& o, TagDetector d)
+        : camera(c), tags(t), options(o), detector(std::move(d)), filter(o.filter_options) {}
+
+    std::optional<Rigid3d> prediction(std::int64_t timestamp_ns) const {
+        if (options.filter) {
+            if (auto p = filter.predict(timestamp_ns)) return p->cam_from_world;
+            return std::nullopt;
+        }
+        return last_cam_from_world;
+    }
+
+    std::vector<PixelWindow> windows(const std::optional<Rigid3d>& predicted) const {
+        std::vector<PixelWindow> out;
+        std::vector<int> covered;
+        if (predicted) {
+            for (const TagItem& item : tags.items) {
+                std::array<Eigen::Vector2d, 4> corners;
+                bool ok = true;
+                for (int c = 0; c < 4 && ok; ++c) {
+                    const auto px = camera.project(*predicted * (item.world_from_tag * tagCornerInTag(c, item.size)));
+                    ok = px.has_value();
+                    if (ok) corners[c] = *px;
+                }
+                if (!ok) continue;
+                const PixelWindow w = grownBox(corners, options.window_margin, options.window_min_margin_px);
+                if (w.x + w.width <= 0 || w.y + w.height <= 0 || w.x >= camera.width || w.y >= camera.height) continue;
+                out.push_back(w);
+                covered.push_back(item.id);
+            }
+        }
+        // Tags the scene does not place (or no prediction): where they were last frame.
+        for (const TagDetection& d : last_detections) {
+            if (std::find(covered.begin(), covered.end(), d.id) != covered.end()) continue;
+            out.push_back(grownBox(d.corners, options.window_margin, options.window_min_margin_px));
+        }
+        return mergeOverlapping(std::move(out));
+    }
+};
+
+Result<Tracker> Tracker::create(const CameraModel& camera, const TagSet& scene_tags, const Scene* proxies,
+                                const TrackerOptions& options) {
+    CL_TRY_VOID(options.validate());
+    CL_TRY_VOID(camera.validate());
+    CL_TRY(TagDetector detector, TagDetector::create(options.detector));
+    auto state = std::make_unique<State>(camera, scene_tags, options, std::move(detector));
+    if (options.edges) {
+        if (!proxies) return fail(ErrorCode::kUsage, "edge refinement needs a scene with proxy geometry");
+        CL_TRY(EdgeModel model, EdgeModel::fromScene(*proxies));
+        state->edge_model.emplace(std::move(model));
+    }
+    return Tracker(std::move(state));
+}
+
+Tracker::Tracker(std::unique_ptr<State> state) : state_(std::move(state)) {}
+Tracker::Tracker(Tracker&&) noexcept = default;
+Tracker& Tracker::operator=(Tracker&&) noexcept = default;
+Tracker::~Tracker() = default;
+
+const TrackerOptions& Tracker::options() const noexcept { return state_->options; }
+
+std::optional<Rigid3d> Tracker::predict(std::int64_t timestamp_ns) const { return state_->prediction(timestamp_ns); }
+
+Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timestamp_ns) {
+    State& s = *state_;
+    const auto start = Clock::now();
+    if (gray8.format != PixelFormat::kGray8) {
+        return fail(ErrorCode::kBadInput, "tracking needs an 8-bit grey frame, got " +
+                                              std::string(pixelFormatName(gray8.format)));
+    }
+    CL_TRY_VOID(s.camera.checkImageSize(gray8.width, gray8.height));
+    if (s.last_timestamp && timestamp_ns < *s.last_timestamp) {
+        return fail(ErrorCode::kBadInput, "frame timestamp " + std::to_string(timestamp_ns) +
+                                              " ns is earlier than the previous frame's");
+    }
+    FrameTrack out;
+    out.timestamp_ns = timestamp_ns;
+    const std::optional<Rigid3d> predicted = s.prediction(timestamp_ns);
+
+    // Step 1: detection.
+    auto t0 = Clock::now();
+    std::vector<TagDetection> detections;
+    out.full_frame_detection = true;
+    if (s.options.tracking_mode && s.frames_since_full + 1 < s.options.redetect_every) {
+        const auto windows = s.windows(predicted);
+        if (!windows.empty()) {
+            CL_TRY(detections, s.detector.detectInWindows(gray8, windows));
+            out.full_frame_detection = detections.empty();  // lost: look everywhere below
+        }
+    }
+    if (out.full_frame_detection) {
+        CL_TRY(detections, s.detector.detect(gray8));
+        s.frames_since_full = 0;
+    } else {
+        ++s.frames_since_full;
+    }
+    out.times.detect_ms = msSince(t0);
+
+    // Step 2: single-tag poses.
+    t0 = Clock::now();
+    out.tags.reserve(detections.size());
+    for (const TagDetection& d : detections) {
+        TrackedTag tag{d, std::nullopt, {}};
+        const TagItem* item = s.tags.find(d.id);
+        const double size = item ? item->size : s.options.default_tag_size;
+        if (size <= 0) {
+            tag.error = "tag " + std::to_string(d.id) + " is not in the scene";
+        } else {
+            std::optional<Rigid3d> predicted_cam_from_tag;
+            if (item && predicted) {
+                predicted_cam_from_tag = *predicted * item->world_from_tag;
+            } else if (auto it = s.last_cam_from_tag.find(d.id); it != s.last_cam_from_tag.end()) {
+                predicted_cam_from_tag = it->second;
+            }
+            auto pose = solveTagPose(d.id, d.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+            if (pose) {
+                tag.pose = std::move(*pose);
+            } else {
+                tag.error = pose.error().message;
+            }
+        }
+        out.tags.push_back(std::move(tag));
+    }
+    out.times.tag_pose_ms = msSince(t0);
+
+    // Step 3: bundle over the scene's tags.
+    t0 = Clock::now();
+    std::optional<PoseMeasurement> measurement;
+    {
+        std::vector<BundleTag> bundle_tags;
+        for (const TrackedTag& t : out.tags) {
+            if (s.tags.find(t.detection.id) && t.pose) bundle_tags.push_back({&t.detection, &*t.pose});
+        }
+        if (!bundle_tags.empty()) {
+            auto bundle = solveBundle(bundle_tags, s.tags, s.camera, predicted, s.options.bundle);
+            if (bundle) {
+                measurement = PoseMeasurement{timestamp_ns, bundle->cam_from_world, bundle->covariance};
+                out.bundle = std::move(*bundle);
+            }
+        }
+    }
+    out.times.bundle_ms = msSince(t0);
+
+    // Step 4: model edges.
+    t0 = Clock::now();
+    bool edges_only = false;
+    if (s.edge_model && (measurement || predicted)) {
+        const Rigid3d initial = measurement ? measurement->cam_from_world : *predicted;
+        auto refined = refinePoseWithEdges(gray8, s.camera, *s.edge_model, initial, s.options.edge_options, measurement);
+        if (refined) {
+            if (refined->ok) {
+                edges_only = !measurement.has_value();
+                measurement = PoseMeasurement{timestamp_ns, refined->cam_from_world, refined->covariance};
+            }
+            out.edges = std::move(*refined);
+        }
+    }
+    out.times.edges_ms = msSince(t0);
+
+    // Step 5: filter.
+    t0 = Clock::now();
+    if (measurement) {
+        out.status = edges_only ? TrackStatus::kEdgesOnly : TrackStatus::kTracked;
+        if (s.options.filter) {
+            CL_TRY(const auto update, s.filter.update(*measurement));
+            (void)update;
+            const auto filtered = s.filter.predict(timestamp_ns);
+            out.cam_from_world = filtered ? filtered->cam_from_world : measurement->cam_from_world;
+            out.covariance = filtered ? filtered->covariance : measurement->covariance;
+        } else {
+            out.cam_from_world = measurement->cam_from_world;
+            out.covariance = measurement->covariance;
+        }
+        s.last_cam_from_world = out.cam_from_world;
+    } else if (s.options.filter && predicted) {
+        const auto p = s.filter.predict(timestamp_ns);
+        const bool recent = s.last_measurement_timestamp &&
+                            timestamp_ns - *s.last_measurement_timestamp <= s.options.filter_options.max_gap_ns;
+        if (p && recent) {
+            out.status = TrackStatus::kPredicted;
+            out.cam_from_world = p->cam_from_world;
+            out.covariance = p->covariance;
+        }
+    }
+    out.times.filter_ms = msSince(t0);
+
+    // For the next frame.
+    s.last_detections = detections;
+    s.last_cam_from_tag.clear();
+    for (const TrackedTag& t : out.tags) {
+        if (t.pose) s.last_cam_from_tag[t.detection.id] = t.pose->cam_from_tag;
+    }
+    if (measurement) s.last_measurement_timestamp = timestamp_ns;
+    s.last_timestamp = timestamp_ns;
+    ++s.frames;
+    out.times.total_ms = msSince(start);
+    return out;
+}
+
+}  // namespace commonlight::tracking

@@ -1,0 +1,106 @@
+// The tracking stage: one call per frame, from the grey image to the camera pose.
+//
+//   Step 1  detect tags: the whole frame, or (tracking mode) only windows around where the
+//           prediction puts the tags; the whole frame again every N frames and whenever the
+//           windows find nothing
+//   Step 2  single-tag poses (both candidates; the prediction chooses when there is one)
+//   Step 3  bundle: one cam_from_world from every corner of the scene's tags
+//   Step 4  model-edge refinement (optional): the proxies' edges sharpen the pose, or carry it
+//           for a while when no tag is in view
+//   Step 5  temporal filter (optional): constant-velocity Kalman filter on SE(3)
+// Each step's time is reported in FrameTrack::times. One Tracker per camera; not thread-safe.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+#include "core/scene.h"
+#include "tracking/bundle.h"
+#include "tracking/edge_refine.h"
+#include "tracking/pose_filter.h"
+#include "tracking/tag_detector.h"
+#include "tracking/tag_pose.h"
+
+namespace commonlight::tracking {
+
+struct TrackerOptions {
+    TagDetectorOptions detector;
+    TagPoseOptions tag_pose;
+    BundleOptions bundle;
+    // Tracking mode: detect only in windows around the predicted tags.
+    bool tracking_mode = false;
+    int redetect_every = 15;      // full-frame detection every N frames in tracking mode (>= 1)
+    double window_margin = 0.5;   // a window is the predicted tag's box grown by this fraction of its size...
+    int window_min_margin_px = 12;  // ...and at least this many pixels on each side
+    // Tags without a place in the scene (track --tag-size): the edge of every tag's black square.
+    // 0: only the scene's tags get a single-tag pose.
+    double default_tag_size = 0.0;
+    bool filter = true;
+    PoseFilterOptions filter_options;
+    bool edges = false;  // needs the scene's proxy geometry
+    EdgeRefineOptions edge_options;
+    Result<void> validate() const;
+};
+
+enum class TrackStatus {
+    kTracked,    // from tags (bundle), possibly refined by edges and filtered
+    kEdgesOnly,  // no usable tag; the proxies' edges carried the pose from the prediction
+    kPredicted,  // nothing measured; the filter's prediction (still recent enough)
+    kNoPose,     // no tag of the scene in view and nothing to predict from
+};
+const char* trackStatusName(TrackStatus status) noexcept;
+
+struct TrackedTag {
+    TagDetection detection;
+    std::optional<TagPose> pose;  // nullopt: unknown size, or the solver refused (see error)
+    std::string error;            // why there is no pose
+};
+
+struct StageTimes {
+    double detect_ms = 0, tag_pose_ms = 0, bundle_ms = 0, edges_ms = 0, filter_ms = 0, total_ms = 0;
+};
+
+struct FrameTrack {
+    std::int64_t timestamp_ns = 0;
+    bool full_frame_detection = true;
+    std::vector<TrackedTag> tags;
+    std::optional<BundleResult> bundle;
+    std::optional<EdgeRefineResult> edges;
+    TrackStatus status = TrackStatus::kNoPose;
+    std::optional<Rigid3d> cam_from_world;  // the stage's answer: filtered when the filter is on
+    std::optional<Matrix6d> covariance;
+    StageTimes times;
+};
+
+class Tracker {
+public:
+    // `scene_tags`: tags with their world placement (may be empty with default_tag_size).
+    // `proxies`: the scene, for edge refinement (options.edges); may be null otherwise.
+    static Result<Tracker> create(const CameraModel& camera, const TagSet& scene_tags, const Scene* proxies,
+                                  const TrackerOptions& options);
+    Tracker(Tracker&&) noexcept;
+    Tracker& operator=(Tracker&&) noexcept;
+    ~Tracker();
+
+    // `gray8`: the distorted 8-bit grey frame, the calibration's size. Timestamps must not
+    // decrease. Errors: a wrong format or size (kBadInput), a detector failure (kInternal). A
+    // frame without tags is not an error: status kNoPose (or kPredicted / kEdgesOnly).
+    Result<FrameTrack> process(const ImageView& gray8, std::int64_t timestamp_ns);
+
+    // The filter's pose at any timestamp (the renderer asks for the frame's own); nullopt before
+    // the first measurement or with the filter off and no pose yet.
+    std::optional<Rigid3d> predict(std::int64_t timestamp_ns) const;
+
+    const TrackerOptions& options() const noexcept;
+
+private:
+    struct State;
+    explicit Tracker(std::unique_ptr<State> state);
+    std::unique_ptr<State> state_;
+};
+
+}  // namespace commonlight::tracking
