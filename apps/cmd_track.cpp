@@ -145,7 +145,9 @@ int runTrack(TrackCommandOptions& options) {
             return reportError(track.error());
         }
         for (const auto& tag : track->tags) {
-            const auto& c = tag.detection.corners;
+            // libapriltag's pixel convention in the file (top-left pixel centre at (0.5, 0.5)).
+            std::array<Eigen::Vector2d, 4> c = tag.detection.corners;
+            for (auto& corner : c) corner += Eigen::Vector2d(0.5, 0.5);
             std::fprintf(csv, "%s,%lld,%d,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%s,%s\n", image.c_str(),
                          static_cast<long long>(frame.timestamp_ns), tag.detection.id, c[0].x(), c[0].y(), c[1].x(),
                          c[1].y(), c[2].x(), c[2].y(), c[3].x(), c[3].y(),
@@ -227,7 +229,7 @@ void addTrackCommand(CLI::App& app, Runner& runner) {
     sub->add_flag("--no-filter", options->no_filter, "No temporal filter (the bundle's pose per frame)");
     sub->add_flag("--edges", options->edges, "Refine with the edges of the scene's proxy geometry");
     sub->footer(
-        "CSV columns: image,timestamp_ns,tag_id,c0x..c3y (pixels, libapriltag's corner order, OpenCV pixel centres),"
+        "CSV columns: image,timestamp_ns,tag_id,c0x..c3y (pixels, libapriltag's corner order and pixel convention),"
         "tx,ty,tz,qw,qx,qy,qz,status. Tag rows hold cam_from_tag; the frame row (tag_id -1) holds cam_from_world. "
         "See docs/tracking.md. Exit codes: 0 ok, 2 usage, 3 bad input.");
     sub->callback([options, &runner] { runner = [options] { return runTrack(*options); }; });

@@ -198,7 +198,10 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
     t0 = Clock::now();
     out.tags.reserve(detections.size());
     for (const TagDetection& d : detections) {
-        TrackedTag tag{d, std::nullopt, {}};
+        TrackedTag tag{d, false, std::nullopt, {}};
+        if (s.options.refine_corners) {
+            tag.corners_refined = refineTagCorners(gray8, s.camera, tag.detection.corners, s.options.refine);
+        }
         const TagItem* item = s.tags.find(d.id);
         const double size = item ? item->size : s.options.default_tag_size;
         if (size <= 0) {
@@ -210,7 +213,7 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
             } else if (auto it = s.last_cam_from_tag.find(d.id); it != s.last_cam_from_tag.end()) {
                 predicted_cam_from_tag = it->second;
             }
-            auto pose = solveTagPose(d.id, d.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+            auto pose = solveTagPose(d.id, tag.detection.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
             if (pose) {
                 tag.pose = std::move(*pose);
             } else {

@@ -3,7 +3,7 @@
 //   Step 1  detect tags: the whole frame, or (tracking mode) only windows around where the
 //           prediction puts the tags; the whole frame again every N frames and whenever the
 //           windows find nothing
-//   Step 2  single-tag poses (both candidates; the prediction chooses when there is one)
+//   Step 2  corners refined from the tags' edges; single-tag poses (both candidates; the prediction chooses when there is one)
 //   Step 3  bundle: one cam_from_world from every corner of the scene's tags
 //   Step 4  model-edge refinement (optional): the proxies' edges sharpen the pose, or carry it
 //           for a while when no tag is in view
@@ -24,12 +24,16 @@
 #include "tracking/pose_filter.h"
 #include "tracking/tag_detector.h"
 #include "tracking/tag_pose.h"
+#include "tracking/tag_refine.h"
 
 namespace commonlight::tracking {
 
 struct TrackerOptions {
     TagDetectorOptions detector;
     TagPoseOptions tag_pose;
+    // Refine each tag's corners from its black square's edges before solving (tag_refine.h).
+    bool refine_corners = true;
+    TagRefineOptions refine;
     BundleOptions bundle;
     // Tracking mode: detect only in windows around the predicted tags.
     bool tracking_mode = false;
@@ -55,7 +59,8 @@ enum class TrackStatus {
 const char* trackStatusName(TrackStatus status) noexcept;
 
 struct TrackedTag {
-    TagDetection detection;
+    TagDetection detection;       // corners refined when the options say so (corners_refined)
+    bool corners_refined = false;
     std::optional<TagPose> pose;  // nullopt: unknown size, or the solver refused (see error)
     std::string error;            // why there is no pose
 };
