@@ -500,8 +500,12 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
     };
     if (model.edges().empty()) return finish(result, "the model has no edges");
 
+    using Clock = std::chrono::steady_clock;
+    const auto since = [](Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); };
+    auto t0 = Clock::now();
     const std::vector<Level> levels = buildPyramid(gray8, options);
     const FieldOfView fov = fieldOfView(camera);
+    result.step_seconds.pyramid = since(t0);
     std::vector<Sample> samples;
     Rigid3d pose = cam_from_world_initial;
 
@@ -528,11 +532,15 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
         const double level_px = 1.0 / level.scale;  // full-resolution pixels per level pixel
         for (int it = 0; it < options.iterations; ++it) {
             // Step 1: sample the visible edges at the current pose.
+            t0 = Clock::now();
             sampleEdges(model, camera, fov, pose, options, samples);
+            result.step_seconds.sampling += since(t0);
             result.points_visible = static_cast<int>(samples.size());
             if (std::string why = checkVisible(samples); !why.empty()) return finish(result, why);
             // Step 2: search along the normals.
+            t0 = Clock::now();
             searchEdges(level, options, samples);
+            result.step_seconds.search += since(t0);
             const int matched = countMatched(samples);
             if (matched < options.min_points) {
                 return finish(result, "only " + std::to_string(matched) + " of " + std::to_string(samples.size()) +
@@ -541,6 +549,7 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
             // Step 3: one robust Gauss-Newton step (Levenberg-Marquardt damped). The Tukey cut-off
             // follows the residuals while they are large (far from the solution every match is an
             // inlier) and settles at tukey_px (scaled to the level) when they are small.
+            t0 = Clock::now();
             std::vector<double> abs_r;
             for (const Sample& s : samples) {
                 if (s.matched) abs_r.push_back(std::abs(s.normal.dot(s.pixel - s.match)));
@@ -585,6 +594,7 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
                 }
             }
             ++result.iterations;
+            result.step_seconds.solve += since(t0);
             // Converged at this level when the step moves no point by more than a hundredth of a pixel.
             const double median_depth = median([&] {
                 std::vector<double> d;
@@ -597,10 +607,15 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
     }
 
     // Step 4: the final matches at the refined pose (full resolution), the covariance and the checks.
+    t0 = Clock::now();
     sampleEdges(model, camera, fov, pose, options, samples);
+    result.step_seconds.sampling += since(t0);
     result.points_visible = static_cast<int>(samples.size());
     if (std::string why = checkVisible(samples); !why.empty()) return finish(result, why);
+    t0 = Clock::now();
     searchEdges(levels.front(), options, samples);
+    result.step_seconds.search += since(t0);
+    t0 = Clock::now();
     const double c = options.tukey_px;
     std::vector<Vector6d> per_edge(model.edges().size(), Vector6d::Zero());
     const LinearSystem sys = linearise(samples, camera, pose, c, true, &per_edge);
@@ -677,6 +692,7 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
         result.covariance = *edge_covariance;
     }
     result.covariance = 0.5 * (result.covariance + result.covariance.transpose());
+    result.step_seconds.solve += since(t0);
     result.ok = true;
     return finish(result, {});
 }

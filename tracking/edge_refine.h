@@ -73,7 +73,14 @@ struct EdgeRefineResult {
     double rms_px = 0.0;        // weighted rms point-to-edge distance, full-resolution pixels
     int iterations = 0;         // Gauss-Newton steps taken over all levels
     std::vector<int> points_per_object;  // points_used by real object (EdgeModel::objectNames order)
-    double seconds = 0.0;       // wall-clock time of the refinement
+    // Wall-clock time of the refinement, and of its steps summed over the iterations.
+    double seconds = 0.0;
+    struct StepSeconds {
+        double pyramid = 0.0;   // blur, gradients, pyramid
+        double sampling = 0.0;  // Step 1: projection, facing and occlusion tests
+        double search = 0.0;    // Step 2: gradient search along the normals
+        double solve = 0.0;     // Step 3 and the final covariance
+    } step_seconds;
 };
 
 // Refines cam_from_world_initial against the edges of `model` in `gray8` (PixelFormat::kGray8,

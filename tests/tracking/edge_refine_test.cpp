@@ -301,6 +301,9 @@ TEST_P(EdgeRefineDesk, ConvergesFromAPerturbedPose) {
     EXPECT_LT(trans, 2.0);
     EXPECT_LT(rot, rot0);
     EXPECT_LT(trans, trans0);
+    std::printf("  steps: pyramid %.1f ms, sampling %.1f ms, search %.1f ms, solve %.1f ms\n",
+                1000 * result->step_seconds.pyramid, 1000 * result->step_seconds.sampling,
+                1000 * result->step_seconds.search, 1000 * result->step_seconds.solve);
     // The reported covariance is about right: the error is within a few of its sigmas.
     const Vector6d e = logSe3(truth * result->cam_from_world.inverse());
     const double m2 = e.dot(result->covariance.ldlt().solve(e));
@@ -308,6 +311,8 @@ TEST_P(EdgeRefineDesk, ConvergesFromAPerturbedPose) {
                 std::sqrt(result->covariance.topLeftCorner<3, 3>().trace()) / kDegToRad,
                 1000 * std::sqrt(result->covariance.bottomRightCorner<3, 3>().trace()), m2);
     EXPECT_GT(result->covariance.determinant(), 0.0);
+    // Chi-square with 6 degrees of freedom: below 22.46 with 99.9 % probability (measured 3 to 7).
+    EXPECT_LT(m2, 22.46);
 }
 
 INSTANTIATE_TEST_SUITE_P(Desk, EdgeRefineDesk,
