@@ -15,7 +15,7 @@ struct BenchTrackingOptions {
     std::filesystem::path data_dir = "out/bench/tracking-data";  // rendered sequences, kept between runs
     std::vector<std::string> cases;                  // empty: all
     int max_frames = 0;                              // 0: every frame of each sequence
-    int spp = 8;                                     // samples per pixel of rendered sequences
+    int spp = 4;                                     // samples per pixel of rendered sequences
     std::string json;
     std::string plot;
 };

@@ -61,6 +61,15 @@ std::string familyList() {
 
 std::span<const char* const> tagFamilyNames() { return kFamilyNames; }
 
+apriltag_family_t* makeApriltagFamily(std::string_view name) {
+    const FamilyEntry* entry = findFamily(name);
+    return entry ? entry->create() : nullptr;
+}
+
+void destroyApriltagFamily(std::string_view name, apriltag_family_t* family) {
+    if (const FamilyEntry* entry = findFamily(name); entry && family) entry->destroy(family);
+}
+
 Result<void> TagDetectorOptions::validate() const {
     if (!findFamily(family)) {
         return fail(ErrorCode::kUsage, "unknown tag family '" + family + "' (known: " + familyList() + ")");

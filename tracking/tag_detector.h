@@ -13,6 +13,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <Eigen/Core>
@@ -20,6 +21,8 @@
 #include "core/image.h"
 #include "core/pose.h"
 #include "core/result.h"
+
+struct apriltag_family;  // libapriltag's (global namespace)
 
 namespace commonlight::tracking {
 
@@ -49,6 +52,11 @@ struct TagDetectorOptions {
 
 // The families libapriltag 3.3 ships: tag36h11, tag25h9, tag16h5, tagCircle21h7, ...
 std::span<const char* const> tagFamilyNames();
+
+// libapriltag's family by name (nullptr for an unknown one); the caller frees it with
+// destroyApriltagFamily under the same name.
+::apriltag_family* makeApriltagFamily(std::string_view name);
+void destroyApriltagFamily(std::string_view name, ::apriltag_family* family);
 
 struct TagDetection {
     int id = -1;

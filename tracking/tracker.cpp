@@ -84,6 +84,7 @@ struct Tracker::State {
     TagSet tags;
     TrackerOptions options;
     TagDetector detector;
+    TagPatternCache patterns;
     PoseFilter filter;
     std::optional<EdgeModel> edge_model;
     std::int64_t frames = 0;
@@ -98,7 +99,7 @@ struct Tracker::State {
     std::map<int, Rigid3d> last_cam_from_tag;
 
     State(const CameraModel& c, const TagSet& t, const TrackerOptions& o, TagDetector d)
-        : camera(c), tags(t), options(o), detector(std::move(d)), filter(o.filter_options) {}
+        : camera(c), tags(t), options(o), detector(std::move(d)), patterns(o.detector.family), filter(o.filter_options) {}
 
     std::optional<Rigid3d> prediction(std::int64_t timestamp_ns) const {
         if (options.filter) {
@@ -198,7 +199,7 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
     t0 = Clock::now();
     out.tags.reserve(detections.size());
     for (const TagDetection& d : detections) {
-        TrackedTag tag{d, false, std::nullopt, {}};
+        TrackedTag tag{d, false, false, std::nullopt, {}};
         if (s.options.refine_corners) {
             tag.corners_refined = refineTagCorners(gray8, s.camera, tag.detection.corners, s.options.refine);
         }
@@ -214,6 +215,30 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
                 predicted_cam_from_tag = it->second;
             }
             auto pose = solveTagPose(d.id, tag.detection.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+            if (pose && s.options.align_tags) {
+                if (const TagPattern* pattern = s.patterns.get(d.id)) {
+                    const TagAlignResult a = alignTagPose(gray8, s.camera, *pattern, size, pose->cam_from_tag, s.options.align);
+                    if (a.ok) {
+                        pose->cam_from_tag = a.cam_from_tag;
+                        pose->covariance = a.covariance;
+                        pose->candidates[0].cam_from_tag = a.cam_from_tag;
+                        // The corners where the aligned pose puts them.
+                        bool all = true;
+                        std::array<Eigen::Vector2d, 4> corners;
+                        for (int c = 0; c < 4 && all; ++c) {
+                            const auto px = s.camera.project(a.cam_from_tag * tagCornerInTag(c, size));
+                            all = px.has_value();
+                            if (all) corners[c] = *px;
+                        }
+                        if (all) {
+                            tag.detection.corners = corners;
+                            pose->rms_px = a.rms_px;
+                            pose->candidates[0].rms_px = a.rms_px;
+                            tag.aligned = true;
+                        }
+                    }
+                }
+            }
             if (pose) {
                 tag.pose = std::move(*pose);
             } else {

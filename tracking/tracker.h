@@ -3,7 +3,8 @@
 //   Step 1  detect tags: the whole frame, or (tracking mode) only windows around where the
 //           prediction puts the tags; the whole frame again every N frames and whenever the
 //           windows find nothing
-//   Step 2  corners refined from the tags' edges; single-tag poses (both candidates; the prediction chooses when there is one)
+//   Step 2  corners refined from the tags' edges; single-tag poses; each tag's cell pattern
+//           aligned with the image (both candidates; the prediction chooses when there is one)
 //   Step 3  bundle: one cam_from_world from every corner of the scene's tags
 //   Step 4  model-edge refinement (optional): the proxies' edges sharpen the pose, or carry it
 //           for a while when no tag is in view
@@ -22,6 +23,7 @@
 #include "tracking/bundle.h"
 #include "tracking/edge_refine.h"
 #include "tracking/pose_filter.h"
+#include "tracking/tag_align.h"
 #include "tracking/tag_detector.h"
 #include "tracking/tag_pose.h"
 #include "tracking/tag_refine.h"
@@ -34,6 +36,10 @@ struct TrackerOptions {
     // Refine each tag's corners from its black square's edges before solving (tag_refine.h).
     bool refine_corners = true;
     TagRefineOptions refine;
+    // Align each tag's whole cell pattern with the image after the corner pose (tag_align.h);
+    // the tag's corners then become the aligned pose's, so the bundle gets them too.
+    bool align_tags = true;
+    TagAlignOptions align;
     BundleOptions bundle;
     // Tracking mode: detect only in windows around the predicted tags.
     bool tracking_mode = false;
@@ -61,6 +67,7 @@ const char* trackStatusName(TrackStatus status) noexcept;
 struct TrackedTag {
     TagDetection detection;       // corners refined when the options say so (corners_refined)
     bool corners_refined = false;
+    bool aligned = false;         // the pose (and the corners) come from the pattern alignment
     std::optional<TagPose> pose;  // nullopt: unknown size, or the solver refused (see error)
     std::string error;            // why there is no pose
 };

@@ -1,0 +1,94 @@
+#include "tracking/edge_profile.h"
+
+#include <cmath>
+#include <vector>
+
+namespace commonlight::tracking {
+
+Linearizer::Linearizer(bool srgb) {
+    for (int v = 0; v < 256; ++v) {
+        const double c = v / 255.0;
+        lut[v] = 255.0 * (!srgb ? c : c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4));
+    }
+}
+
+namespace {
+
+// Bilinear sample of the linearized image; nullopt outside the image (with a one-pixel margin).
+std::optional<double> sample(const ImageView& img, const Linearizer& lin, double x, double y) {
+    if (!(x >= 0.0) || !(y >= 0.0) || x > img.width - 1.001 || y > img.height - 1.001) return std::nullopt;
+    const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+    const double fx = x - x0, fy = y - y0;
+    const std::uint8_t* r0 = img.row(y0) + x0;
+    const std::uint8_t* r1 = img.row(y0 + 1) + x0;
+    return (1 - fy) * ((1 - fx) * lin.lut[r0[0]] + fx * lin.lut[r0[1]]) +
+           fy * ((1 - fx) * lin.lut[r1[0]] + fx * lin.lut[r1[1]]);
+}
+
+}  // namespace
+
+std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, const Eigen::Vector2d& p,
+                                 const Eigen::Vector2d& n, const Eigen::Vector2d& along, double range) {
+    constexpr double kStep = 0.25;
+    const int steps = static_cast<int>(std::ceil(range / kStep));
+    std::vector<double> values;
+    values.reserve(static_cast<std::size_t>(2 * steps + 3));
+    for (int k = -steps - 1; k <= steps + 1; ++k) {
+        // Three profiles 0.5 px apart along the edge, averaged: less noise, same edge.
+        double sum = 0.0;
+        for (const double a : {-0.5, 0.0, 0.5}) {
+            const Eigen::Vector2d q = p + (k * kStep) * n + a * along;
+            const auto v = sample(img, lin, q.x(), q.y());
+            if (!v) return std::nullopt;
+            sum += *v;
+        }
+        values.push_back(sum / 3.0);
+    }
+    // Central differences at k = -steps..steps (index i + 1 in values).
+    int best = -1;
+    double best_d = 0.0;
+    std::vector<double> d(static_cast<std::size_t>(2 * steps + 1));
+    for (int i = 0; i < 2 * steps + 1; ++i) {
+        d[static_cast<std::size_t>(i)] = values[static_cast<std::size_t>(i + 2)] - values[static_cast<std::size_t>(i)];
+        if (d[static_cast<std::size_t>(i)] > best_d) {
+            best_d = d[static_cast<std::size_t>(i)];
+            best = i;
+        }
+    }
+    // A real edge of a printed tag is a step of tens of grey levels; under a few is noise.
+    constexpr double min_step = 3.0;
+    if (best <= 0 || best >= 2 * steps || best_d < min_step * 2 * kStep) return std::nullopt;
+    // The edge is where the profile crosses halfway between the dark and the bright level
+    // (exact for any symmetric blur in linear light, and steadier under noise than the peak of
+    // the derivative). Levels: the means of the profile from 1 px beyond the peak to the ends.
+    const int peak = best + 1;  // index into values
+    const int margin = static_cast<int>(1.0 / kStep);
+    double dark = 0, bright = 0;
+    int n_dark = 0, n_bright = 0;
+    for (int j = 0; j < static_cast<int>(values.size()); ++j) {
+        if (j <= peak - margin) {
+            dark += values[static_cast<std::size_t>(j)];
+            ++n_dark;
+        } else if (j >= peak + margin) {
+            bright += values[static_cast<std::size_t>(j)];
+            ++n_bright;
+        }
+    }
+    if (n_dark == 0 || n_bright == 0) return std::nullopt;
+    const double mid = 0.5 * (dark / n_dark + bright / n_bright);
+    // The crossing nearest the peak.
+    for (int r = 0; r < margin; ++r) {
+        for (const int j : {peak - r - 1, peak + r}) {
+            if (j < 0 || j + 1 >= static_cast<int>(values.size())) continue;
+            const double v0 = values[static_cast<std::size_t>(j)], v1 = values[static_cast<std::size_t>(j + 1)];
+            if (v0 <= mid && v1 > mid) {
+                const double frac = (mid - v0) / (v1 - v0);
+                return (j - steps - 1 + frac) * kStep;
+            }
+        }
+    }
+    return std::nullopt;
+}
+
+
+}  // namespace commonlight::tracking

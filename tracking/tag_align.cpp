@@ -1,0 +1,158 @@
+#include "tracking/tag_align.h"
+
+#include <apriltag/apriltag.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+
+#include <Eigen/Cholesky>
+
+#include "tracking/edge_profile.h"
+#include "tracking/projection.h"
+#include "tracking/tag_detector.h"
+
+namespace commonlight::tracking {
+
+Result<TagPattern> TagPattern::make(const std::string& family, int id) {
+    TagDetectorOptions check;
+    check.family = family;
+    CL_TRY_VOID(check.validate());
+    apriltag_family_t* fam = makeApriltagFamily(family);  // destroyed below
+    if (!fam) return fail(ErrorCode::kUsage, "unknown tag family '" + family + "'");
+    if (id < 0 || static_cast<std::uint32_t>(id) >= fam->ncodes) {
+        destroyApriltagFamily(family, fam);
+        return fail(ErrorCode::kUsage, "tag id " + std::to_string(id) + " is not in " + family);
+    }
+    image_u8_t* image = apriltag_to_image(fam, id);  // freed below (image_u8_destroy is not exported)
+    const int total = fam->total_width;
+    const int border = fam->width_at_border;
+    destroyApriltagFamily(family, fam);
+    if (!image) return fail(ErrorCode::kInternal, "libapriltag could not draw tag " + std::to_string(id));
+    // Cells: row 0 is the image's top (+y in the tag frame). The black square spans `border`
+    // cells and is centred; the drawn image spans `total` cells.
+    TagPattern pattern;
+    pattern.cell_ = 1.0 / border;
+    const double half = 0.5 * total * pattern.cell_;
+    const auto white = [&](int col, int row) { return image->buf[row * image->stride + col] > 127; };
+    const auto x = [&](int col) { return -half + col * pattern.cell_; };
+    const auto y = [&](int row) { return half - row * pattern.cell_; };
+    for (int row = 0; row < total; ++row) {
+        for (int col = 0; col < total; ++col) {
+            // Boundary with the right neighbour: a vertical segment.
+            if (col + 1 < total && white(col, row) != white(col + 1, row)) {
+                const Eigen::Vector2d dir = white(col + 1, row) ? Eigen::Vector2d(1, 0) : Eigen::Vector2d(-1, 0);
+                pattern.edges_.push_back({{x(col + 1), y(row)}, {x(col + 1), y(row + 1)}, dir});
+            }
+            // Boundary with the neighbour below: a horizontal segment (below is -y).
+            if (row + 1 < total && white(col, row) != white(col, row + 1)) {
+                const Eigen::Vector2d dir = white(col, row + 1) ? Eigen::Vector2d(0, -1) : Eigen::Vector2d(0, 1);
+                pattern.edges_.push_back({{x(col), y(row + 1)}, {x(col + 1), y(row + 1)}, dir});
+            }
+        }
+    }
+    std::free(image->buf);
+    std::free(image);
+    return pattern;
+}
+
+const TagPattern* TagPatternCache::get(int id) {
+    auto it = patterns_.find(id);
+    if (it == patterns_.end()) {
+        auto made = TagPattern::make(family_, id);
+        it = patterns_.emplace(id, made ? std::make_unique<TagPattern>(std::move(*made)) : nullptr).first;
+    }
+    return it->second.get();
+}
+
+TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, const TagPattern& pattern, double size,
+                            const Rigid3d& cam_from_tag, const TagAlignOptions& options) {
+    TagAlignResult out;
+    out.cam_from_tag = cam_from_tag;
+    if (gray8.format != PixelFormat::kGray8 || !cam_from_tag.isValid() || !(size > 0)) {
+        out.reason = "bad input";
+        return out;
+    }
+    // Cell size in the image, from the projected black square's side.
+    const auto c0 = camera.project(cam_from_tag * Eigen::Vector3d(-0.5 * size, -0.5 * size, 0));
+    const auto c1 = camera.project(cam_from_tag * Eigen::Vector3d(0.5 * size, -0.5 * size, 0));
+    const auto c3 = camera.project(cam_from_tag * Eigen::Vector3d(-0.5 * size, 0.5 * size, 0));
+    if (!c0 || !c1 || !c3) {
+        out.reason = "the tag is outside the lens model";
+        return out;
+    }
+    const double cell_px = pattern.cell() * std::min((*c1 - *c0).norm(), (*c3 - *c0).norm());
+    if (cell_px < options.min_cell_px) {
+        out.reason = "cells of " + std::to_string(cell_px) + " px are too small";
+        return out;
+    }
+    const double range = std::max(options.search_px, 0.35 * cell_px);
+    const Linearizer lin(options.srgb);
+    Rigid3d pose = cam_from_tag;
+    Matrix6d info = Matrix6d::Zero();
+    double sum2 = 0.0;
+    int used = 0;
+    for (int it = 0; it < options.iterations; ++it) {
+        Matrix6d h = Matrix6d::Zero();
+        Vector6d g = Vector6d::Zero();
+        sum2 = 0.0;
+        used = 0;
+        for (const TagPattern::Edge& e : pattern.edges()) {
+            // Three points per cell boundary, away from its ends (where other boundaries meet).
+            for (const double t : {0.25, 0.5, 0.75}) {
+                const Eigen::Vector2d q = e.a + t * (e.b - e.a);
+                const Eigen::Vector3d p_tag(size * q.x(), size * q.y(), 0.0);
+                const Eigen::Vector3d p_cam = pose * p_tag;
+                const auto proj = projectWithJacobian(camera, p_cam);
+                if (!proj) continue;
+                // Image directions of the boundary and of its dark-to-bright normal.
+                const Eigen::Vector3d along_tag(size * (e.b - e.a).x(), size * (e.b - e.a).y(), 0.0);
+                const auto pa = camera.project(pose * (p_tag + 0.05 * along_tag));
+                const Eigen::Vector3d bright_tag(e.to_bright.x(), e.to_bright.y(), 0.0);
+                const auto pb = camera.project(pose * (p_tag + 0.05 * size * pattern.cell() * bright_tag));
+                if (!pa || !pb) continue;
+                const Eigen::Vector2d along = (*pa - proj->pixel).normalized();
+                Eigen::Vector2d n(-along.y(), along.x());
+                if (n.dot(*pb - proj->pixel) < 0) n = -n;
+                if (!n.allFinite()) continue;
+                const auto s = edgeOffset(gray8, lin, proj->pixel, n, along, range);
+                if (!s) continue;
+                // Residual: signed distance of the projected boundary from the observed one.
+                const double r = -*s;
+                const Eigen::Matrix<double, 1, 6> j = n.transpose() * proj->d_pixel_d_xi;
+                const double w = std::abs(r) <= options.huber_px ? 1.0 : options.huber_px / std::abs(r);
+                h += w * j.transpose() * j;
+                g += w * j.transpose() * r;
+                sum2 += r * r;
+                ++used;
+            }
+        }
+        if (used < 24) {
+            out.reason = "only " + std::to_string(used) + " cell boundaries found in the image";
+            return out;
+        }
+        info = h;
+        const Vector6d step = -(h + 1e-9 * h.trace() * Matrix6d::Identity()).ldlt().solve(g);
+        if (!step.allFinite()) {
+            out.reason = "the alignment did not converge";
+            return out;
+        }
+        pose = expSe3(step) * pose;
+        if (step.norm() < 1e-9) break;
+    }
+    out.points = used;
+    out.rms_px = std::sqrt(sum2 / used);
+    if (out.rms_px > options.max_rms_px || !pose.isValid()) {
+        out.reason = "the pattern does not match the image (rms " + std::to_string(out.rms_px) + " px)";
+        return out;
+    }
+    const double s2 = std::max(out.rms_px * out.rms_px, 0.01);
+    out.covariance = s2 * (info + 1e-12 * info.trace() * Matrix6d::Identity()).ldlt().solve(Matrix6d::Identity());
+    out.covariance = (0.5 * (out.covariance + out.covariance.transpose())).eval();
+    out.cam_from_tag = pose;
+    out.ok = out.covariance.allFinite();
+    if (!out.ok) out.reason = "the covariance is not finite";
+    return out;
+}
+
+}  // namespace commonlight::tracking

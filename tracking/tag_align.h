@@ -1,0 +1,76 @@
+// Tag pose from every edge of the tag's pattern, not only its four corners.
+//
+// A tag36h11 tag has about seventy boundaries between black and white cells whose positions on
+// the tag are known exactly from its code. Aligning the projected pattern with the image uses all
+// of them: for each sample point on a cell boundary, Step 1 projects it with the current pose
+// (lens included), Step 2 finds the boundary in the image along the projected normal (the
+// halfway crossing in linear light, edge_profile.h), Step 3 takes one robust Gauss-Newton step
+// on the signed distances over the pose's 6 degrees of freedom; repeated a few times. Tags whose
+// cells are under `min_cell_px` pixels keep their corner pose (there is nothing to resolve).
+#pragma once
+
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+#include "core/result.h"
+#include "tracking/pose_types.h"
+
+namespace commonlight::tracking {
+
+// The black/white cell boundaries of one tag, in units of the black square's edge (so a tag of
+// edge `size` has them at size times these coordinates), in the tag frame of tag_detector.h.
+class TagPattern {
+public:
+    struct Edge {
+        Eigen::Vector2d a, b;       // end points, tag frame / size
+        Eigen::Vector2d to_bright;  // unit normal in the tag plane, from the black cell to the white one
+    };
+    // Draws the tag with libapriltag (apriltag_to_image); kUsage for an unknown family or id.
+    static Result<TagPattern> make(const std::string& family, int id);
+    const std::vector<Edge>& edges() const noexcept { return edges_; }
+    double cell() const noexcept { return cell_; }  // one cell, in units of the black square's edge
+
+private:
+    std::vector<Edge> edges_;
+    double cell_ = 0.0;
+};
+
+// Patterns by id for one family, made on first use.
+class TagPatternCache {
+public:
+    explicit TagPatternCache(std::string family) : family_(std::move(family)) {}
+    const TagPattern* get(int id);
+
+private:
+    std::string family_;
+    std::map<int, std::unique_ptr<TagPattern>> patterns_;
+};
+
+struct TagAlignOptions {
+    double min_cell_px = 2.0;   // cells smaller than this in the image: no alignment
+    int iterations = 4;
+    double search_px = 1.5;     // +- along the normal (at least; 35% of a cell when cells are larger)
+    double huber_px = 0.5;
+    double max_rms_px = 0.6;    // a final RMS above this: the alignment is refused
+    bool srgb = true;           // pixels are sRGB-encoded: find edges in linear light
+};
+
+struct TagAlignResult {
+    bool ok = false;
+    std::string reason;         // when not ok
+    Rigid3d cam_from_tag;       // aligned when ok, the input otherwise
+    Matrix6d covariance = Matrix6d::Identity();  // of cam_from_tag, pose_types.h convention
+    int points = 0;             // edge points used in the last step
+    double rms_px = 0.0;
+};
+
+TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, const TagPattern& pattern, double size,
+                            const Rigid3d& cam_from_tag, const TagAlignOptions& options = {});
+
+}  // namespace commonlight::tracking
