@@ -26,6 +26,7 @@ void addCamerasCommand(CLI::App& app, Runner& runner);
 void addRecordCommand(CLI::App& app, Runner& runner);
 void addPlayCommand(CLI::App& app, Runner& runner);
 void addSimCommand(CLI::App& app, Runner& runner);
+void addCalibrateCommand(CLI::App& app, Runner& runner);
 
 // Prints "commonlight: error: <message>" and returns the exit code for the error.
 int reportError(const Error& error);
