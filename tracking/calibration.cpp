@@ -142,10 +142,12 @@ CoverageReport measureCoverage(int width, int height, std::span<const Calibratio
     for (const CalibrationView& view : views) {
         for (const Eigen::Vector2d& p : view.observation.pixels) {
             // Pixel centres run from 0 to width - 1; the image's edges are at -0.5 and width - 0.5.
+            // Clamped before the conversion: a corner far outside the image must not overflow an int.
+            if (!p.allFinite()) continue;
             const int c =
-                std::clamp(static_cast<int>(std::floor((p.x() + 0.5) / width * report.cols)), 0, report.cols - 1);
+                static_cast<int>(std::clamp(std::floor((p.x() + 0.5) / width * report.cols), 0.0, report.cols - 1.0));
             const int r =
-                std::clamp(static_cast<int>(std::floor((p.y() + 0.5) / height * report.rows)), 0, report.rows - 1);
+                static_cast<int>(std::clamp(std::floor((p.y() + 0.5) / height * report.rows), 0.0, report.rows - 1.0));
             hit[static_cast<std::size_t>(r * report.cols + c)] = 1;
         }
     }
@@ -207,6 +209,18 @@ Result<void> Calibrator::add(const std::string& name, int width, int height, con
     }
     const BoardObservation& obs = detection.observation;
     assert(obs.point_ids.size() == obs.pixels.size());
+    // A view's pose needs at least 4 points (cv::calibrateCamera's homography); the detectors
+    // never report fewer, nor a non-finite corner, but other callers may.
+    if (obs.pixels.size() < 4) {
+        reject(name, "only " + std::to_string(obs.pixels.size()) + " corners (at least 4 needed)");
+        return {};
+    }
+    for (std::size_t k = 0; k < obs.pixels.size(); ++k) {
+        if (!obs.pixels[k].allFinite() || obs.point_ids[k] < 0 || obs.point_ids[k] >= board_.pointCount()) {
+            reject(name, "corner " + std::to_string(k) + " is not finite or not a point of the board");
+            return {};
+        }
+    }
     views_.push_back({name, obs});
     return {};
 }

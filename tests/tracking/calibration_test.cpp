@@ -267,6 +267,36 @@ TEST(Calibration, ImagesOfDifferentSizesAreAnError) {
               "second.png: image is 800x600 but first.png is 640x480 (calibrate each image size separately)");
 }
 
+// Observations a detector never gives but another caller might: too few corners, a NaN, a point id
+// that is not on the board. Each is a rejected view, not a failed calibration.
+TEST(Calibration, UnusableObservationsAreRejected) {
+    Calibrator calibrator(grid(), CalibrationOptions{});
+    BoardDetection few;
+    few.found = true;
+    few.observation.point_ids = {0, 1, 2};
+    few.observation.pixels = {{1, 1}, {2, 1}, {2, 2}};
+    ASSERT_TRUE(calibrator.add("few.png", kWidth, kHeight, few));
+    BoardDetection nan = few;
+    nan.observation.point_ids.push_back(3);
+    nan.observation.pixels.emplace_back(std::nan(""), 1.0);
+    ASSERT_TRUE(calibrator.add("nan.png", kWidth, kHeight, nan));
+    BoardDetection foreign = few;
+    foreign.observation.point_ids.push_back(grid().pointCount());
+    foreign.observation.pixels.emplace_back(1.0, 1.0);
+    ASSERT_TRUE(calibrator.add("foreign.png", kWidth, kHeight, foreign));
+    EXPECT_EQ(calibrator.viewCount(), 0u);
+    ASSERT_EQ(calibrator.rejected().size(), 3u);
+    EXPECT_EQ(calibrator.rejected()[0].reason, "only 3 corners (at least 4 needed)");
+    EXPECT_EQ(calibrator.rejected()[1].reason, "corner 3 is not finite or not a point of the board");
+    EXPECT_EQ(calibrator.rejected()[2].name, "foreign.png");
+
+    // Coverage ignores what is not a pixel and clamps what is far outside the image.
+    std::vector<CalibrationView> views(1);
+    views[0].observation.pixels = {{std::nan(""), 0.0}, {1e300, -1e300}};
+    const CoverageReport report = measureCoverage(kWidth, kHeight, views, CalibrationOptions{});
+    EXPECT_EQ(report.cells_hit, 1);
+}
+
 TEST(Calibration, OptionsAreValidated) {
     CalibrationOptions options;
     EXPECT_TRUE(options.validate());
