@@ -26,6 +26,7 @@ void addCamerasCommand(CLI::App& app, Runner& runner);
 void addRecordCommand(CLI::App& app, Runner& runner);
 void addPlayCommand(CLI::App& app, Runner& runner);
 void addSimCommand(CLI::App& app, Runner& runner);
+void addCalibrateCommand(CLI::App& app, Runner& runner);
 void addTrackCommand(CLI::App& app, Runner& runner);
 void addBenchCommand(CLI::App& app, Runner& runner);
 

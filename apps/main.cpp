@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
     apps::addRecordCommand(app, runner);
     apps::addPlayCommand(app, runner);
     apps::addSimCommand(app, runner);
+    apps::addCalibrateCommand(app, runner);
     apps::addTrackCommand(app, runner);
     apps::addBenchCommand(app, runner);
 

@@ -4,7 +4,7 @@ source "$(dirname "$0")/lib.sh"
 
 expect_exit 0 "$COMMONLIGHT" --help
 expect_text "cameras" "$TMP/out"
-for sub in cameras record play; do
+for sub in cameras record play calibrate; do
     expect_exit 0 "$COMMONLIGHT" "$sub" --help
     expect_text "Usage" "$TMP/out"
 done
