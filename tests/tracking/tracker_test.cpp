@@ -5,6 +5,7 @@
 #include <map>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 
 #include "capture/convert.h"
 #include "core/frame_file.h"
@@ -133,6 +134,76 @@ TEST(Tracker, FramesWithoutTagsArePredictedThenLost) {
     EXPECT_EQ(long_gone->status, TrackStatus::kNoPose);
     // The renderer asks for any timestamp: between two frames, the pose is in between.
     ASSERT_TRUE(tracker.predict(last + 16'000'000));
+}
+
+// The frame with every tag painted over in the colour of the table around it.
+Image withoutTags(const Image& grey, const Rigid3d& cam_from_world, const CameraModel& camera, const TagSet& tags) {
+    Image out = Image::copyOf(grey.view());
+    cv::Mat m(out.height(), out.width(), CV_8UC1, out.data(), out.stride());
+    std::vector<cv::Point> hull_input;
+    for (const TagItem& item : tags.items) {
+        for (int c = 0; c < 4; ++c) {
+            // The printed square with its white border and a margin: 1.5 x the black square.
+            const auto px = camera.project(cam_from_world * (item.world_from_tag * (1.5 * tagCornerInTag(c, item.size))));
+            if (px) hull_input.emplace_back(static_cast<int>(std::lround(px->x())), static_cast<int>(std::lround(px->y())));
+        }
+    }
+    std::vector<cv::Point> hull;
+    cv::convexHull(hull_input, hull);
+    // The table's grey: the median of a ring just outside the hull.
+    cv::Mat inside(m.size(), CV_8UC1, cv::Scalar(0)), grown;
+    cv::fillConvexPoly(inside, hull, cv::Scalar(255));
+    cv::dilate(inside, grown, cv::Mat(), cv::Point(-1, -1), 6);
+    std::vector<std::uint8_t> ring;
+    for (int y = 0; y < m.rows; ++y) {
+        for (int x = 0; x < m.cols; ++x) {
+            if (grown.at<std::uint8_t>(y, x) && !inside.at<std::uint8_t>(y, x)) ring.push_back(m.at<std::uint8_t>(y, x));
+        }
+    }
+    std::nth_element(ring.begin(), ring.begin() + static_cast<std::ptrdiff_t>(ring.size() / 2), ring.end());
+    cv::fillConvexPoly(m, hull, cv::Scalar(ring[ring.size() / 2]));
+    return out;
+}
+
+TEST(Tracker, EdgesCarryThePoseWhileTheTagsAreHidden) {
+    const Sample& s = sample();
+    TrackerOptions options;
+    options.edges = true;
+    Tracker tracker = makeTracker(options);
+    const CameraModel& camera = *s.seq.sensor.camera;
+    double worst_rot = 0, worst_mm = 0;
+    int edges_only = 0;
+    for (std::size_t i = 0; i < 40; ++i) {
+        // Frames 10 to 39: no tag in view (the tracker does not know the truth used to hide them).
+        const Image frame = i < 10 ? Image::copyOf(s.grey[i].view())
+                                   : withoutTags(s.grey[i], s.cam_from_world_true[i], camera, s.scene.tags);
+        auto track = tracker.process(frame.view(), s.seq.frames[i].timestamp_ns);
+        ASSERT_TRUE(track) << track.error().message;
+        if (i >= 10) {
+            EXPECT_TRUE(track->tags.empty()) << "frame " << i << ": a tag survived the paint";
+            ASSERT_EQ(track->status, TrackStatus::kEdgesOnly) << "frame " << i << ": "
+                                                             << (track->edges ? track->edges->reason : "no edges");
+            ++edges_only;
+        }
+        ASSERT_TRUE(track->cam_from_world);
+        worst_rot = std::max(worst_rot, rotationErrorDeg(*track->cam_from_world, s.cam_from_world_true[i]));
+        worst_mm = std::max(worst_mm, 1000 * (track->cam_from_world->inverse().translation -
+                                              s.cam_from_world_true[i].inverse().translation)
+                                                 .norm());
+    }
+    std::printf("  %d frames on edges alone: worst rotation error %.3f deg, camera position %.2f mm\n", edges_only,
+                worst_rot, worst_mm);
+    EXPECT_LT(worst_rot, 0.1);
+    EXPECT_LT(worst_mm, 3.0);
+    // A frame with nothing to go on: the edges say they cannot, and the pose is only predicted.
+    Image blank(PixelFormat::kGray8, camera.width, camera.height);
+    std::fill_n(blank.data(), blank.sizeBytes(), std::uint8_t{90});
+    auto nothing = tracker.process(blank.view(), s.seq.frames[40].timestamp_ns);
+    ASSERT_TRUE(nothing);
+    ASSERT_TRUE(nothing->edges);
+    EXPECT_FALSE(nothing->edges->ok);
+    EXPECT_FALSE(nothing->edges->reason.empty());
+    EXPECT_EQ(nothing->status, TrackStatus::kPredicted);
 }
 
 TEST(Tracker, BadFramesAreErrorsNamingTheProblem) {
