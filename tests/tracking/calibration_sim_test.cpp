@@ -33,6 +33,7 @@ constexpr double kSunIrradiance = 2.0;
 constexpr double kSkyRadiance = 0.1;
 constexpr double kBlack = 0.04;  // albedos of the printed board
 constexpr double kWhite = 0.8;
+constexpr double kTable = 0.25;  // albedo of the table the board lies on
 
 CameraModel trueCamera() {
     CameraModel camera;
@@ -85,7 +86,8 @@ Scene boardScene(const BoardSpec& board) {
         const double h = (board.rows + 3) * s;
         const Vector3d middle((board.cols - 1) * s / 2, (board.rows - 1) * s / 2, -5e-5);
         scene.real_objects.push_back({"sheet", PlaneShape{{w, h}}, Rigid3d({1, 0, 0, 0}, middle), grey(kWhite)});
-        scene.real_objects.push_back({"table", PlaneShape{{10, 10}}, Rigid3d({1, 0, 0, 0}, {0, 0, -0.01}), grey(0.25)});
+        scene.real_objects.push_back(
+            {"table", PlaneShape{{10, 10}}, Rigid3d({1, 0, 0, 0}, {0, 0, -0.01}), grey(kTable)});
         for (int j = 0; j <= board.rows; ++j) {
             for (int i = 0; i <= board.cols; ++i) {
                 if ((i + j) % 2 == 1) continue;
@@ -102,7 +104,8 @@ Scene boardScene(const BoardSpec& board) {
         const Vector3d middle((board.cols * pitch - board.spacing_ratio * t) / 2,
                               (board.rows * pitch - board.spacing_ratio * t) / 2, 0.0);
         scene.real_objects.push_back({"sheet", PlaneShape{{w, h}}, Rigid3d({1, 0, 0, 0}, middle), grey(kWhite)});
-        scene.real_objects.push_back({"table", PlaneShape{{10, 10}}, Rigid3d({1, 0, 0, 0}, {0, 0, -0.01}), grey(0.25)});
+        scene.real_objects.push_back(
+            {"table", PlaneShape{{10, 10}}, Rigid3d({1, 0, 0, 0}, {0, 0, -0.01}), grey(kTable)});
         for (int r = 0; r < board.rows; ++r) {
             for (int c = 0; c < board.cols; ++c) {
                 const Vector3d centre(c * pitch + t / 2, r * pitch + t / 2, 0.0);
@@ -140,16 +143,49 @@ struct RenderedView {
     Rigid3d cam_from_board;
 };
 
+// The pixels that can see the board's sheet (with `margin` pixels around them), clipped to the image:
+// the bounding box of its outline, sampled densely because distortion bends the edges.
+mocks::sim::PixelRect sheetRegion(const Scene& scene, const Rigid3d& cam_from_world, int margin) {
+    const CameraModel camera = trueCamera();
+    const RealObject& sheet = scene.real_objects.front();
+    const Eigen::Vector2d half = std::get<PlaneShape>(sheet.shape).size / 2;
+    double lo_u = kWidth, lo_v = kHeight, hi_u = -1, hi_v = -1;
+    constexpr int kSteps = 64;
+    for (int side = 0; side < 4; ++side) {
+        for (int i = 0; i <= kSteps; ++i) {
+            const double f = -1.0 + 2.0 * i / kSteps;
+            const Vector3d p_in_sheet = side < 2 ? Vector3d(f * half.x(), (side == 0 ? -1 : 1) * half.y(), 0)
+                                                 : Vector3d((side == 2 ? -1 : 1) * half.x(), f * half.y(), 0);
+            const auto pixel = camera.project(cam_from_world * (sheet.world_from_object * p_in_sheet));
+            if (!pixel) continue;
+            lo_u = std::min(lo_u, pixel->x());
+            lo_v = std::min(lo_v, pixel->y());
+            hi_u = std::max(hi_u, pixel->x());
+            hi_v = std::max(hi_v, pixel->y());
+        }
+    }
+    const int x0 = std::clamp(static_cast<int>(std::floor(lo_u)) - margin, 0, kWidth);
+    const int y0 = std::clamp(static_cast<int>(std::floor(lo_v)) - margin, 0, kHeight);
+    const int x1 = std::clamp(static_cast<int>(std::ceil(hi_u)) + margin + 1, 0, kWidth);
+    const int y1 = std::clamp(static_cast<int>(std::ceil(hi_v)) + margin + 1, 0, kHeight);
+    return {x0, y0, std::max(0, x1 - x0), std::max(0, y1 - y0)};
+}
+
 // Renders the views as 8-bit grey images: linear radiance scaled so that white paper in the sun is
-// about 200 (no gamma: the detectors do not care).
+// about 200 (no gamma: the detectors do not care). Only the pixels around the sheet are traced; the
+// rest is the table's grey, which is what they would show (less its noise and the sheet's shadow).
 std::vector<RenderedView> renderViews(const BoardSpec& board, const std::vector<ViewSpec>& views, int spp) {
     const Scene scene = boardScene(board);
     auto sim = SimScene::build(scene);
     EXPECT_TRUE(sim) << sim.error().message;
     if (!sim) return {};
-    const double white =
-        kWhite * (kSunIrradiance * Vector3d(0.1, 0.15, -1).normalized().z() * -1.0 + std::numbers::pi * kSkyRadiance) /
-        std::numbers::pi;
+    const double irradiance =
+        kSunIrradiance * -Vector3d(0.1, 0.15, -1).normalized().z() + std::numbers::pi * kSkyRadiance;
+    const double white = kWhite * irradiance / std::numbers::pi;
+    const auto grey8 = [&](double radiance) {
+        return static_cast<std::uint8_t>(std::clamp(std::lround(200.0 * radiance / white), 0L, 255L));
+    };
+    const std::uint8_t table = grey8(kTable * irradiance / std::numbers::pi);
     std::vector<RenderedView> out;
     const auto start = std::chrono::steady_clock::now();
     for (std::size_t i = 0; i < views.size(); ++i) {
@@ -158,6 +194,8 @@ std::vector<RenderedView> renderViews(const BoardSpec& board, const std::vector<
         request.camera = trueCamera();
         const Rigid3d cam_from_board = camFromBoard(views[i], boardCentre(board));
         request.world_from_cam = cam_from_board.inverse();
+        const mocks::sim::PixelRect region = sheetRegion(scene, cam_from_board, 8);
+        request.region = region;
         request.spp = spp;
         request.max_depth = 2;
         request.seed = 7;
@@ -166,14 +204,12 @@ std::vector<RenderedView> renderViews(const BoardSpec& board, const std::vector<
         EXPECT_TRUE(rendered) << rendered.error().message;
         if (!rendered) return {};
         Image gray(PixelFormat::kGray8, kWidth, kHeight);
-        for (int v = 0; v < kHeight; ++v) {
+        std::fill(gray.data(), gray.data() + gray.sizeBytes(), table);
+        for (int v = region.y; v < region.y + region.height; ++v) {
             const auto* row =
                 reinterpret_cast<const float*>(rendered->radiance.data() + v * rendered->radiance.stride());
-            for (int u = 0; u < kWidth; ++u) {
-                const double value = 200.0 * row[3 * u + 1] / white;
-                gray.data()[v * gray.stride() + u] =
-                    static_cast<std::uint8_t>(std::clamp(std::lround(value), 0L, 255L));
-            }
+            for (int u = region.x; u < region.x + region.width; ++u)
+                gray.data()[v * gray.stride() + u] = grey8(row[3 * u + 1]);
         }
         char name[32];
         std::snprintf(name, sizeof name, "view%02zu.png", i);
