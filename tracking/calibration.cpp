@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <limits>
 #include <numeric>
-#include <opencv2/calib3d.hpp>
 #include <sstream>
+
+#include <opencv2/calib3d.hpp>
 
 #include "core/calibration_io.h"
 #include "core/file_util.h"

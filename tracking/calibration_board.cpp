@@ -5,9 +5,10 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <sstream>
+
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
-#include <sstream>
 
 #include "core/yaml_util.h"
 

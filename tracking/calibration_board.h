@@ -17,11 +17,12 @@
 //             row * (1 + SPACING_RATIO) * TAG_M + {0, 0, 1, 1}[k] * TAG_M, 0).
 #pragma once
 
-#include <Eigen/Core>
 #include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
+
+#include <Eigen/Core>
 
 #include "core/image.h"
 #include "core/result.h"

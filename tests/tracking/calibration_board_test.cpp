@@ -1,12 +1,12 @@
 // Board specs (good and bad), board points in Kalibr's and OpenCV's conventions, and chessboard
 // detection on a drawn image with known corners.
-#include "tracking/calibration_board.h"
-
-#include <gtest/gtest.h>
-
 #include <cmath>
 #include <string>
 #include <vector>
+
+#include <gtest/gtest.h>
+
+#include "tracking/calibration_board.h"
 
 namespace commonlight::tracking {
 namespace {

@@ -2,20 +2,19 @@
 // Gaussian noise): accuracy, rejection of bad views by their residuals, the coverage warning, the
 // errors for too few views and mixed image sizes, and the YAML as core's reader and
 // cv::FileStorage read it.
-#include "tracking/calibration.h"
-
-#include <gtest/gtest.h>
-
 #include <cmath>
 #include <numbers>
-#include <opencv2/core/persistence.hpp>
 #include <random>
 #include <string>
 #include <vector>
 
+#include <gtest/gtest.h>
+#include <opencv2/core/persistence.hpp>
+
 #include "core/calibration_io.h"
 #include "core/pose.h"
 #include "tests/test_support.h"
+#include "tracking/calibration.h"
 
 namespace commonlight::tracking {
 namespace {
