@@ -12,7 +12,8 @@
 //           left perturbation of cam_from_world, plus the optional Gaussian prior;
 //   repeat Steps 1-3 `iterations` times per level, then go one level finer.
 // The search is done in the distorted image with CameraModel::project, so lens distortion is
-// handled exactly.
+// handled exactly. refinePoseWithEdges keeps no state between calls: calls on different threads
+// may share one EdgeModel.
 #pragma once
 
 #include <optional>
