@@ -84,8 +84,8 @@ void addEdge(std::vector<ModelEdge>& edges, const Vector3d& a, const Vector3d& b
 
 Result<void> EdgeModelOptions::validate() const {
     if (!(crease_angle_deg > 0.0 && crease_angle_deg < 180.0)) {
-        return fail(ErrorCode::kUsage, "EdgeModelOptions.crease_angle_deg must be in (0, 180), got " +
-                                           std::to_string(crease_angle_deg));
+        return fail(ErrorCode::kUsage,
+                    "EdgeModelOptions.crease_angle_deg must be in (0, 180), got " + std::to_string(crease_angle_deg));
     }
     if (!(min_edge_length >= 0.0) || !std::isfinite(min_edge_length)) {
         return fail(ErrorCode::kUsage, "EdgeModelOptions.min_edge_length must be >= 0");
@@ -167,7 +167,8 @@ Result<EdgeModel> EdgeModel::fromScene(const Scene& scene, const EdgeModelOption
             for (std::size_t v = 0; v < mesh.positions.size(); ++v) {
                 world[v] = pose * mesh.positions[v].cast<double>();
                 if (!world[v].allFinite()) {
-                    return fail(ErrorCode::kBadInput, "real object '" + object.name + "': mesh has non-finite vertices");
+                    return fail(ErrorCode::kBadInput,
+                                "real object '" + object.name + "': mesh has non-finite vertices");
                 }
                 occluder.lower = occluder.lower.cwiseMin(world[v]);
                 occluder.upper = occluder.upper.cwiseMax(world[v]);

@@ -11,6 +11,8 @@
 //   diagonals of coplanar triangles are never edges;
 // - spheres give no straight edges; they only occlude.
 // Tags are not edges (they lie on surfaces and have edges of their own that this model ignores).
+//
+// Immutable once built: any number of threads may query one model.
 #pragma once
 
 #include <optional>

@@ -28,8 +28,8 @@ constexpr double kNearZ = 0.02;  // metres: edges are clipped to points at least
 // One level of the image pyramid: the gradient of the blurred image, in grey levels per pixel of
 // this level.
 struct Level {
-    cv::Mat gx;  // CV_32F
-    cv::Mat gy;  // CV_32F
+    cv::Mat gx;          // CV_32F
+    cv::Mat gy;          // CV_32F
     double scale = 1.0;  // this level's pixels per full-resolution pixel (2^-level)
 };
 
@@ -140,10 +140,8 @@ std::optional<std::pair<double, double>> clipToView(const Vector3d& a, const Vec
         Vector3d m;
         double c;
     };
-    const std::array<HalfSpace, 5> planes = {HalfSpace{{0, 0, 1}, -kNearZ},
-                                             HalfSpace{{1, 0, -fov.x_min}, 0},
-                                             HalfSpace{{-1, 0, fov.x_max}, 0},
-                                             HalfSpace{{0, 1, -fov.y_min}, 0},
+    const std::array<HalfSpace, 5> planes = {HalfSpace{{0, 0, 1}, -kNearZ}, HalfSpace{{1, 0, -fov.x_min}, 0},
+                                             HalfSpace{{-1, 0, fov.x_max}, 0}, HalfSpace{{0, 1, -fov.y_min}, 0},
                                              HalfSpace{{0, -1, fov.y_max}, 0}};
     double t0 = 0.0;
     double t1 = 1.0;
@@ -161,7 +159,7 @@ std::optional<std::pair<double, double>> clipToView(const Vector3d& a, const Vec
 // A point on a model edge, with what the search and the solver need.
 struct Sample {
     Vector3d p_in_world = Vector3d::Zero();
-    Vector2d pixel = Vector2d::Zero();   // projection at the pose it was sampled with, full-resolution pixels
+    Vector2d pixel = Vector2d::Zero();    // projection at the pose it was sampled with, full-resolution pixels
     Vector2d normal = Vector2d::UnitX();  // unit normal of the projected edge there
     int edge = -1;
     int object = -1;
@@ -171,12 +169,12 @@ struct Sample {
     double best_negative = 0.0, t_negative = 0.0;  // strongest along -normal (as a positive value)
     bool matched = false;
     Vector2d match = Vector2d::Zero();  // full-resolution pixels
-    double strength = 0.0;  // gradient at the match
+    double strength = 0.0;              // gradient at the match
 };
 
 // Step 1: visible sample points along the edges.
-void sampleEdges(const EdgeModel& model, const CameraModel& camera, const FieldOfView& fov, const Rigid3d& cam_from_world,
-                 const EdgeRefineOptions& options, std::vector<Sample>& samples) {
+void sampleEdges(const EdgeModel& model, const CameraModel& camera, const FieldOfView& fov,
+                 const Rigid3d& cam_from_world, const EdgeRefineOptions& options, std::vector<Sample>& samples) {
     samples.clear();
     const Vector3d centre = cam_from_world.inverse().translation;
     const auto edges = model.edges();
@@ -328,8 +326,8 @@ struct LinearSystem {
     Vector6d b = Vector6d::Zero();  // sum w J^T r
     double weighted_r2 = 0.0;       // sum w r^2
     double weight_sum = 0.0;
-    double cost = 0.0;              // sum rho(r) (edges only)
-    int used = 0;                   // points with w > 0
+    double cost = 0.0;  // sum rho(r) (edges only)
+    int used = 0;       // points with w > 0
 };
 
 // Residuals of the matched samples at `pose`, their Jacobians and robust weights. With
@@ -425,7 +423,8 @@ Result<void> EdgeRefineOptions::validate() const {
     CL_TRY_VOID(requirePositive(min_information_ratio, "min_information_ratio"));
     CL_TRY_VOID(requirePositive(max_rms_px, "max_rms_px"));
     if (search_px < 1.0 || search_px > 64.0) {
-        return fail(ErrorCode::kUsage, "EdgeRefineOptions.search_px must be in [1, 64], got " + std::to_string(search_px));
+        return fail(ErrorCode::kUsage,
+                    "EdgeRefineOptions.search_px must be in [1, 64], got " + std::to_string(search_px));
     }
     if (!(blur_sigma_px >= 0.0) || !std::isfinite(blur_sigma_px)) {
         return fail(ErrorCode::kUsage, "EdgeRefineOptions.blur_sigma_px must be >= 0");
@@ -434,7 +433,8 @@ Result<void> EdgeRefineOptions::validate() const {
         return fail(ErrorCode::kUsage, "EdgeRefineOptions.image_margin_px must be >= 0");
     }
     if (iterations < 1 || iterations > 100) {
-        return fail(ErrorCode::kUsage, "EdgeRefineOptions.iterations must be in 1..100, got " + std::to_string(iterations));
+        return fail(ErrorCode::kUsage,
+                    "EdgeRefineOptions.iterations must be in 1..100, got " + std::to_string(iterations));
     }
     if (pyramid_levels < 1 || pyramid_levels > 6) {
         return fail(ErrorCode::kUsage,
@@ -452,16 +452,15 @@ Result<void> EdgeRefineOptions::validate() const {
     return {};
 }
 
-Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const CameraModel& camera,
-                                             const EdgeModel& model, const Rigid3d& cam_from_world_initial,
-                                             const EdgeRefineOptions& options,
+Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const CameraModel& camera, const EdgeModel& model,
+                                             const Rigid3d& cam_from_world_initial, const EdgeRefineOptions& options,
                                              const std::optional<PoseMeasurement>& prior) {
     const auto start = std::chrono::steady_clock::now();
     // Step 0: check the input.
     CL_TRY_VOID(options.validate());
     if (gray8.format != PixelFormat::kGray8) {
-        return fail(ErrorCode::kBadInput, "edge refinement needs a gray8 image, got " +
-                                              std::string(pixelFormatName(gray8.format)));
+        return fail(ErrorCode::kBadInput,
+                    "edge refinement needs a gray8 image, got " + std::string(pixelFormatName(gray8.format)));
     }
     if (gray8.empty() || gray8.stride < static_cast<std::size_t>(gray8.width) ||
         gray8.size_bytes < imageBytes(gray8.format, gray8.width, gray8.height, gray8.stride)) {
@@ -646,8 +645,8 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
     if (inliers < options.min_inlier_fraction) {
         std::ostringstream msg;
         msg << "only " << result.points_used << " of " << result.points_visible
-            << " visible edge points agree with the image (" << static_cast<int>(100 * inliers)
-            << " %, need " << static_cast<int>(100 * options.min_inlier_fraction) << " %): probably a wrong pose";
+            << " visible edge points agree with the image (" << static_cast<int>(100 * inliers) << " %, need "
+            << static_cast<int>(100 * options.min_inlier_fraction) << " %): probably a wrong pose";
         return finish(result, msg.str());
     }
     if (result.rms_px > options.max_rms_px) {

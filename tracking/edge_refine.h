@@ -12,7 +12,8 @@
 //           left perturbation of cam_from_world, plus the optional Gaussian prior;
 //   repeat Steps 1-3 `iterations` times per level, then go one level finer.
 // The search is done in the distorted image with CameraModel::project, so lens distortion is
-// handled exactly.
+// handled exactly. refinePoseWithEdges keeps no state between calls: calls on different threads
+// may share one EdgeModel.
 #pragma once
 
 #include <optional>
@@ -33,21 +34,21 @@ struct EdgeRefineOptions {
     // pixels on the coarsest of three levels). Measured on the desk (640x480, 1.2 m): starts 3
     // degrees and 37 mm off converge every time with 12, 93 % of the time with 8.
     double search_px = 12.0;
-    double sample_spacing_px = 6.0;  // distance between sample points along a projected edge, full-resolution pixels
-    int iterations = 6;              // search + Gauss-Newton steps per pyramid level
-    int pyramid_levels = 3;          // 1 = full resolution only; each level halves the image
-    double blur_sigma_px = 1.0;      // Gaussian blur of the full-resolution image before the gradients (0: none)
-    double min_gradient = 6.0;       // grey levels per pixel; weaker maxima are not edges
-    int min_points = 40;             // fewer matched points than this: not ok
-    int min_edges = 3;               // fewer model edges with matched points than this: not ok
-    double tukey_px = 2.5;           // Tukey biweight cut-off at full resolution (scaled by 2^level), pixels
-    double image_margin_px = 4.0;    // sample points closer than this to the image border are not used
-    double occlusion_epsilon = 1e-3; // metres before a sample point that a ray may hit its own surface
-    double min_sigma_px = 0.1;       // floor of the residual standard deviation used for the covariance
+    double sample_spacing_px = 6.0;   // distance between sample points along a projected edge, full-resolution pixels
+    int iterations = 6;               // search + Gauss-Newton steps per pyramid level
+    int pyramid_levels = 3;           // 1 = full resolution only; each level halves the image
+    double blur_sigma_px = 1.0;       // Gaussian blur of the full-resolution image before the gradients (0: none)
+    double min_gradient = 6.0;        // grey levels per pixel; weaker maxima are not edges
+    int min_points = 40;              // fewer matched points than this: not ok
+    int min_edges = 3;                // fewer model edges with matched points than this: not ok
+    double tukey_px = 2.5;            // Tukey biweight cut-off at full resolution (scaled by 2^level), pixels
+    double image_margin_px = 4.0;     // sample points closer than this to the image border are not used
+    double occlusion_epsilon = 1e-3;  // metres before a sample point that a ray may hit its own surface
+    double min_sigma_px = 0.1;        // floor of the residual standard deviation used for the covariance
     // Smallest ratio of the smallest to the largest eigenvalue of the information matrix (translation
     // scaled by the median depth, so rotations and translations compare); below: poorly constrained.
     double min_information_ratio = 1e-4;
-    double max_rms_px = 2.0;         // a final weighted rms distance above this: not ok (did not converge)
+    double max_rms_px = 2.0;  // a final weighted rms distance above this: not ok (did not converge)
     // Fewer of the visible sample points matching the image at the refined pose than this: not ok.
     // A pose that converged onto the wrong image edges matches few of them (measured on the desk:
     // 86 to 93 % at the true pose, 12 to 51 % at wrong ones). Lower it for cluttered scenes with
@@ -67,11 +68,11 @@ struct EdgeRefineResult {
     // covariance (docs/tracking.md), fused with the prior's information when a prior is given.
     // Zero when not ok.
     Matrix6d covariance = Matrix6d::Zero();
-    int edges_used = 0;         // model edges with at least one matched point (final iteration)
-    int points_used = 0;        // matched points with a non-zero robust weight (final iteration)
-    int points_visible = 0;     // sample points that passed the visibility tests (last sampling)
-    double rms_px = 0.0;        // weighted rms point-to-edge distance, full-resolution pixels
-    int iterations = 0;         // Gauss-Newton steps taken over all levels
+    int edges_used = 0;                  // model edges with at least one matched point (final iteration)
+    int points_used = 0;                 // matched points with a non-zero robust weight (final iteration)
+    int points_visible = 0;              // sample points that passed the visibility tests (last sampling)
+    double rms_px = 0.0;                 // weighted rms point-to-edge distance, full-resolution pixels
+    int iterations = 0;                  // Gauss-Newton steps taken over all levels
     std::vector<int> points_per_object;  // points_used by real object (EdgeModel::objectNames order)
     // Wall-clock time of the refinement, and of its steps summed over the iterations.
     double seconds = 0.0;
@@ -90,9 +91,8 @@ struct EdgeRefineResult {
 // the camera, an invalid camera, a non-finite initial pose or prior; kUsage for invalid options.
 // Too little to go on (too few visible edges or points, a poorly constrained system, no
 // convergence) is a result with ok = false and a reason.
-Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const CameraModel& camera,
-                                             const EdgeModel& model, const Rigid3d& cam_from_world_initial,
-                                             const EdgeRefineOptions& options,
+Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const CameraModel& camera, const EdgeModel& model,
+                                             const Rigid3d& cam_from_world_initial, const EdgeRefineOptions& options,
                                              const std::optional<PoseMeasurement>& prior = std::nullopt);
 
 }  // namespace commonlight::tracking

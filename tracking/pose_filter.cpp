@@ -42,12 +42,14 @@ Result<Matrix6d> regularisedCovariance(const Matrix6d& covariance, const PoseFil
         return fail(ErrorCode::kBadInput, msg.str());
     }
     Vector6d floors;
-    floors << Eigen::Vector3d::Constant(options.min_rotation_sigma), Eigen::Vector3d::Constant(options.min_translation_sigma);
+    floors << Eigen::Vector3d::Constant(options.min_rotation_sigma),
+        Eigen::Vector3d::Constant(options.min_translation_sigma);
     const Eigen::DiagonalMatrix<double, 6> to_scaled(floors.cwiseInverse());
     const Matrix6d symmetric = 0.5 * (covariance + covariance.transpose());
     const Matrix6d scaled = to_scaled * symmetric * to_scaled;
     const Eigen::SelfAdjointEigenSolver<Matrix6d> eigen(scaled);
-    if (eigen.info() != Eigen::Success) return fail(ErrorCode::kBadInput, "pose covariance: eigen decomposition failed");
+    if (eigen.info() != Eigen::Success)
+        return fail(ErrorCode::kBadInput, "pose covariance: eigen decomposition failed");
     const Vector6d values = eigen.eigenvalues();
     // Positive variances, and no direction with a negative variance beyond rounding: a matrix that
     // is singular only by rounding (a solver's rank-deficient output) is regularised, not refused.
@@ -148,7 +150,8 @@ Result<PoseFilter::UpdateResult> PoseFilter::update(const PoseMeasurement& measu
     }
     auto covariance = regularisedCovariance(measurement.covariance, options_);
     if (!covariance) {
-        return fail(std::move(covariance.error()).prepend("pose measurement at " + std::to_string(measurement.timestamp_ns) + " ns"));
+        return fail(std::move(covariance.error())
+                        .prepend("pose measurement at " + std::to_string(measurement.timestamp_ns) + " ns"));
     }
     if (initialized_ && measurement.timestamp_ns < last_input_ns_) {
         return fail(ErrorCode::kBadInput, "pose measurement at " + std::to_string(measurement.timestamp_ns) +

@@ -37,9 +37,9 @@ struct PoseFilterOptions {
     // Velocity uncertainty at (re-)initialisation: how fast the camera may be moving when first seen.
     double initial_angular_velocity_sigma = 4.0;  // rad/s
     double initial_linear_velocity_sigma = 2.0;   // m/s
-    double gate_chi2 = 22.46;           // Mahalanobis gate (6 dof, 99.9%); measurements beyond are rejected
-    int max_consecutive_rejections = 3; // rejections tolerated in a row; the next one re-initialises
-    std::int64_t max_gap_ns = 500'000'000;  // a longer gap since the last accepted update re-initialises
+    double gate_chi2 = 22.46;                     // Mahalanobis gate (6 dof, 99.9%); measurements beyond are rejected
+    int max_consecutive_rejections = 3;           // rejections tolerated in a row; the next one re-initialises
+    std::int64_t max_gap_ns = 500'000'000;        // a longer gap since the last accepted update re-initialises
     // Floors of the measurement noise: a covariance claiming more precision than this is
     // regularised up to it (a near-singular covariance would freeze the filter).
     double min_rotation_sigma = 1e-5;     // rad
@@ -91,8 +91,8 @@ private:
 
     PoseFilterOptions options_;
     bool initialized_ = false;
-    std::int64_t state_ns_ = 0;        // time of the state (last accepted update)
-    std::int64_t last_input_ns_ = 0;   // time of the last measurement (accepted or not)
+    std::int64_t state_ns_ = 0;       // time of the state (last accepted update)
+    std::int64_t last_input_ns_ = 0;  // time of the last measurement (accepted or not)
     Rigid3d pose_;
     Vector6d velocity_ = Vector6d::Zero();
     Matrix12d covariance_ = Matrix12d::Identity();

@@ -119,7 +119,9 @@ Rigid3d perturb(const Rigid3d& truth, double rot_deg, double trans_m, unsigned s
 }
 
 // Camera-centre distance, metres: the translation error a user sees.
-double centreError(const Rigid3d& a, const Rigid3d& b) { return (a.inverse().translation - b.inverse().translation).norm(); }
+double centreError(const Rigid3d& a, const Rigid3d& b) {
+    return (a.inverse().translation - b.inverse().translation).norm();
+}
 
 // ---------------------------------------------------------------------------------------------
 // The edge model
@@ -208,8 +210,7 @@ TEST(EdgeModel, MeshCreasesBelowTheAngleAreNotEdgesAndOpenBordersAre) {
     // a fold that is an edge only when the crease angle is below 20 degrees.
     auto mesh = std::make_shared<Mesh>();
     const double fold = 20 * kDegToRad;
-    mesh->positions = {Eigen::Vector3f(0, 0, 0), Eigen::Vector3f(0, 1, 0),
-                       Eigen::Vector3f(1, 0, 0),
+    mesh->positions = {Eigen::Vector3f(0, 0, 0), Eigen::Vector3f(0, 1, 0), Eigen::Vector3f(1, 0, 0),
                        Eigen::Vector3f(static_cast<float>(-std::cos(fold)), 0, static_cast<float>(std::sin(fold)))};
     mesh->indices = {0, 2, 1, 0, 1, 3};
     MeshShape shape;
@@ -268,8 +269,8 @@ TEST(EdgeModel, OcclusionOfBoxesPlanesAndMeshesIgnoresTheSurfaceItself) {
 // Refinement on the rendered desk
 
 struct DeskCase {
-    double t_s;      // trajectory time
-    unsigned seed;   // of the perturbation's axes
+    double t_s;     // trajectory time
+    unsigned seed;  // of the perturbation's axes
 };
 
 class EdgeRefineDesk : public ::testing::TestWithParam<DeskCase> {};
@@ -289,11 +290,11 @@ TEST_P(EdgeRefineDesk, ConvergesFromAPerturbedPose) {
     const double trans0 = centreError(start, truth) * 1000;
     const double rot = rotationErrorDeg(result->cam_from_world, truth);
     const double trans = centreError(result->cam_from_world, truth) * 1000;
-    std::printf("desk t=%.1f s: start %.3f deg %.1f mm -> refined %.4f deg %.2f mm; %s %s; %d edges, %d/%d points, "
-                "rms %.3f px, %d steps, %.1f ms\n",
-                c.t_s, rot0, trans0, rot, trans, result->ok ? "ok" : "NOT OK", result->reason.c_str(),
-                result->edges_used, result->points_used, result->points_visible, result->rms_px, result->iterations,
-                1000 * result->seconds);
+    std::printf(
+        "desk t=%.1f s: start %.3f deg %.1f mm -> refined %.4f deg %.2f mm; %s %s; %d edges, %d/%d points, "
+        "rms %.3f px, %d steps, %.1f ms\n",
+        c.t_s, rot0, trans0, rot, trans, result->ok ? "ok" : "NOT OK", result->reason.c_str(), result->edges_used,
+        result->points_used, result->points_visible, result->rms_px, result->iterations, 1000 * result->seconds);
     ASSERT_TRUE(result->ok) << result->reason;
     // Measured 0.02-0.03 degrees and 0.4-0.5 mm at 1.2 m (a fifth of a pixel): the limits leave a
     // factor of 3 to 4 (the images are deterministic; the margin is for platform differences).
@@ -315,8 +316,7 @@ TEST_P(EdgeRefineDesk, ConvergesFromAPerturbedPose) {
     EXPECT_LT(m2, 22.46);
 }
 
-INSTANTIATE_TEST_SUITE_P(Desk, EdgeRefineDesk,
-                         ::testing::Values(DeskCase{0.0, 1}, DeskCase{1.0, 2}, DeskCase{2.0, 3}),
+INSTANTIATE_TEST_SUITE_P(Desk, EdgeRefineDesk, ::testing::Values(DeskCase{0.0, 1}, DeskCase{1.0, 2}, DeskCase{2.0, 3}),
                          [](const auto& param_info) {
                              // (snprintf: GCC 12 warns falsely about "t" + std::to_string.)
                              char name[16];
@@ -336,7 +336,8 @@ TEST(EdgeRefineDesk, ConvergesFromManyStartsAndFailsLoudlyFromFarOnes) {
         const Image& image = deskImage(t, camera);
         const Rigid3d truth = deskTrajectory().worldFromCam(t).inverse();
         for (unsigned seed = 100; seed < 110; ++seed) {
-            auto near = refinePoseWithEdges(image, camera, *model, perturb(truth, 2.0, 0.03, seed), EdgeRefineOptions{});
+            auto near =
+                refinePoseWithEdges(image, camera, *model, perturb(truth, 2.0, 0.03, seed), EdgeRefineOptions{});
             ASSERT_TRUE(near);
             if (near->ok) {
                 ++near_ok;
@@ -354,9 +355,10 @@ TEST(EdgeRefineDesk, ConvergesFromManyStartsAndFailsLoudlyFromFarOnes) {
             EXPECT_LT(centreError(far->cam_from_world, truth), 0.002) << "t " << t << " seed " << seed;
         }
     }
-    std::printf("2 deg / 30 mm starts: %d of 20 ok, worst %.4f deg %.2f mm; 6 deg / 100 mm starts: %d ok, %d reported "
-                "as failed\n",
-                near_ok, worst_rot, worst_trans, far_ok, far_reported);
+    std::printf(
+        "2 deg / 30 mm starts: %d of 20 ok, worst %.4f deg %.2f mm; 6 deg / 100 mm starts: %d ok, %d reported "
+        "as failed\n",
+        near_ok, worst_rot, worst_trans, far_ok, far_reported);
     EXPECT_EQ(near_ok, 20);
     EXPECT_LT(worst_rot, 0.1);
     EXPECT_LT(worst_trans, 2.0);
@@ -467,9 +469,10 @@ TEST(EdgeRefineDesk, PriorIsFusedBetweenEdgesAndPrior) {
         double off_line = 0;
         const double f = fraction(fused->cam_from_world, &off_line);
         const double trace_ratio = fused->covariance.trace() / c.trace();
-        std::printf("prior with %g x the edges' covariance: fused at %.2f of the way to the prior (%.2f sigma off the "
-                    "line), covariance trace %.2f x the edges'\n",
-                    scale, f, off_line, trace_ratio);
+        std::printf(
+            "prior with %g x the edges' covariance: fused at %.2f of the way to the prior (%.2f sigma off the "
+            "line), covariance trace %.2f x the edges'\n",
+            scale, f, off_line, trace_ratio);
         if (scale == 1.0) {
             // Equal information: half-way, with half the covariance.
             EXPECT_GT(f, 0.3);

@@ -252,7 +252,8 @@ TEST_P(PoseFilterMoving, ConstantVelocityHasNoLagAndLowerErrorThanTheMeasurement
         const Rigid3d truth = traj.at(1e-9 * t);
         if (i >= kWarmUp) {
             // What the renderer asks for between updates: the pose at another frame's time.
-            mid_frame.add(poseError(traj.at(1e-9 * (t - kFrameNs / 2)), filter.predict(t - kFrameNs / 2)->cam_from_world));
+            mid_frame.add(
+                poseError(traj.at(1e-9 * (t - kFrameNs / 2)), filter.predict(t - kFrameNs / 2)->cam_from_world));
             two_ahead.add(poseError(traj.at(1e-9 * (t + kFrameNs)), filter.predict(t + kFrameNs)->cam_from_world));
         }
         const PoseMeasurement m = sensor.measure(t, truth, cov);
@@ -288,10 +289,11 @@ TEST_P(PoseFilterMoving, ConstantVelocityHasNoLagAndLowerErrorThanTheMeasurement
     raw_along_trans /= n;
     std::printf("constant velocity (%s): raw %.3f deg %.2f mm, filtered %.3f deg %.2f mm\n", GetParam().name,
                 raw.rms_rot_deg, raw.rms_trans_mm, filtered.rms_rot_deg, filtered.rms_trans_mm);
-    std::printf("constant velocity (%s): mean signed error along the motion %.4f deg, %.3f mm (one frame of lag: "
-                "%.3f deg, %.2f mm)\n",
-                GetParam().name, along_rot / kDegToRad, along_trans * 1000, traj.nu.head<3>().norm() / 30 / kDegToRad,
-                traj.nu.tail<3>().norm() / 30 * 1000);
+    std::printf(
+        "constant velocity (%s): mean signed error along the motion %.4f deg, %.3f mm (one frame of lag: "
+        "%.3f deg, %.2f mm)\n",
+        GetParam().name, along_rot / kDegToRad, along_trans * 1000, traj.nu.head<3>().norm() / 30 / kDegToRad,
+        traj.nu.tail<3>().norm() / 30 * 1000);
     std::printf("constant velocity (%s): the raw measurements' mean signed error: %.3f mm\n", GetParam().name,
                 raw_along_trans * 1000);
     EXPECT_LT(filtered.rms_rot_deg, GetParam().max_ratio * raw.rms_rot_deg);
@@ -309,10 +311,10 @@ TEST_P(PoseFilterMoving, ConstantVelocityHasNoLagAndLowerErrorThanTheMeasurement
 
     // Predicting between frames and ahead matches the truth of the trajectory: the error is
     // that of the last update plus the velocity's error times the time since.
-    std::printf("constant velocity (%s): predicted half a frame after an update %.3f deg %.2f mm, two frames after "
-                "%.3f deg %.2f mm\n",
-                GetParam().name, mid_frame.rms_rot_deg, mid_frame.rms_trans_mm, two_ahead.rms_rot_deg,
-                two_ahead.rms_trans_mm);
+    std::printf(
+        "constant velocity (%s): predicted half a frame after an update %.3f deg %.2f mm, two frames after "
+        "%.3f deg %.2f mm\n",
+        GetParam().name, mid_frame.rms_rot_deg, mid_frame.rms_trans_mm, two_ahead.rms_rot_deg, two_ahead.rms_trans_mm);
     // (Measured over 60 noise seeds: at most 1.4 and 2.8 times the filtered error with the defaults.)
     EXPECT_LT(mid_frame.rms_rot_deg, 1.6 * filtered.rms_rot_deg);
     EXPECT_LT(mid_frame.rms_trans_mm, 1.6 * filtered.rms_trans_mm);
@@ -353,7 +355,8 @@ TEST(PoseFilter, TwoMeasurementsAtTheSameTimestampAreBothFused) {
 TEST(PoseFilter, TimestampGoingBackwardsIsAnErrorAndChangesNothing) {
     PoseFilter filter;
     NoisySensor sensor(3);
-    for (int i = 0; i < 5; ++i) ASSERT_TRUE(filter.update(sensor.measure(i * kFrameNs, kStaticTruth, typicalCovariance())));
+    for (int i = 0; i < 5; ++i)
+        ASSERT_TRUE(filter.update(sensor.measure(i * kFrameNs, kStaticTruth, typicalCovariance())));
     const auto before = filter.predict(5 * kFrameNs);
     auto r = filter.update({3 * kFrameNs, kStaticTruth, typicalCovariance()});
     ASSERT_FALSE(r);
@@ -369,7 +372,8 @@ TEST(PoseFilter, HugeGapReinitialises) {
     PoseFilter filter;
     const CvTrajectory traj;
     NoisySensor sensor(5);
-    for (int i = 0; i < 20; ++i) ASSERT_TRUE(filter.update(sensor.measure(i * kFrameNs, traj.at(i / 30.0), typicalCovariance())));
+    for (int i = 0; i < 20; ++i)
+        ASSERT_TRUE(filter.update(sensor.measure(i * kFrameNs, traj.at(i / 30.0), typicalCovariance())));
     // Two seconds later the camera is somewhere else and stopped; the old velocity means nothing.
     const std::int64_t t = 19 * kFrameNs + 2'000'000'000;
     const Rigid3d there = Rigid3d::fromRpyDeg({1, 2, 1.5}, {-90, 0, 170});
@@ -520,7 +524,8 @@ TEST(PoseFilter, OutlierIsRejectedThenReinitialisesAfterSeveral) {
 TEST(PoseFilter, NanInputIsAnErrorAndLeavesTheStateUnchanged) {
     PoseFilter filter;
     NoisySensor sensor(23);
-    for (int i = 0; i < 10; ++i) ASSERT_TRUE(filter.update(sensor.measure(i * kFrameNs, kStaticTruth, typicalCovariance())));
+    for (int i = 0; i < 10; ++i)
+        ASSERT_TRUE(filter.update(sensor.measure(i * kFrameNs, kStaticTruth, typicalCovariance())));
     const auto before = filter.predict(10 * kFrameNs);
     const double nan = std::numeric_limits<double>::quiet_NaN();
 
@@ -559,8 +564,9 @@ TEST(Se3Jacobians, LeftJacobianAndAdjointMatchFiniteDifferences) {
         const double h = 1e-4;
         for (int c = 0; c < 6; ++c) {
             const Vector6d d = Vector6d::Unit(c) * h;
-            numeric.col(c) = (logSe3(expSe3(xi + d) * expSe3(xi).inverse()) -
-                              logSe3(expSe3(xi - d) * expSe3(xi).inverse())) / (2 * h);
+            numeric.col(c) =
+                (logSe3(expSe3(xi + d) * expSe3(xi).inverse()) - logSe3(expSe3(xi - d) * expSe3(xi).inverse())) /
+                (2 * h);
         }
         EXPECT_LT((j - numeric).cwiseAbs().maxCoeff(), 1e-6) << "angle " << angle;
         const Rigid3d t = expSe3(xi);
