@@ -1,0 +1,26 @@
+# commonlight bench tracking on the bundled sample (the only case that needs no rendering): the
+# tables, the JSON figures and the plot; unknown cases are usage errors.
+source "$(dirname "$0")/lib.sh"
+
+expect_exit 0 "$COMMONLIGHT" bench tracking --source "$SRC" --data "$TMP/data" --cases desk --frames 8 \
+    --json "$TMP/bench.json" --plot "$TMP/bench.png"
+expect_text "libapriltag estimate_tag_pose" "$TMP/out"
+expect_text "bundle + filter + edges" "$TMP/out"
+expect_text "tracking mode" "$TMP/out"
+[[ -s "$TMP/bench.png" ]] || fail "no plot"
+python3 - "$TMP/bench.json" <<'PY'
+import json, sys
+j = json.load(open(sys.argv[1]))["cases"]["desk"]
+for key in ("apriltag_estimate_tag_pose", "single_tag", "bundle", "bundle_filter", "bundle_filter_edges"):
+    e = j[key]
+    assert e["count"] > 0, key
+    for stat in ("p50", "p95", "max"):
+        assert e["rot_deg"][stat] >= 0 and e["trans_mm"][stat] >= 0, (key, stat)
+assert len(j["sweep"]) == 6
+assert {(e["decimate"], e["tracking_mode"]) for e in j["sweep"]} == {(d, m) for d in (1, 2, 3) for m in (False, True)}
+# Every frame of the sample has a camera pose at decimate 1 (full frame and tracking mode).
+assert all(e["count"] == 8 for e in j["sweep"] if e["decimate"] == 1)
+PY
+expect_exit 2 "$COMMONLIGHT" bench tracking --cases nope
+expect_text "nope" "$TMP/err"
+echo "bench tracking: ok"
