@@ -152,19 +152,37 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
             const Rigid3d tag_from_local = (local_from_world * u.item->world_from_tag).inverse();
             for (const TagPoseCandidate& c : u.tag->single->candidates) starts.push_back(c.cam_from_tag * tag_from_local);
         }
-        double best_cost = std::numeric_limits<double>::infinity();
-        const Rigid3d* best = nullptr;
-        for (const Rigid3d& s : starts) {
-            const double cost = robustCost(points, camera, s, options.huber_px);
-            if (cost < best_cost) {
-                best_cost = cost;
-                best = &s;
+        // The starts in order of their cost; distinct ones (more than 2 degrees apart) are each
+        // refined, and the lowest final cost wins: a board of small coplanar tags has two minima
+        // (the planar ambiguity of the whole board), and the start that is better before the
+        // refinement is not always the one that is better after it.
+        std::vector<std::pair<double, const Rigid3d*>> ranked;
+        for (const Rigid3d& st : starts) {
+            const double cost = robustCost(points, camera, st, options.huber_px);
+            if (std::isfinite(cost)) ranked.emplace_back(cost, &st);
+        }
+        if (ranked.empty()) return fail(ErrorCode::kBadInput, "bundle: no start pose puts the tags in front of the camera");
+        std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+        std::vector<const Rigid3d*> distinct;
+        for (const auto& [cost, st] : ranked) {
+            const bool seen = std::any_of(distinct.begin(), distinct.end(),
+                                          [&](const Rigid3d* d) { return rotationErrorDeg(*d, *st) < 2.0; });
+            if (!seen) distinct.push_back(st);
+            if (distinct.size() == 3) break;
+        }
+
+        // Step 3: robust LM from each.
+        Fit fit;
+        double fit_cost = std::numeric_limits<double>::infinity();
+        for (const Rigid3d* st : distinct) {
+            Fit candidate = refine(points, camera, *st, options);
+            const double cost = robustCost(points, camera, candidate.cam_from_local, options.huber_px);
+            if (cost < fit_cost) {
+                fit_cost = cost;
+                fit = std::move(candidate);
             }
         }
-        if (!best) return fail(ErrorCode::kBadInput, "bundle: no start pose puts the tags in front of the camera");
-
-        // Step 3: robust LM.
-        const Fit fit = refine(points, camera, *best, options);
+        if (!std::isfinite(fit_cost)) return fail(ErrorCode::kBadInput, "bundle: the solution does not reproject the corners");
 
         // Step 4: the worst tag, rejected while it is an outlier and others remain.
         std::vector<double> sum(used.size(), 0.0);
