@@ -171,9 +171,14 @@ struct ErrorStats {
     std::vector<double> rot_deg, trans_mm, ms;
     int attempts = 0;  // frames (or tag detections) that should have had a pose
 
+    // cam_from_tag: the tag's position in the camera; cam_from_world: the camera centre in the world.
     void add(const Rigid3d& estimate, const Rigid3d& truth) {
         rot_deg.push_back(rotationErrorDeg(estimate, truth));
         trans_mm.push_back(1000.0 * (estimate.translation - truth.translation).norm());
+    }
+    void addCamera(const Rigid3d& cam_from_world, const Rigid3d& truth) {
+        rot_deg.push_back(rotationErrorDeg(cam_from_world, truth));
+        trans_mm.push_back(1000.0 * (cam_from_world.inverse().translation - truth.inverse().translation).norm());
     }
     static double pct(std::vector<double> v, double p) {
         if (v.empty()) return NAN;
@@ -290,7 +295,7 @@ Result<TrackerRun> runTracker(const LoadedCase& lc, const tracking::TrackerOptio
         run.camera.ms.push_back(track.times.total_ms);
         detect_ms.push_back(track.times.detect_ms);
         if (track.full_frame_detection) ++run.full_frame_detections;
-        if (track.cam_from_world) run.camera.add(*track.cam_from_world, lc.cam_from_world_true[i]);
+        if (track.cam_from_world) run.camera.addCamera(*track.cam_from_world, lc.cam_from_world_true[i]);
         for (const auto& t : track.tags) {
             const TagItem* item = lc.scene.tags.find(t.detection.id);
             if (!item) continue;
