@@ -203,11 +203,13 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
         try {
             cv::solvePnPRefineLM(object, distorted, k_mat, dist, rvec, tvec,
                                  cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 30, 1e-12));
-            if (finiteMat(rvec) && finiteMat(tvec)) refined = fromRvecTvec(rvec, tvec);
+            if (!finiteMat(rvec) || !finiteMat(tvec)) continue;  // never an unrefined pose as a result
+            refined = fromRvecTvec(rvec, tvec);
         } catch (const cv::Exception&) {
-            // keep the IPPE pose; its residual decides below
+            continue;
         }
-        // The refinement must not make things worse (it can wander when the start is poor).
+        // LM stops where it cannot improve; a start that is already the minimum (exact corners)
+        // may then reproject marginally better than LM's last step: keep the better of the two.
         const double rms_start = tagReprojectionRms(corners, size, camera, start);
         const double rms_refined = tagReprojectionRms(corners, size, camera, refined);
         TagPoseCandidate c{rms_refined <= rms_start ? refined : start, std::min(rms_refined, rms_start)};
