@@ -345,7 +345,7 @@ void drawPlot(const std::vector<SweepPoint>& points, const fs::path& file) {
     cv::putText(img, "tracking time per frame, ms (p50)", {left + 220, h - 15}, cv::FONT_HERSHEY_SIMPLEX, 0.55, black);
     cv::putText(img, "camera rotation error p50, deg: decimate x tracking mode", {left, 25}, cv::FONT_HERSHEY_SIMPLEX, 0.55,
                 black);
-    cv::putText(img, "circle: full frame, square: tracking mode", {w - right - 330, 25}, cv::FONT_HERSHEY_SIMPLEX, 0.45,
+    cv::putText(img, "circle: full frame, square: tracking mode", {w - right - 320, top + 20}, cv::FONT_HERSHEY_SIMPLEX, 0.45,
                 black);
     const cv::Scalar colours[] = {{200, 60, 20}, {20, 120, 220}, {40, 160, 40}, {160, 40, 160}};
     std::map<std::string, int> case_colour;
