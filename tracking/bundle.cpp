@@ -7,6 +7,7 @@
 
 #include <Eigen/Cholesky>
 
+#include "tracking/option_checks.h"
 #include "tracking/projection.h"
 
 namespace commonlight::tracking {
@@ -92,9 +93,9 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
 }  // namespace
 
 Result<void> BundleOptions::validate() const {
-    if (!(huber_px > 0)) return fail(ErrorCode::kUsage, "bundle huber_px must be > 0");
-    if (!(outlier_px > 0)) return fail(ErrorCode::kUsage, "bundle outlier_px must be > 0");
-    if (!(corner_sigma_px > 0)) return fail(ErrorCode::kUsage, "bundle corner_sigma_px must be > 0");
+    CL_TRY_VOID(requirePositive(huber_px, "BundleOptions", "huber_px"));
+    CL_TRY_VOID(requirePositive(outlier_px, "BundleOptions", "outlier_px"));
+    CL_TRY_VOID(requirePositive(corner_sigma_px, "BundleOptions", "corner_sigma_px"));
     if (max_iterations < 1) return fail(ErrorCode::kUsage, "bundle max_iterations must be >= 1");
     return {};
 }

@@ -15,6 +15,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "tracking/se3_jacobians.h"
+#include "tracking/option_checks.h"
 
 namespace commonlight::tracking {
 namespace {
@@ -404,24 +405,18 @@ std::string axisName(int i) {
     return kNames[i];
 }
 
-Result<void> requirePositive(double value, const char* name) {
-    if (std::isfinite(value) && value > 0.0) return {};
-    std::ostringstream msg;
-    msg << "EdgeRefineOptions." << name << " must be a finite number > 0, got " << value;
-    return fail(ErrorCode::kUsage, msg.str());
-}
 
 }  // namespace
 
 Result<void> EdgeRefineOptions::validate() const {
-    CL_TRY_VOID(requirePositive(search_px, "search_px"));
-    CL_TRY_VOID(requirePositive(sample_spacing_px, "sample_spacing_px"));
-    CL_TRY_VOID(requirePositive(min_gradient, "min_gradient"));
-    CL_TRY_VOID(requirePositive(tukey_px, "tukey_px"));
-    CL_TRY_VOID(requirePositive(occlusion_epsilon, "occlusion_epsilon"));
-    CL_TRY_VOID(requirePositive(min_sigma_px, "min_sigma_px"));
-    CL_TRY_VOID(requirePositive(min_information_ratio, "min_information_ratio"));
-    CL_TRY_VOID(requirePositive(max_rms_px, "max_rms_px"));
+    CL_TRY_VOID(requirePositive(search_px, "EdgeRefineOptions", "search_px"));
+    CL_TRY_VOID(requirePositive(sample_spacing_px, "EdgeRefineOptions", "sample_spacing_px"));
+    CL_TRY_VOID(requirePositive(min_gradient, "EdgeRefineOptions", "min_gradient"));
+    CL_TRY_VOID(requirePositive(tukey_px, "EdgeRefineOptions", "tukey_px"));
+    CL_TRY_VOID(requirePositive(occlusion_epsilon, "EdgeRefineOptions", "occlusion_epsilon"));
+    CL_TRY_VOID(requirePositive(min_sigma_px, "EdgeRefineOptions", "min_sigma_px"));
+    CL_TRY_VOID(requirePositive(min_information_ratio, "EdgeRefineOptions", "min_information_ratio"));
+    CL_TRY_VOID(requirePositive(max_rms_px, "EdgeRefineOptions", "max_rms_px"));
     if (search_px < 1.0 || search_px > 64.0) {
         return fail(ErrorCode::kUsage,
                     "EdgeRefineOptions.search_px must be in [1, 64], got " + std::to_string(search_px));

@@ -10,6 +10,7 @@
 #include <Eigen/LU>
 
 #include "tracking/se3_jacobians.h"
+#include "tracking/option_checks.h"
 
 namespace commonlight::tracking {
 namespace {
@@ -18,12 +19,6 @@ using Matrix12d = PoseFilter::Matrix12d;
 using Matrix12x6d = Eigen::Matrix<double, 12, 6>;
 using Vector12d = Eigen::Matrix<double, 12, 1>;
 
-Result<void> requirePositive(double value, const char* name) {
-    if (std::isfinite(value) && value > 0.0) return {};
-    std::ostringstream msg;
-    msg << "PoseFilterOptions." << name << " must be a finite number > 0, got " << value;
-    return fail(ErrorCode::kUsage, msg.str());
-}
 
 // Checks a measurement covariance and regularises it.
 //
@@ -69,13 +64,13 @@ Result<Matrix6d> regularisedCovariance(const Matrix6d& covariance, const PoseFil
 }  // namespace
 
 Result<void> PoseFilterOptions::validate() const {
-    CL_TRY_VOID(requirePositive(angular_accel_sigma, "angular_accel_sigma"));
-    CL_TRY_VOID(requirePositive(linear_accel_sigma, "linear_accel_sigma"));
-    CL_TRY_VOID(requirePositive(initial_angular_velocity_sigma, "initial_angular_velocity_sigma"));
-    CL_TRY_VOID(requirePositive(initial_linear_velocity_sigma, "initial_linear_velocity_sigma"));
-    CL_TRY_VOID(requirePositive(gate_chi2, "gate_chi2"));
-    CL_TRY_VOID(requirePositive(min_rotation_sigma, "min_rotation_sigma"));
-    CL_TRY_VOID(requirePositive(min_translation_sigma, "min_translation_sigma"));
+    CL_TRY_VOID(requirePositive(angular_accel_sigma, "PoseFilterOptions", "angular_accel_sigma"));
+    CL_TRY_VOID(requirePositive(linear_accel_sigma, "PoseFilterOptions", "linear_accel_sigma"));
+    CL_TRY_VOID(requirePositive(initial_angular_velocity_sigma, "PoseFilterOptions", "initial_angular_velocity_sigma"));
+    CL_TRY_VOID(requirePositive(initial_linear_velocity_sigma, "PoseFilterOptions", "initial_linear_velocity_sigma"));
+    CL_TRY_VOID(requirePositive(gate_chi2, "PoseFilterOptions", "gate_chi2"));
+    CL_TRY_VOID(requirePositive(min_rotation_sigma, "PoseFilterOptions", "min_rotation_sigma"));
+    CL_TRY_VOID(requirePositive(min_translation_sigma, "PoseFilterOptions", "min_translation_sigma"));
     if (max_consecutive_rejections < 0) {
         return fail(ErrorCode::kUsage, "PoseFilterOptions.max_consecutive_rejections must be >= 0, got " +
                                            std::to_string(max_consecutive_rejections));

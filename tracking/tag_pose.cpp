@@ -9,6 +9,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
 
+#include "tracking/option_checks.h"
 #include "tracking/projection.h"
 
 namespace commonlight::tracking {
@@ -74,9 +75,7 @@ const char* poseChoiceName(PoseChoice choice) noexcept {
 }
 
 Result<void> TagPoseOptions::validate() const {
-    if (!(corner_sigma_px > 0) || !std::isfinite(corner_sigma_px)) {
-        return fail(ErrorCode::kUsage, "corner_sigma_px must be > 0");
-    }
+    CL_TRY_VOID(requirePositive(corner_sigma_px, "TagPoseOptions", "corner_sigma_px"));
     if (!(prediction_gate_deg > 0) || !(prediction_gate_deg <= 180)) {
         return fail(ErrorCode::kUsage, "prediction_gate_deg must be in (0, 180]");
     }
