@@ -12,6 +12,11 @@ Linearizer::Linearizer(bool srgb) {
     }
 }
 
+const Linearizer& Linearizer::get(bool srgb) {
+    static const Linearizer kSrgb(true), kLinear(false);
+    return srgb ? kSrgb : kLinear;
+}
+
 namespace {
 
 // Bilinear sample of the linearized image; nullopt outside the image (with a one-pixel margin).

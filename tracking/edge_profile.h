@@ -17,6 +17,8 @@ namespace commonlight::tracking {
 struct Linearizer {
     double lut[256];
     explicit Linearizer(bool srgb);
+    // The two tables, built once (256 pow() calls each) instead of per tag and frame.
+    static const Linearizer& get(bool srgb);
 };
 
 // Along the line p + s * n (n unit), s in [-range, range] pixels: where the intensity crosses
