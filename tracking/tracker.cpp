@@ -311,7 +311,7 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
     out.times.filter_ms = msSince(t0);
 
     // For the next frame.
-    s.last_detections = detections;
+    s.last_detections = std::move(detections);
     s.last_cam_from_tag.clear();
     for (const TrackedTag& t : out.tags) {
         if (t.pose) s.last_cam_from_tag[t.detection.id] = t.pose->cam_from_tag;
