@@ -7,6 +7,7 @@
 #include <pthread.h>
 
 #include "core/log.h"
+#include "hal/hardware.h"
 #include "mocks/register.h"
 #include "mocks/sim/sim_camera.h"
 
@@ -19,6 +20,7 @@ int reportError(const Error& error) {
 
 hal::CameraRegistry makeCameraRegistry() {
     hal::CameraRegistry registry;
+    hal::registerHardwareBackends(registry);
     mocks::registerMockBackends(registry);
     mocks::sim::registerSimBackend(registry);
     return registry;

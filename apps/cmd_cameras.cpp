@@ -6,6 +6,7 @@
 
 #include "apps/app.h"
 #include "core/log.h"
+#include "hal/hardware.h"
 
 namespace commonlight::apps {
 
@@ -37,6 +38,8 @@ int runCameras(const CamerasOptions& options) {
                                        {"options", b.options},
                                        {"enumerates", static_cast<bool>(b.enumerate)}});
         }
+        out["left_out"] = nlohmann::json::array();
+        for (const auto& b : hal::leftOutBackends()) out["left_out"].push_back({{"scheme", b.scheme}, {"reason", b.reason}});
         out["errors"] = nlohmann::json::array();
         for (const auto& e : found.errors) out["errors"].push_back(e.message);
         std::printf("%s\n", out.dump(2).c_str());
@@ -49,6 +52,9 @@ int runCameras(const CamerasOptions& options) {
         std::printf("\nbackends in this build:\n");
         for (const auto& b : registry.backends()) {
             std::printf("  %-10s %s\n", (b.scheme + ":").c_str(), b.description.c_str());
+        }
+        for (const auto& b : hal::leftOutBackends()) {
+            std::printf("  %-10s left out: %s\n", (b.scheme + ":").c_str(), b.reason.c_str());
         }
         for (const auto& e : found.errors) log::warning(e.message);
     }
