@@ -25,6 +25,7 @@ using Runner = std::function<int()>;
 void addCamerasCommand(CLI::App& app, Runner& runner);
 void addRecordCommand(CLI::App& app, Runner& runner);
 void addPlayCommand(CLI::App& app, Runner& runner);
+void addLiveCommand(CLI::App& app, Runner& runner);
 void addSimCommand(CLI::App& app, Runner& runner);
 void addCalibrateCommand(CLI::App& app, Runner& runner);
 void addTrackCommand(CLI::App& app, Runner& runner);

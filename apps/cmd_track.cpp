@@ -13,6 +13,7 @@
 
 #include "apps/app.h"
 #include "apps/progress.h"
+#include "apps/report.h"
 #include "apps/track_input.h"
 #include "capture/percentiles.h"
 #include "core/calibration_io.h"
@@ -37,13 +38,6 @@ struct TrackCommandOptions {
     bool edges = false;
     tracking::TrackerOptions tracker;
 };
-
-std::string poseColumns(const Rigid3d& pose) {
-    char buf[256];
-    std::snprintf(buf, sizeof buf, "%.9g,%.9g,%.9g,%.12g,%.12g,%.12g,%.12g", pose.translation.x(), pose.translation.y(),
-                  pose.translation.z(), pose.rotation.w(), pose.rotation.x(), pose.rotation.y(), pose.rotation.z());
-    return buf;
-}
 
 // A CSV field with nothing in it needs no quoting; names with commas or quotes do.
 std::string csvField(const std::string& text) {

@@ -23,6 +23,7 @@ int main(int argc, char** argv) {
     apps::addCamerasCommand(app, runner);
     apps::addRecordCommand(app, runner);
     apps::addPlayCommand(app, runner);
+    apps::addLiveCommand(app, runner);
     apps::addSimCommand(app, runner);
     apps::addCalibrateCommand(app, runner);
     apps::addTrackCommand(app, runner);

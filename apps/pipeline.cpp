@@ -40,14 +40,26 @@ Result<GroundTruth> GroundTruth::fromSequence(const Sequence& sequence, bool by_
     GroundTruth truth;
     for (const PoseRecord& pose : sequence.groundtruth_poses) truth.by_timestamp_.emplace(pose.timestamp_ns, pose.world_from_cam);
     if (by_content) {
+        // A camera serving the recording sends its frames as stored, or decoded to RGB8 or GRAY8
+        // when its protocol cannot carry the stored format (GigE Vision has no JPEG): all three
+        // name the frame.
         FrameFileReader reader;
+        capture::PixelConverter converter;
         Image image;
+        Image decoded;
         for (std::size_t i = 0; i < sequence.frames.size(); ++i) {
             const auto pose = truth.atTimestamp(sequence.frames[i].timestamp_ns);
             if (!pose) continue;
             CL_TRY_VOID(reader.read(sequence.framePath(i), sequence.sensor.pixel_format, sequence.sensor.width,
                                     sequence.sensor.height, image));
             truth.by_hash_.emplace(pixelHash(image.view()), *pose);
+            for (PixelFormat format : {PixelFormat::kRgb8, PixelFormat::kGray8}) {
+                if (image.format() == format || !capture::PixelConverter::canConvert(image.format(), format)) continue;
+                if (auto converted = converter.convert(image.view(), format, decoded); !converted) {
+                    return fail(ErrorCode::kBadInput, sequence.framePath(i).string() + ": " + converted.error().message);
+                }
+                truth.by_hash_.emplace(pixelHash(decoded.view()), *pose);
+            }
         }
     }
     return truth;
@@ -108,15 +120,25 @@ Result<FramePipeline> FramePipeline::create(const CameraModel& camera, const Sce
     tracking::TrackerOptions tracker_options = options.tracker;
     tracker_options.detector.family = scene.tags.family;
     CL_TRY(tracking::Tracker tracker, tracking::Tracker::create(camera, scene.tags, &scene, tracker_options));
-    return FramePipeline(std::move(tracker), options, timings);
+    return FramePipeline(std::move(tracker), camera, scene, tracker_options, options, timings);
 }
 
-FramePipeline::FramePipeline(tracking::Tracker tracker, const PipelineOptions& options, capture::StageTimings& timings)
+FramePipeline::FramePipeline(tracking::Tracker tracker, const CameraModel& camera, const Scene& scene,
+                             const tracking::TrackerOptions& tracker_options, const PipelineOptions& options,
+                             capture::StageTimings& timings)
     : tracker_(std::move(tracker)),
+      camera_(camera),
+      scene_(&scene),
+      tracker_options_(tracker_options),
       options_(options),
       timings_(&timings),
       convert_stage_(timings.id("convert")),
       track_stage_(timings.id("track")) {}
+
+Result<void> FramePipeline::restart() {
+    CL_TRY(tracker_, tracking::Tracker::create(camera_, scene_->tags, scene_, tracker_options_));
+    return {};
+}
 
 Result<tracking::FrameTrack> FramePipeline::process(const Frame& frame) {
     {

@@ -32,8 +32,8 @@ std::uint64_t pixelHash(const ImageView& view) noexcept;
 
 class GroundTruth {
 public:
-    // The sequence's poses. With `by_content`, every frame file is decoded once and hashed
-    // (errors name the file). kBadInput when the sequence has no groundtruth/cam_poses.csv.
+    // The sequence's poses. With `by_content`, every frame file is read once and hashed as
+    // stored, as RGB8 and as GRAY8 (errors name the file). kBadInput when the sequence has no groundtruth/cam_poses.csv.
     static Result<GroundTruth> fromSequence(const Sequence& sequence, bool by_content);
 
     // world_from_cam of the frame with this timestamp, or of the recorded frame with these pixels.
@@ -80,14 +80,23 @@ public:
     // caller counts it and goes on); a detector failure is kInternal.
     Result<tracking::FrameTrack> process(const Frame& frame);
 
+    // Forgets the motion (the filter and the tracked windows): for a new connection, whose
+    // timestamps may start over. The error statistics are kept.
+    Result<void> restart();
+
     const PoseErrors& poseErrors() const noexcept { return errors_; }
     std::uint64_t framesWithPose() const noexcept { return with_pose_; }
     std::uint64_t framesWithoutTruth() const noexcept { return without_truth_; }
 
 private:
-    FramePipeline(tracking::Tracker tracker, const PipelineOptions& options, capture::StageTimings& timings);
+    FramePipeline(tracking::Tracker tracker, const CameraModel& camera, const Scene& scene,
+                  const tracking::TrackerOptions& tracker_options, const PipelineOptions& options,
+                  capture::StageTimings& timings);
 
     tracking::Tracker tracker_;
+    CameraModel camera_;
+    const Scene* scene_;
+    tracking::TrackerOptions tracker_options_;
     PipelineOptions options_;
     capture::StageTimings* timings_;
     capture::StageTimings::StageId convert_stage_;

@@ -32,6 +32,13 @@ nlohmann::json stagesJson(const capture::StageTimings& timings) {
     return stages;
 }
 
+std::string poseColumns(const Rigid3d& pose) {
+    char buf[256];
+    std::snprintf(buf, sizeof buf, "%.9g,%.9g,%.9g,%.12g,%.12g,%.12g,%.12g", pose.translation.x(), pose.translation.y(),
+                  pose.translation.z(), pose.rotation.w(), pose.rotation.x(), pose.rotation.y(), pose.rotation.z());
+    return buf;
+}
+
 void printCaptureStats(const capture::CaptureStats& stats) {
     std::printf("  rate      %.2f fps (wall clock %.2f fps), inter-frame jitter %.3f ms\n", stats.fps, stats.wall_fps,
                 stats.jitter_ms);

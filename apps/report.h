@@ -8,6 +8,7 @@
 #include "capture/percentiles.h"
 #include "capture/stage_timings.h"
 #include "capture/stats.h"
+#include "core/pose.h"
 #include "core/result.h"
 
 namespace commonlight::apps {
@@ -22,6 +23,9 @@ std::uint64_t droppedFrames(const capture::CaptureStats& stats);
 // Two indented lines: rates and drops, then latency.
 void printCaptureStats(const capture::CaptureStats& stats);
 void printStages(const capture::StageTimings& timings);
+
+// "tx,ty,tz,qw,qx,qy,qz" of a pose, for the CSVs of track and live.
+std::string poseColumns(const Rigid3d& pose);
 
 // Writes JSON atomically (pretty-printed, trailing newline).
 Result<void> writeJson(const std::filesystem::path& file, const nlohmann::json& json);

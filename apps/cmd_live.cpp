@@ -1,0 +1,345 @@
+// commonlight live --camera URI --scene S [--record SEQ] [--headless --frames N --out DIR]
+//
+// The live pipeline: a camera through a capture session (newest frame wins), tracking on every
+// frame taken, the photometry locked after a settle period, optional recording, and reconnection
+// with back-off when the camera is lost.
+//
+//   Step 1  scene, intrinsics, ground truth (optional), output files
+//   Step 2  open the camera and start a session; on a device error, retry with back-off
+//   Step 3  per frame: record, track, lock the photometry once settled, write the pose
+//   Step 4  summary and metrics
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <mutex>
+#include <thread>
+
+#include "apps/app.h"
+#include "apps/pipeline.h"
+#include "apps/progress.h"
+#include "apps/report.h"
+#include "capture/capture_session.h"
+#include "capture/photometry_lock.h"
+#include "capture/recorder.h"
+#include "capture/stage_timings.h"
+#include "core/calibration_io.h"
+#include "core/clock.h"
+#include "core/log.h"
+#include "core/scene_io.h"
+#include "core/sequence_io.h"
+
+namespace commonlight::apps {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct LiveOptions {
+    std::string camera;
+    std::string scene;
+    std::string calib;
+    std::string ground_truth;
+    std::string record;
+    std::string out;
+    bool headless = false;
+    std::uint64_t frames = 0;  // 0: until Ctrl-C
+    double settle_s = 2.0;
+    bool no_lock = false;
+    bool no_reconnect = false;
+    double reconnect_max_s = 60.0;
+    double timeout_s = 5.0;
+    bool edges = false;
+};
+
+// Sleeps up to `seconds`, waking early on Ctrl-C. False when stopped.
+bool sleepUnlessStopped(double seconds) {
+    std::mutex mutex;
+    std::condition_variable_any cv;
+    std::unique_lock lock(mutex);
+    std::stop_token stop = stopToken();
+    return !cv.wait_for(lock, stop, std::chrono::duration<double>(seconds), [] { return false; });
+}
+
+// Sums of the sessions' statistics (one session per connection).
+struct Totals {
+    std::uint64_t received = 0, delivered = 0, device = 0, no_slot = 0, mailbox = 0, corrupt = 0;
+    void add(const capture::CaptureStats& s) {
+        received += s.frames_received;
+        delivered += s.frames_delivered;
+        device += s.drops.device;
+        no_slot += s.drops.no_slot;
+        mailbox += s.drops.mailbox;
+        corrupt += s.drops.corrupt;
+    }
+};
+
+Result<std::unique_ptr<capture::CaptureSession>> connect(const hal::CameraRegistry& registry, const std::string& uri) {
+    CL_TRY(std::unique_ptr<hal::Camera> camera, registry.openConfigured(uri));
+    capture::CaptureOptions capture_options;  // newest wins: a live camera never waits for us
+    CL_TRY(std::unique_ptr<capture::CaptureSession> session,
+           capture::CaptureSession::create(std::move(camera), capture_options));
+    CL_TRY_VOID(session->start());
+    return session;
+}
+
+std::string poseRow(std::int64_t timestamp_ns, const tracking::FrameTrack& track) {
+    return std::to_string(timestamp_ns) + "," + tracking::trackStatusName(track.status) + "," +
+           (track.cam_from_world ? poseColumns(*track.cam_from_world) : std::string(",,,,,,")) + "\n";
+}
+
+int runLive(const LiveOptions& options) {
+    if (!options.headless) {
+        return reportError(Error{ErrorCode::kUsage,
+                                 "the live window needs the GL compositor (render/), which this build does not have "
+                                 "yet: run with --headless (poses, metrics and --record work)"});
+    }
+    // Step 1: scene, intrinsics, ground truth, outputs.
+    auto scene = readScene(options.scene);
+    if (!scene) return reportError(scene.error());
+    std::optional<Sequence> truth_sequence;
+    std::optional<GroundTruth> truth;
+    if (!options.ground_truth.empty()) {
+        auto seq = readSequence(options.ground_truth);
+        if (!seq) return reportError(seq.error());
+        truth_sequence = std::move(*seq);
+        auto t = GroundTruth::fromSequence(*truth_sequence, /*by_content=*/true);
+        if (!t) return reportError(t.error());
+        truth = std::move(*t);
+    }
+    std::optional<CameraModel> intrinsics;
+    if (!options.calib.empty()) {
+        auto c = readCalibration(options.calib);
+        if (!c) return reportError(c.error());
+        intrinsics = *c;
+    } else if (scene->camera) {
+        intrinsics = scene->camera;
+    } else if (truth_sequence && truth_sequence->sensor.camera) {
+        intrinsics = truth_sequence->sensor.camera;  // the served recording's camera
+    }
+    if (!intrinsics) {
+        return reportError(Error{ErrorCode::kUsage, "no camera calibration: give --calib (or a scene with camera:)"});
+    }
+    std::unique_ptr<std::FILE, int (*)(std::FILE*)> poses(nullptr, &std::fclose);
+    if (!options.out.empty()) {
+        std::error_code ec;
+        fs::create_directories(options.out, ec);
+        if (ec) return reportError(Error{ErrorCode::kIo, options.out + ": cannot create the folder: " + ec.message()});
+        const fs::path file = fs::path(options.out) / "poses.csv";
+        poses.reset(std::fopen(file.c_str(), "w"));
+        if (!poses) return reportError(Error{ErrorCode::kIo, file.string() + ": cannot create the file"});
+        std::fprintf(poses.get(), "timestamp_ns,status,tx,ty,tz,qw,qx,qy,qz\n");
+    }
+
+    // Step 2: the camera.
+    const hal::CameraRegistry registry = makeCameraRegistry();
+    auto session = connect(registry, options.camera);
+    if (!session) return reportError(session.error());
+    const hal::StreamFormat format = (*session)->camera().activeFormat();
+    if (format.width != intrinsics->width || format.height != intrinsics->height) {
+        return reportError(Error{ErrorCode::kUsage, options.camera + " streams " + hal::describe(format) +
+                                                        " but the calibration is " + std::to_string(intrinsics->width) +
+                                                        "x" + std::to_string(intrinsics->height)});
+    }
+    std::unique_ptr<capture::Recorder> recorder;
+    if (!options.record.empty()) {
+        SensorInfo sensor;
+        sensor.rate_hz = format.fps;
+        sensor.camera = *intrinsics;
+        sensor.comment = "recorded by commonlight live from " + options.camera;
+        auto r = capture::Recorder::start(options.record, sensor);
+        if (!r) return reportError(r.error());
+        recorder = std::move(*r);
+    }
+    capture::StageTimings timings({"convert", "track", "pipeline"});
+    PipelineOptions pipeline_options;
+    pipeline_options.tracker.edges = options.edges;
+    pipeline_options.ground_truth = truth ? &*truth : nullptr;
+    auto pipeline = FramePipeline::create(*intrinsics, *scene, pipeline_options, timings);
+    if (!pipeline) return reportError(pipeline.error());
+    std::printf("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
+                options.scene.c_str(), options.record.empty() ? "" : (", recording to " + options.record).c_str());
+
+    // Step 3: the frames.
+    const auto pipeline_stage = timings.id("pipeline");
+    capture::PhotometryLock photometry(static_cast<std::int64_t>(options.settle_s * 1e9));
+    const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(options.timeout_s));
+    Totals totals;
+    std::uint64_t taken = 0, reconnects = 0, bad_frames = 0;
+    std::optional<Error> failure;
+    Progress progress("live", options.frames);
+    const std::int64_t start_ns = monotonicNowNs();
+    while (options.frames == 0 || taken < options.frames) {
+        capture::NextFrame next = (*session)->next(stopToken(), timeout);
+        if (next && !next->has_value()) break;  // the stream ended (a recording's end)
+        if (!next) {
+            if (next.error().code == ErrorCode::kCancelled) break;
+            Error lost = next.error();
+            if (lost.code == ErrorCode::kTimeout) {
+                lost = Error{ErrorCode::kDevice, options.camera + ": no frame for " + std::to_string(options.timeout_s) + " s"};
+            }
+            log::error("camera lost: " + lost.message);
+            (*session)->stop();
+            totals.add((*session)->stats());
+            session->reset();
+            if (options.no_reconnect) {
+                failure = lost;
+                break;
+            }
+            // Back-off: 0.25 s doubling to 8 s, until the camera is back or reconnect_max_s passed.
+            double backoff = 0.25;
+            const std::int64_t lost_ns = monotonicNowNs();
+            while (true) {
+                if (!sleepUnlessStopped(backoff)) break;
+                auto again = connect(registry, options.camera);
+                if (again) {
+                    session = std::move(again);
+                    break;
+                }
+                const double waited = static_cast<double>(monotonicNowNs() - lost_ns) / 1e9;
+                log::warning("reconnecting to " + options.camera + " failed after " + std::to_string(waited) +
+                             " s: " + again.error().message);
+                if (waited >= options.reconnect_max_s) break;
+                backoff = std::min(backoff * 2.0, 8.0);
+            }
+            if (!*session) {
+                if (!stopToken().stop_requested()) {
+                    failure = Error{ErrorCode::kDevice, options.camera + ": lost and not back within " +
+                                                            std::to_string(options.reconnect_max_s) + " s (" + lost.message + ")"};
+                }
+                break;
+            }
+            ++reconnects;
+            photometry.reset();
+            if (auto restarted = pipeline->restart(); !restarted) return reportError(restarted.error());
+            log::info("reconnected to " + options.camera);
+            continue;
+        }
+        FrameHandle frame = std::move(**next);
+        ++taken;
+        progress.update(taken);
+        capture::StageTimer pipeline_timer(timings, pipeline_stage);
+        if (recorder) recorder->push(*frame);
+        if (!options.no_lock) {
+            auto locked = photometry.onFrame((*session)->camera(), frame->meta.arrival_ns);
+            if (!locked) {
+                log::warning("cannot lock the photometry: " + locked.error().message);
+            } else if (*locked) {
+                char settled[32];
+                std::snprintf(settled, sizeof settled, "%.1f s", options.settle_s);
+                log::info(std::string("photometry locked after ") + settled + ": " + (*locked)->describe());
+            }
+        }
+        if (frame->meta.status != FrameStatus::kOk) continue;  // counted by the session
+        auto tracked = pipeline->process(*frame);
+        if (!tracked) {
+            if (tracked.error().code != ErrorCode::kBadInput) {
+                failure = tracked.error();
+                break;
+            }
+            if (bad_frames++ == 0) log::warning("frame " + std::to_string(frame->meta.timestamp_ns) + ": " + tracked.error().message);
+            continue;
+        }
+        if (poses) std::fputs(poseRow(frame->meta.timestamp_ns, *tracked).c_str(), poses.get());
+    }
+    progress.finish();
+    const double seconds = static_cast<double>(monotonicNowNs() - start_ns) / 1e9;
+    capture::CaptureStats last;
+    if (*session) {
+        (*session)->stop();
+        last = (*session)->stats();
+        totals.add(last);
+    }
+    std::optional<capture::RecorderSummary> recorded;
+    if (recorder) recorded = recorder->finish();
+
+    // Step 4: report.
+    std::printf("live: %llu frames in %.2f s (%.2f per s); %llu reconnects\n", static_cast<unsigned long long>(taken),
+                seconds, seconds > 0 ? static_cast<double>(taken) / seconds : 0.0,
+                static_cast<unsigned long long>(reconnects));
+    std::printf("  dropped   at the device %llu, no free buffer %llu, replaced in the mailbox %llu; corrupt %llu; "
+                "not trackable %llu\n",
+                static_cast<unsigned long long>(totals.device), static_cast<unsigned long long>(totals.no_slot),
+                static_cast<unsigned long long>(totals.mailbox), static_cast<unsigned long long>(totals.corrupt),
+                static_cast<unsigned long long>(bad_frames));
+    std::printf("  latency   p50 %.3f ms, p95 %.3f ms (last connection, frame arrival to hand-over)\n", last.latency_ms.p50,
+                last.latency_ms.p95);
+    printStages(timings);
+    std::printf("tracked: %llu of %llu frames with a camera pose\n",
+                static_cast<unsigned long long>(pipeline->framesWithPose()), static_cast<unsigned long long>(taken));
+    if (truth) {
+        if (pipeline->poseErrors().count() > 0) std::printf("%s\n", pipeline->poseErrors().summary().c_str());
+        if (pipeline->framesWithoutTruth() > 0) {
+            log::warning(std::to_string(pipeline->framesWithoutTruth()) + " frames matched no frame of " +
+                         options.ground_truth + " (not bit-identical to the recording)");
+        }
+    }
+    if (recorded) {
+        std::printf("recorded %zu frames to %s (dropped by the recorder %llu, refused by the sequence %llu)\n",
+                    recorded->frames_written, options.record.c_str(), static_cast<unsigned long long>(recorded->dropped),
+                    static_cast<unsigned long long>(recorded->rejected));
+        if (recorded->first_rejection) log::warning(recorded->first_rejection->message);
+    }
+    if (!options.out.empty()) {
+        nlohmann::json metrics = captureJson(last);
+        metrics["frames"] = taken;
+        metrics["frames_received"] = totals.received;
+        metrics["dropped_frames"] = totals.device + totals.no_slot + totals.mailbox;
+        metrics["dropped"] = {{"device", totals.device}, {"no_slot", totals.no_slot}, {"mailbox", totals.mailbox}};
+        metrics["corrupt_frames"] = totals.corrupt;
+        metrics["reconnects"] = reconnects;
+        metrics["camera"] = options.camera;
+        metrics["duration_s"] = seconds;
+        metrics["stages_ms"] = stagesJson(timings);
+        metrics["frames_with_pose"] = pipeline->framesWithPose();
+        if (truth) {
+            metrics["pose_error"] = pipeline->poseErrors().json();
+            metrics["frames_without_truth"] = pipeline->framesWithoutTruth();
+        }
+        const fs::path file = fs::path(options.out) / "metrics.json";
+        if (auto written = writeJson(file, metrics); !written) return reportError(written.error());
+        std::printf("metrics written to %s\n", file.c_str());
+    }
+    if (recorded && recorded->write_error) return reportError(*recorded->write_error);
+    if (failure) {
+        if (recorder) log::info("the recording holds every frame received before the error");
+        return reportError(*failure);
+    }
+    return stopToken().stop_requested() ? 130 : kExitOk;
+}
+
+}  // namespace
+
+void addLiveCommand(CLI::App& app, Runner& runner) {
+    auto options = std::make_shared<LiveOptions>();
+    CLI::App* sub = app.add_subcommand("live", "The live pipeline on a camera (tracking now; lighting and the AR window later)");
+    sub->add_option("--camera", options->camera, "Camera URI, e.g. v4l2:/dev/video0, aravis:192.168.1.20 (docs/cli.md)")->required();
+    sub->add_option("--scene", options->scene, "Scene file: tags, proxies, lights, virtual objects")->required();
+    sub->add_option("--calib", options->calib, "Camera calibration (OpenCV or ROS YAML); default: the scene's camera:");
+    sub->add_option("--ground-truth", options->ground_truth,
+                    "A recorded sequence the camera serves bit-exactly (serve-gige): frames are matched by their pixels "
+                    "and the pose error is reported");
+    sub->add_option("--record", options->record, "Also record the camera's frames to this new sequence folder");
+    sub->add_flag("--headless", options->headless, "No window: process and report (needed until the compositor exists)");
+    sub->add_option("--frames", options->frames, "Stop after N frames (default: until Ctrl-C or the stream ends)");
+    sub->add_option("--out", options->out, "Folder for metrics.json and poses.csv");
+    sub->add_option("--settle", options->settle_s, "Seconds of auto exposure before the photometry is locked")
+        ->check(CLI::NonNegativeNumber)
+        ->capture_default_str();
+    sub->add_flag("--no-lock", options->no_lock, "Leave auto exposure and auto white balance as the camera has them");
+    sub->add_flag("--no-reconnect", options->no_reconnect, "End with the device error instead of reconnecting");
+    sub->add_option("--reconnect-max", options->reconnect_max_s, "Seconds to keep trying to reconnect (back-off 0.25 s to 8 s)")
+        ->check(CLI::PositiveNumber)
+        ->capture_default_str();
+    sub->add_option("--timeout", options->timeout_s, "Seconds without a frame before the camera counts as lost")
+        ->check(CLI::PositiveNumber)
+        ->capture_default_str();
+    sub->add_flag("--edges", options->edges, "Refine the pose with the edges of the scene's proxy geometry");
+    sub->footer("Exit codes: 0 ok, 2 usage, 3 bad input, 4 device error (after the reconnection attempts), 130 Ctrl-C");
+    sub->callback([options, &runner] { runner = [options] { return runLive(*options); }; });
+}
+
+}  // namespace commonlight::apps
