@@ -1,8 +1,9 @@
-// commonlight bench tracking [--json F] [--plot F.png]: speed against error (docs/tracking.md).
+// commonlight bench tracking|capture: speed against error (docs/tracking.md, docs/capture.md).
 #include <cstdlib>
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/bench_capture.h"
 #include "apps/bench_tracking.h"
 
 namespace commonlight::apps {
@@ -29,6 +30,17 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
     tracking->footer("Cases: desk (the bundled sample), desk720, small, fronto, oblique75, blur, wide, occluded. "
                      "Sequences other than desk are rendered once with the simulated camera.");
     tracking->callback([options, &runner] { runner = [options] { return runBenchTracking(*options); }; });
+
+    auto capture_options = std::make_shared<BenchCaptureOptions>();
+    CLI::App* capture = bench->add_subcommand("capture", "Frames, drops, hand-over latency and CPU per frame of the capture path");
+    capture->add_option("--sequence", capture_options->sequence, "Sequence the replay camera plays")->capture_default_str();
+    capture->add_option("--gige", capture_options->gige,
+                        "Address of a GigE camera (commonlight serve-gige) for the Aravis and aravissrc cases");
+    capture->add_option("--seconds", capture_options->seconds, "Seconds per case")
+        ->check(CLI::PositiveNumber)
+        ->capture_default_str();
+    capture->add_option("--json", capture_options->json, "Write the figures as JSON");
+    capture->callback([capture_options, &runner] { runner = [capture_options] { return runBenchCapture(*capture_options); }; });
 }
 
 }  // namespace commonlight::apps
