@@ -112,6 +112,21 @@ void FakeV4l2Device::setFormat(v4l2_pix_format& pix) {
         }
         pix.width = best_w;
         pix.height = best_h;
+        if (config_.max_set_width != 0 && pix.width > config_.max_set_width) {
+            // Fall back to the largest listed size that fits.
+            std::uint32_t w = 0, h = 0;
+            for (const auto& s : format->sizes) {
+                const std::uint32_t sw = s.step_width != 0 ? std::min(s.width, config_.max_set_width) : s.width;
+                if (sw <= config_.max_set_width && sw > w) {
+                    w = sw;
+                    h = s.height;
+                }
+            }
+            if (w != 0) {
+                pix.width = w;
+                pix.height = h;
+            }
+        }
     }
     pix.field = V4L2_FIELD_NONE;
     const std::uint32_t bpp = bitsPerPixel(pix.pixelformat);
@@ -290,6 +305,10 @@ int FakeV4l2Device::ioctl(unsigned long request, void* arg) {
             }
             if (done_.empty()) {
                 ++eagain_;
+                // No buffer done: a spurious wake-up is spent (the readiness counter matches done_).
+                std::uint64_t drained = 0;
+                while (::read(event_fd_, &drained, sizeof drained) > 0) {
+                }
                 return failWith(EAGAIN);
             }
             const std::uint32_t index = done_.front();
@@ -414,6 +433,11 @@ std::optional<std::uint32_t> FakeV4l2Device::produceFrame(const FakeV4l2Frame& f
     signal();
     changed_.notify_all();
     return sequence;
+}
+
+void FakeV4l2Device::spuriousWakeup() {
+    std::lock_guard lock(mutex_);
+    signal();
 }
 
 void FakeV4l2Device::skipSequence(std::uint32_t n) {

@@ -62,6 +62,9 @@ struct FakeV4l2Config {
     // Added to every buffer's flags: the timestamp type and source.
     std::uint32_t timestamp_flags = V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC | V4L2_BUF_FLAG_TSTAMP_SRC_SOE;
     int open_errno = 0;  // open() fails with this (EACCES, EBUSY) when set
+    // S_FMT never sets a width above this (0: no limit), like a driver short of USB bandwidth
+    // that falls back to a smaller size than the one it listed.
+    std::uint32_t max_set_width = 0;
 
     // A typical webcam: YUYV 640x480 @30/15 and 320x240 @30, MJPEG 1280x720 @30 and 640x480,
     // NV12 and GREY 640x480 @30; exposure, auto exposure, gain and auto white balance.
@@ -93,6 +96,8 @@ public:
     // when no buffer was queued (the frame is lost at the device; the sequence still advances)
     // or the device is not streaming (nothing happens).
     std::optional<std::uint32_t> produceFrame(const FakeV4l2Frame& frame = {});
+    // Wakes poll() with no buffer done (the next DQBUF answers EAGAIN, as after a spurious wake-up).
+    void spuriousWakeup();
     // Frames lost at the device without any buffer involved (the sequence jumps by n).
     void skipSequence(std::uint32_t n);
     // Unplugs the device: every later call fails with ENODEV; poll() reports POLLERR.
