@@ -299,7 +299,6 @@ Result<StreamFormat> V4l2Camera::doConfigure(const StreamConfig& config) {
     size_image_ = pix.sizeimage;
 
     // The frame rate (S_PARM), when the driver can set it; the rate it chose is what we report.
-    chosen.fps = config.fps > 0 ? chosen.fps : (chosen.frame_rates.empty() ? 0.0 : chosen.fps);
     v4l2_streamparm parm{};
     parm.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
     if (xioctl(system_, fd_, VIDIOC_G_PARM, &parm) == 0) {
@@ -436,8 +435,17 @@ void V4l2Camera::run(std::stop_token stop) {
             v4l2_buffer probe{};
             probe.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
             probe.memory = V4L2_MEMORY_MMAP;
-            if (xioctl(system_, fd_, VIDIOC_DQBUF, &probe) < 0 && errno != EAGAIN) {
-                deviceError("VIDIOC_DQBUF failed: " + errnoText(errno));
+            const int got = xioctl(system_, fd_, VIDIOC_DQBUF, &probe);
+            const int error = got < 0 ? errno : 0;
+            if (got == 0 && probe.index < buffers_.size()) {
+                deliver(probe);  // a frame after all: keep streaming
+                continue;
+            }
+            if (got == 0) {
+                deviceError("VIDIOC_DQBUF returned buffer " + std::to_string(probe.index) + " of " +
+                            std::to_string(buffers_.size()));
+            } else if (error != EAGAIN) {
+                deviceError("VIDIOC_DQBUF failed: " + errnoText(error));
             } else {
                 deviceError(std::string("the device reported an error (poll: ") +
                             ((fds[0].revents & POLLHUP) ? "POLLHUP" : (fds[0].revents & POLLNVAL) ? "POLLNVAL" : "POLLERR") +
