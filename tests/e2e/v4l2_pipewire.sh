@@ -137,6 +137,27 @@ expect_text "v4l2:/dev/video0: cannot stream nv12" "$TMP/err"
 expect_text "yuyv 640x480" "$TMP/err"
 stop_source
 
+# The source goes away mid-stream: the recording ends with a device error naming the camera, and
+# the frames recorded so far form a closed, readable sequence. (A new source: GStreamer's
+# pipewiresink in mode=provide, as of PipeWire 0.3.65, stays suspended after its first consumer
+# leaves, so a second recording from the same source gets no frame.)
+start_source cut-cam video/x-raw,format=YUY2,width=640,height=480,framerate=30/1
+preloaded "$COMMONLIGHT" record --camera "v4l2:/dev/video0?format=yuyv&timeout_ms=3000" --out "$TMP/cut" \
+    --frames 100000 >"$TMP/cut.out" 2>"$TMP/cut.err" &
+RECORDER=$!
+wait_for 30 bash -c "[[ -f '$TMP/cut/cam0/data.csv' && \$(grep -vc '^#' '$TMP/cut/cam0/data.csv') -ge 10 ]]" ||
+    { kill "$RECORDER" 2>/dev/null || true; cat "$TMP/cut.out" "$TMP/cut.err"; fail "the recording did not start"; }
+stop_source
+set +e
+wait "$RECORDER"
+code=$?
+set -e
+[[ $code == 4 ]] || { cat "$TMP/cut.out" "$TMP/cut.err"; fail "expected exit 4 (device error) after the source went away, got $code"; }
+expect_text "v4l2:/dev/video0" "$TMP/cut.err"
+echo "after the cut: $(grep error "$TMP/cut.err")"
+[[ $(rows "$TMP/cut/cam0/data.csv") -ge 10 ]] || fail "the frames before the cut were not kept"
+[[ $(rows "$TMP/cut/cam0/data.csv") == $(rows "$TMP/cut/cam0/meta.csv") ]] || fail "data.csv and meta.csv disagree"
+
 # --- MJPEG ---
 start_source mjpeg-cam video/x-raw,width=640,height=480,framerate=30/1 ! jpegenc ! image/jpeg,width=640,height=480,framerate=30/1
 expect_exit 0 preloaded "$COMMONLIGHT" cameras
