@@ -1,14 +1,16 @@
 // commonlight play SEQ [--metrics M.json] [--sync]: runs the pipeline on a recording.
 //
-// For now the pipeline is the capture stage: the sequence is replayed as a camera through a
-// capture session (frame pool, mailbox, statistics) and every frame is converted to RGB8.
-// Tracking, lighting and rendering join it in later issues.
+// The sequence is replayed as a camera through a capture session (frame pool, mailbox,
+// statistics); every frame is converted and tracked (apps/pipeline.h) when the scene places tags
+// and the sequence has intrinsics, and the pose error is measured when it has ground truth.
+// Lighting and rendering join it in later issues.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/pipeline.h"
 #include "apps/progress.h"
 #include "apps/report.h"
 #include "capture/capture_session.h"
@@ -27,6 +29,7 @@ struct PlayOptions {
     std::string scene;  // default: SEQ/scene.yaml when present
     std::string metrics;
     bool sync = false;
+    bool no_track = false;
     std::size_t slots = 4;
 };
 
@@ -54,12 +57,23 @@ int runPlay(const PlayOptions& options) {
     // before any work.
     std::optional<std::filesystem::path> scene_path = camera->sequence().scenePath();
     if (!options.scene.empty()) scene_path = options.scene;
+    std::optional<Scene> scene;
     if (scene_path) {
-        auto scene = readScene(*scene_path);
-        if (!scene) return reportError(scene.error());
+        auto read = readScene(*scene_path);
+        if (!read) return reportError(read.error());
+        scene = std::move(*read);
         std::printf("scene %s: %zu tags, %zu real objects, %zu lights, %zu virtual objects\n", scene_path->c_str(),
                     scene->tags.items.size(), scene->real_objects.size(), scene->lights.size(),
                     scene->virtual_objects.size());
+    }
+    // Tracking needs the scene's tags and the camera's intrinsics (sensor.yaml, else the scene's).
+    std::optional<CameraModel> intrinsics = camera->sequence().sensor.camera;
+    if (!intrinsics && scene) intrinsics = scene->camera;
+    std::optional<GroundTruth> truth;
+    if (!camera->sequence().groundtruth_poses.empty()) {
+        auto t = GroundTruth::fromSequence(camera->sequence(), false);
+        if (!t) return reportError(t.error());
+        truth = std::move(*t);
     }
     const std::size_t recorded = camera->sequence().frames.size();
     const auto timeout = frameTimeout(camera->sequence(), options.sync);
@@ -77,7 +91,18 @@ int runPlay(const PlayOptions& options) {
     if (auto started = (*session)->start(); !started) return reportError(started.error());
 
     // Step 3: the per-frame pipeline.
-    capture::StageTimings timings({"convert", "pipeline"});
+    capture::StageTimings timings({"convert", "track", "pipeline"});
+    std::optional<FramePipeline> pipeline;
+    if (!options.no_track && scene && !scene->tags.items.empty() && intrinsics) {
+        PipelineOptions pipeline_options;
+        pipeline_options.ground_truth = truth ? &*truth : nullptr;
+        auto created = FramePipeline::create(*intrinsics, *scene, pipeline_options, timings);
+        if (!created) return reportError(created.error());
+        pipeline.emplace(std::move(*created));
+    } else if (!options.no_track) {
+        log::info(std::string("tracking off: ") + (!scene ? "no scene" : !intrinsics ? "no intrinsics in sensor.yaml or the scene"
+                                                                                      : "the scene places no tags"));
+    }
     const auto convert_stage = timings.id("convert");
     const auto pipeline_stage = timings.id("pipeline");
     capture::PixelConverter converter;
@@ -98,6 +123,17 @@ int runPlay(const PlayOptions& options) {
         progress.update(++handled);
         capture::StageTimer pipeline_timer(timings, pipeline_stage);
         if (frame->meta.status != FrameStatus::kOk) continue;  // counted by the session's stats
+        if (pipeline) {
+            auto tracked = pipeline->process(*frame);
+            if (!tracked && tracked.error().code == ErrorCode::kBadInput) {
+                ++undecodable;
+                log::warning("frame " + std::to_string(frame->meta.timestamp_ns) + ": " + tracked.error().message);
+            } else if (!tracked) {
+                failure = tracked.error();
+                break;
+            }
+            continue;
+        }
         capture::StageTimer convert_timer(timings, convert_stage);
         if (auto converted = converter.convert(frame->image, PixelFormat::kRgb8, rgb); !converted) {
             ++undecodable;
@@ -116,6 +152,12 @@ int runPlay(const PlayOptions& options) {
                 static_cast<unsigned long long>(corrupt));
     printCaptureStats(stats);
     printStages(timings);
+    if (pipeline) {
+        std::printf("tracked: %llu of %llu frames with a camera pose\n",
+                    static_cast<unsigned long long>(pipeline->framesWithPose()),
+                    static_cast<unsigned long long>(stats.frames_delivered));
+        if (pipeline->poseErrors().count() > 0) std::printf("%s\n", pipeline->poseErrors().summary().c_str());
+    }
     if (!options.metrics.empty()) {
         nlohmann::json metrics = captureJson(stats);
         metrics["sequence"] = options.sequence;
@@ -123,6 +165,10 @@ int runPlay(const PlayOptions& options) {
         metrics["duration_s"] = seconds;
         metrics["corrupt_frames"] = corrupt;
         metrics["stages_ms"] = stagesJson(timings);
+        if (pipeline) {
+            metrics["frames_with_pose"] = pipeline->framesWithPose();
+            if (truth) metrics["pose_error"] = pipeline->poseErrors().json();
+        }
         if (auto written = writeJson(options.metrics, metrics); !written) return reportError(written.error());
         std::printf("metrics written to %s\n", options.metrics.c_str());
     }
@@ -145,6 +191,7 @@ void addPlayCommand(CLI::App& app, Runner& runner) {
     sub->add_option("--metrics", options->metrics, "Write the metrics JSON here (docs/cli.md)");
     sub->add_flag("--sync", options->sync,
                   "Process every frame in order as fast as possible (deterministic), instead of at the recorded rate");
+    sub->add_flag("--no-track", options->no_track, "Capture and convert only; no tracking");
     sub->add_option("--slots", options->slots, "Frame pool slots")->check(CLI::Range(3, 64))->capture_default_str();
     sub->footer("Exit codes: 0 ok, 2 usage, 3 bad input (corrupt frames are reported and counted), 4 device error");
     sub->callback([options, &runner] { runner = [options] { return runPlay(*options); }; });

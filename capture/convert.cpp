@@ -27,6 +27,9 @@ Result<void> checkSource(const ImageView& src) {
     if ((src.format == PixelFormat::kYuyv || src.format == PixelFormat::kNv12) && src.width % 2 != 0) {
         return fail(ErrorCode::kBadInput, describe(src) + " frame: the width must be even");
     }
+    if (isBayer(src.format) && (src.width < 2 || src.height < 2)) {
+        return fail(ErrorCode::kBadInput, describe(src) + " frame: a Bayer mosaic needs at least 2x2 pixels");
+    }
     if (src.format == PixelFormat::kNv12 && src.height % 2 != 0) {
         return fail(ErrorCode::kBadInput, describe(src) + " frame: the height must be even");
     }
@@ -66,6 +69,13 @@ int cvtCode(PixelFormat src, PixelFormat dst) noexcept {
         case PixelFormat::kRgba8: return rgb ? cv::COLOR_RGBA2RGB : cv::COLOR_RGBA2GRAY;
         case PixelFormat::kYuyv: return rgb ? cv::COLOR_YUV2RGB_YUYV : cv::COLOR_YUV2GRAY_YUYV;
         case PixelFormat::kNv12: return rgb ? cv::COLOR_YUV2RGB_NV12 : cv::COLOR_YUV2GRAY_NV12;
+        // OpenCV names a mosaic by the 2x2 block starting at its second row and column, so a
+        // sensor whose top-left block is R G / G B is OpenCV's "BayerBG" (checked by a test on a
+        // mosaic of known colours).
+        case PixelFormat::kBayerRggb8: return rgb ? cv::COLOR_BayerBG2RGB : cv::COLOR_BayerBG2GRAY;
+        case PixelFormat::kBayerGrbg8: return rgb ? cv::COLOR_BayerGB2RGB : cv::COLOR_BayerGB2GRAY;
+        case PixelFormat::kBayerGbrg8: return rgb ? cv::COLOR_BayerGR2RGB : cv::COLOR_BayerGR2GRAY;
+        case PixelFormat::kBayerBggr8: return rgb ? cv::COLOR_BayerRG2RGB : cv::COLOR_BayerRG2GRAY;
         default: return -1;
     }
 }
@@ -74,7 +84,11 @@ int cvtCode(PixelFormat src, PixelFormat dst) noexcept {
 cv::Mat matOf(const ImageView& src) {
     auto* data = const_cast<std::uint8_t*>(src.data);  // cv::Mat has no const header; we only read
     switch (src.format) {
-        case PixelFormat::kGray8: return cv::Mat(src.height, src.width, CV_8UC1, data, src.stride);
+        case PixelFormat::kGray8:
+        case PixelFormat::kBayerRggb8:
+        case PixelFormat::kBayerGrbg8:
+        case PixelFormat::kBayerGbrg8:
+        case PixelFormat::kBayerBggr8: return cv::Mat(src.height, src.width, CV_8UC1, data, src.stride);
         case PixelFormat::kRgb8:
         case PixelFormat::kBgr8: return cv::Mat(src.height, src.width, CV_8UC3, data, src.stride);
         case PixelFormat::kRgba8: return cv::Mat(src.height, src.width, CV_8UC4, data, src.stride);
@@ -110,7 +124,11 @@ bool PixelConverter::canConvert(PixelFormat src, PixelFormat dst) noexcept {
         case PixelFormat::kRgba8:
         case PixelFormat::kYuyv:
         case PixelFormat::kNv12:
-        case PixelFormat::kMjpeg: return true;
+        case PixelFormat::kMjpeg:
+        case PixelFormat::kBayerRggb8:
+        case PixelFormat::kBayerGrbg8:
+        case PixelFormat::kBayerGbrg8:
+        case PixelFormat::kBayerBggr8: return true;
         default: return false;
     }
 }

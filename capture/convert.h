@@ -9,6 +9,7 @@
 //   YUYV        BT.601 limited range (OpenCV)          the Y samples
 //   NV12        BT.601 limited range (OpenCV)          the Y plane
 //   MJPEG       libjpeg-turbo decode                  libjpeg-turbo decode (luma)
+//   BAYER_*8    OpenCV bilinear demosaic              OpenCV demosaic to gray
 //
 // OpenCV works on Mat headers over the caller's buffers: no pixel is copied on the way in and
 // the result is written straight into `dst`. `dst` is reshaped within its capacity, so after the

@@ -85,7 +85,13 @@ Result<void> FrameFileReader::read(const fs::path& file, PixelFormat stored, int
     }
     switch (format) {
         case PixelFormat::kGray8:
-            if (depth != CV_8U || channels != 1) return layoutError("an 8-bit gray image");
+        case PixelFormat::kBayerRggb8:
+        case PixelFormat::kBayerGrbg8:
+        case PixelFormat::kBayerGbrg8:
+        case PixelFormat::kBayerBggr8:
+            if (depth != CV_8U || channels != 1) {
+                return layoutError(format == PixelFormat::kGray8 ? "an 8-bit gray image" : "an 8-bit gray PNG of the raw mosaic");
+            }
             CL_TRY_VOID(expectSize(decoded_.cols, decoded_.rows));
             copyMat(decoded_, format, decoded_.cols, decoded_.rows, out);
             return {};
@@ -138,7 +144,11 @@ Result<void> FrameFileWriter::encode(const ImageView& image, std::vector<std::ui
     auto* data = const_cast<std::uint8_t*>(image.data);  // cv::Mat needs non-const; we only read it
     cv::Mat view;
     switch (image.format) {
-        case PixelFormat::kGray8: view = cv::Mat(image.height, image.width, CV_8UC1, data, image.stride); break;
+        case PixelFormat::kGray8:
+        case PixelFormat::kBayerRggb8:
+        case PixelFormat::kBayerGrbg8:
+        case PixelFormat::kBayerGbrg8:
+        case PixelFormat::kBayerBggr8: view = cv::Mat(image.height, image.width, CV_8UC1, data, image.stride); break;
         case PixelFormat::kGray16: view = cv::Mat(image.height, image.width, CV_16UC1, data, image.stride); break;
         case PixelFormat::kBgr8: view = cv::Mat(image.height, image.width, CV_8UC3, data, image.stride); break;
         case PixelFormat::kRgb8:

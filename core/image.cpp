@@ -18,6 +18,10 @@ std::string_view pixelFormatName(PixelFormat format) noexcept {
         case PixelFormat::kNv12: return "nv12";
         case PixelFormat::kMjpeg: return "mjpeg";
         case PixelFormat::kRgbF32: return "rgbf32";
+        case PixelFormat::kBayerRggb8: return "bayer_rggb8";
+        case PixelFormat::kBayerGrbg8: return "bayer_grbg8";
+        case PixelFormat::kBayerGbrg8: return "bayer_gbrg8";
+        case PixelFormat::kBayerBggr8: return "bayer_bggr8";
     }
     return "invalid";
 }
@@ -25,7 +29,9 @@ std::string_view pixelFormatName(PixelFormat format) noexcept {
 std::optional<PixelFormat> parsePixelFormat(std::string_view name) noexcept {
     static constexpr PixelFormat kAll[] = {PixelFormat::kGray8, PixelFormat::kGray16, PixelFormat::kRgb8,
                                            PixelFormat::kBgr8,  PixelFormat::kRgba8,  PixelFormat::kYuyv,
-                                           PixelFormat::kNv12,  PixelFormat::kMjpeg,  PixelFormat::kRgbF32};
+                                           PixelFormat::kNv12,  PixelFormat::kMjpeg,  PixelFormat::kRgbF32,
+                                           PixelFormat::kBayerRggb8, PixelFormat::kBayerGrbg8, PixelFormat::kBayerGbrg8,
+                                           PixelFormat::kBayerBggr8};
     for (PixelFormat f : kAll) {
         if (pixelFormatName(f) == name) return f;
     }
@@ -34,12 +40,21 @@ std::optional<PixelFormat> parsePixelFormat(std::string_view name) noexcept {
     if (name == "mono16") return PixelFormat::kGray16;
     if (name == "yuy2" || name == "yuv422") return PixelFormat::kYuyv;
     if (name == "jpeg" || name == "mjpg") return PixelFormat::kMjpeg;
+    // GenICam / ROS names of the Bayer mosaics.
+    if (name == "bayerrg8" || name == "bayer_rggb") return PixelFormat::kBayerRggb8;
+    if (name == "bayergr8" || name == "bayer_grbg") return PixelFormat::kBayerGrbg8;
+    if (name == "bayergb8" || name == "bayer_gbrg") return PixelFormat::kBayerGbrg8;
+    if (name == "bayerbg8" || name == "bayer_bggr") return PixelFormat::kBayerBggr8;
     return std::nullopt;
 }
 
 std::size_t bytesPerPixel(PixelFormat format) noexcept {
     switch (format) {
-        case PixelFormat::kGray8: return 1;
+        case PixelFormat::kGray8:
+        case PixelFormat::kBayerRggb8:
+        case PixelFormat::kBayerGrbg8:
+        case PixelFormat::kBayerGbrg8:
+        case PixelFormat::kBayerBggr8: return 1;
         case PixelFormat::kGray16: return 2;
         case PixelFormat::kRgb8:
         case PixelFormat::kBgr8: return 3;
@@ -51,6 +66,11 @@ std::size_t bytesPerPixel(PixelFormat format) noexcept {
         case PixelFormat::kInvalid: return 0;
     }
     return 0;
+}
+
+bool isBayer(PixelFormat format) noexcept {
+    return format == PixelFormat::kBayerRggb8 || format == PixelFormat::kBayerGrbg8 ||
+           format == PixelFormat::kBayerGbrg8 || format == PixelFormat::kBayerBggr8;
 }
 
 bool isCompressed(PixelFormat format) noexcept { return format == PixelFormat::kMjpeg; }

@@ -26,6 +26,12 @@ enum class PixelFormat : std::uint8_t {
     kNv12,    // 4:2:0 Y plane + interleaved UV plane
     kMjpeg,   // one JPEG image per frame
     kRgbF32,  // linear float RGB
+    // Raw colour-filter-array mosaics, 8 bits per pixel, named by the colours of the top-left 2x2
+    // block read row by row (GenICam BayerRG8 = kBayerRggb8). Demosaiced by capture/convert.
+    kBayerRggb8,
+    kBayerGrbg8,
+    kBayerGbrg8,
+    kBayerBggr8,
 };
 
 std::string_view pixelFormatName(PixelFormat format) noexcept;
@@ -34,6 +40,7 @@ std::optional<PixelFormat> parsePixelFormat(std::string_view name) noexcept;
 
 // Bytes per pixel of a packed format; 0 for NV12 and MJPEG.
 std::size_t bytesPerPixel(PixelFormat format) noexcept;
+bool isBayer(PixelFormat format) noexcept;
 bool isCompressed(PixelFormat format) noexcept;
 // Smallest legal stride for a width (0 for MJPEG).
 std::size_t minStride(PixelFormat format, int width) noexcept;

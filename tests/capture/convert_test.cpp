@@ -1,6 +1,7 @@
 #include "capture/convert.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <functional>
@@ -203,6 +204,58 @@ Image smoothRgb(int width, int height) {
         }
     }
     return image;
+}
+
+// A mosaic of a flat colour laid out as the format says: `layout` is the colour (0 R, 1 G, 2 B)
+// of the top-left 2x2 block, row by row.
+Image mosaicOf(PixelFormat format, const std::array<int, 4>& layout, Rgb colour, int width, int height) {
+    Image image(format, width, height);
+    const int channel[3] = {colour.r, colour.g, colour.b};
+    for (int y = 0; y < height; ++y) {
+        for (int x = 0; x < width; ++x) {
+            image.data()[y * image.stride() + x] = static_cast<std::uint8_t>(channel[layout[(y % 2) * 2 + x % 2]]);
+        }
+    }
+    return image;
+}
+
+TEST(PixelConverter, BayerMosaicsDemosaicToTheColourTheyWereMadeOf) {
+    struct Case {
+        PixelFormat format;
+        std::array<int, 4> layout;
+    };
+    const Case cases[] = {{PixelFormat::kBayerRggb8, {0, 1, 1, 2}},
+                          {PixelFormat::kBayerGrbg8, {1, 0, 2, 1}},
+                          {PixelFormat::kBayerGbrg8, {1, 2, 0, 1}},
+                          {PixelFormat::kBayerBggr8, {2, 1, 1, 0}}};
+    const Rgb colour{200, 100, 30};  // every channel different: a swapped pattern shows
+    PixelConverter converter;
+    for (const Case& c : cases) {
+        SCOPED_TRACE(std::string(pixelFormatName(c.format)));
+        EXPECT_TRUE(PixelConverter::canConvert(c.format, PixelFormat::kRgb8));
+        const Image mosaic = mosaicOf(c.format, c.layout, colour, 16, 12);
+        Image rgb;
+        ASSERT_TRUE(converter.convert(mosaic.view(), PixelFormat::kRgb8, rgb));
+        ASSERT_EQ(rgb.format(), PixelFormat::kRgb8);
+        ASSERT_EQ(rgb.width(), 16);
+        // Away from the border a flat colour demosaics to itself exactly.
+        for (int y = 2; y < 10; ++y) {
+            for (int x = 2; x < 14; ++x) {
+                const std::uint8_t* p = rgb.data() + y * rgb.stride() + 3 * x;
+                ASSERT_EQ(p[0], colour.r) << x << "," << y;
+                ASSERT_EQ(p[1], colour.g) << x << "," << y;
+                ASSERT_EQ(p[2], colour.b) << x << "," << y;
+            }
+        }
+        Image gray;
+        ASSERT_TRUE(converter.convert(mosaic.view(), PixelFormat::kGray8, gray));
+        const int expected = static_cast<int>(std::lround(0.299 * colour.r + 0.587 * colour.g + 0.114 * colour.b));
+        EXPECT_NEAR(gray.data()[5 * gray.stride() + 5], expected, 1);
+    }
+    // Too small to demosaic: an error, not a crash.
+    Image tiny(PixelFormat::kBayerRggb8, 1, 4);
+    Image out;
+    EXPECT_FALSE(converter.convert(tiny.view(), PixelFormat::kRgb8, out));
 }
 
 TEST(PixelConverter, MjpegDecodesWhatOpenCvEncoded) {

@@ -39,7 +39,8 @@ TEST(Image, AssignCopiesStridedViews) {
 TEST(Image, PixelFormatNamesRoundTrip) {
     for (auto f : {PixelFormat::kGray8, PixelFormat::kGray16, PixelFormat::kRgb8, PixelFormat::kBgr8,
                    PixelFormat::kRgba8, PixelFormat::kYuyv, PixelFormat::kNv12, PixelFormat::kMjpeg,
-                   PixelFormat::kRgbF32}) {
+                   PixelFormat::kRgbF32, PixelFormat::kBayerRggb8, PixelFormat::kBayerGrbg8,
+                   PixelFormat::kBayerGbrg8, PixelFormat::kBayerBggr8}) {
         EXPECT_EQ(parsePixelFormat(pixelFormatName(f)), f);
     }
     EXPECT_EQ(parsePixelFormat("mono8"), PixelFormat::kGray8);

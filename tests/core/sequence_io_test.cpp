@@ -82,7 +82,8 @@ TEST_P(SequenceRoundTrip, WriteThenReadIsBitIdentical) {
 INSTANTIATE_TEST_SUITE_P(AllStorableFormats, SequenceRoundTrip,
                          ::testing::Values(PixelFormat::kGray8, PixelFormat::kGray16, PixelFormat::kRgb8,
                                            PixelFormat::kBgr8, PixelFormat::kRgba8, PixelFormat::kYuyv,
-                                           PixelFormat::kNv12),
+                                           PixelFormat::kNv12, PixelFormat::kBayerRggb8, PixelFormat::kBayerGrbg8,
+                                           PixelFormat::kBayerGbrg8, PixelFormat::kBayerBggr8),
                          [](const auto& p) { return std::string(pixelFormatName(p.param)); });
 
 TEST(SequenceIo, MjpegFramesAreStoredAsTheCameraSentThem) {
