@@ -134,6 +134,10 @@ std::vector<StreamFormat> AravisCamera::doFormats() const {
     // The full sensor when the device says how large it is, else the largest region now allowed.
     const int width = sensor_w > 0 ? sensor_w : wmax;
     const int height = sensor_h > 0 ? sensor_h : hmax;
+    // The device's current format first: without `format`, negotiation keeps it.
+    const auto current = static_cast<gint64>(arv_camera_get_pixel_format(impl_->camera, &error));
+    g_clear_error(&error);
+    std::stable_partition(pfncs, pfncs + n, [&](gint64 p) { return p == current; });
     std::vector<StreamFormat> out;
     for (guint i = 0; i < n; ++i) {
         const auto format = fromPfnc(static_cast<std::uint32_t>(pfncs[i]));

@@ -12,6 +12,10 @@ std::optional<PixelFormat> fromPfnc(std::uint32_t pfnc) noexcept {
         case kPfncMono12:
         case kPfncMono16: return PixelFormat::kGray16;
         case kPfncRgb8: return PixelFormat::kRgb8;
+        case kPfncBayerRg8: return PixelFormat::kBayerRggb8;
+        case kPfncBayerGr8: return PixelFormat::kBayerGrbg8;
+        case kPfncBayerGb8: return PixelFormat::kBayerGbrg8;
+        case kPfncBayerBg8: return PixelFormat::kBayerBggr8;
         default: return std::nullopt;
     }
 }
@@ -21,6 +25,10 @@ std::vector<std::uint32_t> toPfnc(PixelFormat format) {
         case PixelFormat::kGray8: return {kPfncMono8};
         case PixelFormat::kGray16: return {kPfncMono16, kPfncMono12};
         case PixelFormat::kRgb8: return {kPfncRgb8};
+        case PixelFormat::kBayerRggb8: return {kPfncBayerRg8};
+        case PixelFormat::kBayerGrbg8: return {kPfncBayerGr8};
+        case PixelFormat::kBayerGbrg8: return {kPfncBayerGb8};
+        case PixelFormat::kBayerBggr8: return {kPfncBayerBg8};
         default: return {};
     }
 }

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 
 #include <opencv2/imgcodecs.hpp>
@@ -16,7 +17,7 @@ namespace commonlight::mocks {
 namespace {
 
 // GenICam PFNC codes the fake camera's description offers (arv-fake-camera.xml: Mono8, Mono16,
-// RGB8, Bayer*8; no Mono12).
+// RGB8, BayerRG8/GR8/GB8/BG8; no Mono12).
 constexpr std::uint32_t kMono8 = ARV_PIXEL_FORMAT_MONO_8;
 constexpr std::uint32_t kMono16 = ARV_PIXEL_FORMAT_MONO_16;
 constexpr std::uint32_t kRgb8 = ARV_PIXEL_FORMAT_RGB_8_PACKED;
@@ -115,6 +116,10 @@ Result<void> GigeServer::load() {
     switch (stored) {
         case PixelFormat::kGray8: pfnc_ = kMono8; break;
         case PixelFormat::kGray16: pfnc_ = kMono16; break;
+        case PixelFormat::kBayerRggb8: pfnc_ = ARV_PIXEL_FORMAT_BAYER_RG_8; break;
+        case PixelFormat::kBayerGrbg8: pfnc_ = ARV_PIXEL_FORMAT_BAYER_GR_8; break;
+        case PixelFormat::kBayerGbrg8: pfnc_ = ARV_PIXEL_FORMAT_BAYER_GB_8; break;
+        case PixelFormat::kBayerBggr8: pfnc_ = ARV_PIXEL_FORMAT_BAYER_BG_8; break;
         case PixelFormat::kRgb8:
         case PixelFormat::kBgr8:
         case PixelFormat::kMjpeg:
@@ -124,7 +129,7 @@ Result<void> GigeServer::load() {
         default:
             return fail(ErrorCode::kUnsupported,
                         seq_name + ": cannot serve " + std::string(pixelFormatName(stored)) +
-                            " frames as a GigE camera (serve-gige sends gray8, gray16, rgb8, bgr8 and mjpeg)");
+                            " frames as a GigE camera (serve-gige sends gray8, gray16, rgb8, bgr8, mjpeg and bayer_*8)");
     }
     format_.format = served;
     format_.width = sequence_.sensor.width > 0 ? sequence_.sensor.width : first.width();
@@ -187,9 +192,11 @@ void GigeServer::fill(std::uint8_t* data, std::uint32_t width, std::uint32_t hei
         std::memset(data, 0, static_cast<std::size_t>(width) * height * bpp);
         if (!matches && !warned_mismatch_) {
             warned_mismatch_ = true;
+            char code[16];
+            std::snprintf(code, sizeof(code), "0x%08x", pfnc);
             log::warning("serve-gige: a client set " + std::to_string(width) + "x" + std::to_string(height) +
-                         ", pixel format 0x" + std::to_string(pfnc) + "; the recording is " +
-                         hal::describe(format_) + ": sending black frames");
+                         ", pixel format " + code + "; the recording is " + hal::describe(format_) +
+                         ": sending black frames");
         }
         return;
     }

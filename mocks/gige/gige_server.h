@@ -4,7 +4,7 @@
 //
 // The camera offers the sequence's format at its size, paced at its rate (AcquisitionFrameRate):
 //   gray8 -> Mono8, gray16 -> Mono16, rgb8 -> RGB8, bgr8 -> RGB8 (channels swapped),
-//   mjpeg -> RGB8 (each JPEG decoded once).
+//   mjpeg -> RGB8 (each JPEG decoded once), bayer_rggb8/grbg8/gbrg8/bggr8 -> BayerRG8/GR8/GB8/BG8.
 // Pixels are served bit-identical to the sequence's frames (servedFrame() gives what frame i
 // looks like on the wire). Frames follow the sequence in order; a new client continues where
 // the last one stopped. Without `loop` the camera stops sending after the last frame.

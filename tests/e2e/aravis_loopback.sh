@@ -3,7 +3,8 @@
 # sequence) over loopback, inside a private network namespace (Aravis discovery broadcasts on
 # every interface, so it must never run outside one): enumeration, 100 frames recorded
 # bit-identical and in order, exposure and gain, the server killed mid-stream (device error,
-# exit 4, naming the camera), a restarted server and a new recording, a clean SIGTERM exit.
+# exit 4, naming the camera), a restarted server and a new recording, a clean SIGTERM exit,
+# Bayer and the bundled MJPEG sample (served as RGB8).
 if [[ -z ${COMMONLIGHT_IN_PRIVATE_NETNS:-} ]]; then
     if ! unshare -n true 2>/dev/null; then
         echo "SKIP: unshare -n is not permitted here (needs CAP_SYS_ADMIN or user namespaces)" >&2
@@ -121,4 +122,16 @@ set -e
 SERVER_PID=
 [[ $code == 0 ]] || fail "serve-gige --frames 15: exit $code"
 expect_text "served 15 frames" "$TMP/server.out"
+
+# Bayer mosaics (BayerGB8) and the bundled MJPEG sample (served as RGB8) arrive bit-identical.
+"$TOOL" make "$TMP/bayer" 30 160 120 bayer_gbrg8 60 >/dev/null
+start_server --sequence "$TMP/bayer" --loop
+expect_exit 0 "$COMMONLIGHT" record --camera "aravis:127.0.0.1?format=bayer_gbrg8" --out "$TMP/rec_bayer" --frames 12
+"$TOOL" compare "$TMP/bayer" "$TMP/rec_bayer" 12 || fail "bayer frames differ"
+kill -TERM $SERVER_PID; wait $SERVER_PID || fail "serve-gige (bayer) did not exit cleanly"; SERVER_PID=
+start_server --sequence "$SAMPLE" --loop
+expect_text "rgb8 640x480" "$TMP/server.out"
+expect_exit 0 "$COMMONLIGHT" record --camera aravis:127.0.0.1 --out "$TMP/rec_sample" --frames 12
+"$TOOL" compare "$SAMPLE" "$TMP/rec_sample" 12 || fail "frames of the MJPEG sample differ from the decoded ones"
+kill -TERM $SERVER_PID; wait $SERVER_PID || fail "serve-gige (sample) did not exit cleanly"; SERVER_PID=
 echo PASS

@@ -18,6 +18,10 @@ TEST(AravisFormats, DeviceFormatsMapToOurs) {
     EXPECT_EQ(fromPfnc(kPfncMono12), PixelFormat::kGray16);
     EXPECT_EQ(fromPfnc(kPfncMono16), PixelFormat::kGray16);
     EXPECT_EQ(fromPfnc(kPfncRgb8), PixelFormat::kRgb8);
+    EXPECT_EQ(fromPfnc(kPfncBayerRg8), PixelFormat::kBayerRggb8);
+    EXPECT_EQ(fromPfnc(kPfncBayerGr8), PixelFormat::kBayerGrbg8);
+    EXPECT_EQ(fromPfnc(kPfncBayerGb8), PixelFormat::kBayerGbrg8);
+    EXPECT_EQ(fromPfnc(kPfncBayerBg8), PixelFormat::kBayerBggr8);
     EXPECT_FALSE(fromPfnc(0x010C0006));  // Mono12Packed: not streamed
     EXPECT_FALSE(fromPfnc(0));
 }
@@ -27,7 +31,9 @@ TEST(AravisFormats, OurFormatsMapBackPreferringFullDepth) {
     EXPECT_EQ(toPfnc(PixelFormat::kGray16), (std::vector<std::uint32_t>{kPfncMono16, kPfncMono12}));
     EXPECT_EQ(toPfnc(PixelFormat::kRgb8), std::vector<std::uint32_t>{kPfncRgb8});
     EXPECT_TRUE(toPfnc(PixelFormat::kMjpeg).empty());
-    for (const auto f : {PixelFormat::kGray8, PixelFormat::kGray16, PixelFormat::kRgb8}) {
+    EXPECT_EQ(toPfnc(PixelFormat::kBayerGbrg8), std::vector<std::uint32_t>{kPfncBayerGb8});
+    for (const auto f : {PixelFormat::kGray8, PixelFormat::kGray16, PixelFormat::kRgb8, PixelFormat::kBayerRggb8,
+                         PixelFormat::kBayerGrbg8, PixelFormat::kBayerGbrg8, PixelFormat::kBayerBggr8}) {
         for (const auto pfnc : toPfnc(f)) EXPECT_EQ(fromPfnc(pfnc), f);
     }
 }
