@@ -3,6 +3,7 @@
 // metadata, controls, and the device error when the server goes away.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <filesystem>
@@ -11,6 +12,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench/alloc_counter.h"
 #include "capture/frame_pool.h"
 #include "core/sequence_writer.h"
 #include "hal/aravis/aravis_backend.h"
@@ -209,6 +211,31 @@ TEST_F(GigeLoopback, UnknownFormatsAndSizesListWhatTheDeviceOffers) {
     ASSERT_TRUE(roi) << roi.error().message;
     EXPECT_EQ((*roi)->activeFormat().width, 32);
     EXPECT_EQ((*roi)->activeFormat().height, 16);
+}
+
+// In steady state the backend's camera thread (pop, copy into a pool slot, requeue) and the
+// server's fill allocate nothing (operator new, counted over the process; GLib's own malloc
+// inside Aravis is not ours and not counted).
+TEST_F(GigeLoopback, NoAllocationPerFrame) {
+    auto camera = registry_.openConfigured("aravis:127.0.0.1");
+    ASSERT_TRUE(camera) << camera.error().message;
+    std::atomic<std::uint64_t> frames{0};
+    (*camera)->setFrameAllocator(&pool_);
+    (*camera)->setFrameCallback([&](FrameHandle frame) {
+        if (frame->meta.status == FrameStatus::kOk) frames.fetch_add(1);
+    });
+    ASSERT_TRUE((*camera)->start());
+    const auto waitFrames = [&](std::uint64_t n) {
+        for (int i = 0; i < 2000 && frames.load() < n; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+        return frames.load() >= n;
+    };
+    ASSERT_TRUE(waitFrames(10));  // warm-up: every slot and buffer sized
+    const std::uint64_t before = bench::allocationCount();
+    const std::uint64_t first = frames.load();
+    ASSERT_TRUE(waitFrames(first + 60));
+    const std::uint64_t allocations = bench::allocationCount() - before;
+    (*camera)->stop();
+    EXPECT_EQ(allocations, 0u) << "over " << frames.load() - first << " frames";
 }
 
 TEST(GigeServerErrors, AMissingSequenceIsNamed) {
