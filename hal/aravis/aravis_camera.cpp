@@ -78,6 +78,18 @@ bool featureAvailable(ArvCamera* camera, const char* feature) {
     return available;
 }
 
+// GigE: only the client holding the control privilege may configure and stream. Aravis opens
+// a device another client controls in monitor mode; take control now or say who has it.
+Result<void> ensureControl(ArvDevice* device, const std::string& id) {
+    if (!ARV_IS_GV_DEVICE(device)) return {};
+    ArvGvDevice* gv = ARV_GV_DEVICE(device);
+    if (arv_gv_device_is_controller(gv)) return {};
+    GError* error = nullptr;
+    if (arv_gv_device_take_control(gv, &error)) return {};
+    return fail(ErrorCode::kDevice, id + ": another client controls the camera (" + takeMessage(error) +
+                                        "); a client that died releases it after the device's heartbeat timeout");
+}
+
 }  // namespace
 
 Result<std::unique_ptr<AravisCamera>> AravisCamera::open(const CameraUri& uri) {
@@ -171,6 +183,7 @@ Result<StreamFormat> AravisCamera::doConfigure(const StreamConfig& config) {
     CL_TRY(StreamFormat chosen, negotiate(offered, without_rate, id()));
 
     std::lock_guard lock(mutex_);
+    CL_TRY_VOID(ensureControl(impl_->device, id()));
     GError* error = nullptr;
     guint n = 0;
     gint64* available = arv_camera_dup_available_pixel_formats(impl_->camera, &n, &error);
@@ -233,6 +246,7 @@ void AravisCamera::refreshExposureAndGain() {
 
 Result<void> AravisCamera::doStart() {
     std::lock_guard lock(mutex_);
+    CL_TRY_VOID(ensureControl(impl_->device, id()));
     GError* error = nullptr;
     ArvCamera* cam = impl_->camera;
     if (arv_camera_is_gv_device(cam)) {

@@ -3,6 +3,8 @@
 #include <arv.h>
 
 #include <algorithm>
+#include <chrono>
+#include <thread>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -80,6 +82,10 @@ GigeServer::GigeServer(GigeServerOptions options, Sequence sequence)
     : options_(std::move(options)), sequence_(std::move(sequence)) {}
 
 GigeServer::~GigeServer() {
+    if (watchdog_.joinable()) {
+        watchdog_.request_stop();
+        watchdog_.join();
+    }
     if (impl_ && impl_->fake != nullptr) {
         // Stop sending, and wait for a fill in progress (set_fill_pattern takes the fill mutex):
         // no callback reaches this object once it returns.
@@ -180,6 +186,35 @@ Result<void> GigeServer::serve() {
     arv_fake_camera_write_register(fake, ARV_FAKE_CAMERA_REGISTER_ACQUISITION_FRAME_PERIOD_US,
                                    static_cast<guint32>(std::lround(1e6 / format_.fps)));
     arv_fake_camera_set_fill_pattern(fake, &Impl::fillPattern, this);
+    // A client that dies while streaming never sends AcquisitionStop, and the fake camera reads
+    // the stream destination only when an acquisition starts: it would go on streaming to the
+    // dead client's port, and the next client (whose AcquisitionStart finds the acquisition
+    // already on) would get nothing. When the destination changes during an acquisition, stop
+    // it for a few frame periods (the fake camera looks once per frame) and start it again, so
+    // the stream goes where the new client asked.
+    const auto period = std::chrono::microseconds(std::lround(1e6 / format_.fps));
+    watchdog_ = std::jthread([fake, period](std::stop_token stop) {
+        constexpr guint32 kStreamPort = 0x0D00;     // GigE Vision bootstrap: SCP0
+        constexpr guint32 kStreamAddress = 0x0D18;  // SCDA0
+        guint32 port = 0, address = 0;
+        bool streaming = false;
+        while (!stop.stop_requested()) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(10));
+            guint32 now_port = 0, now_address = 0;
+            arv_fake_camera_read_register(fake, kStreamPort, &now_port);
+            arv_fake_camera_read_register(fake, kStreamAddress, &now_address);
+            const bool acquiring = arv_fake_camera_get_acquisition_status(fake) != 0;
+            if (acquiring && streaming && (now_port != port || now_address != address)) {
+                log::info("serve-gige: a new client took over a running stream; restarting it towards the new client");
+                arv_fake_camera_write_register(fake, ARV_FAKE_CAMERA_REGISTER_ACQUISITION, 0);
+                std::this_thread::sleep_for(3 * period + std::chrono::milliseconds(20));
+                arv_fake_camera_write_register(fake, ARV_FAKE_CAMERA_REGISTER_ACQUISITION, 1);
+            }
+            streaming = acquiring;
+            port = now_port;
+            address = now_address;
+        }
+    });
     return {};
 }
 

@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "core/frame_file.h"
@@ -83,6 +84,7 @@ private:
     bool warned_mismatch_ = false;
     std::atomic<std::uint64_t> served_{0};
     std::atomic<bool> finished_{false};
+    std::jthread watchdog_;  // stops a stream whose client vanished
     void* fake_ = nullptr;  // ArvFakeCamera*, owned by impl_; set before serving starts
     std::unique_ptr<Impl> impl_;
 };

