@@ -241,6 +241,34 @@ TEST_F(GigeLoopback, NoAllocationPerFrame) {
     EXPECT_EQ(allocations, 0u) << "over " << frames.load() - first << " frames";
 }
 
+TEST(GigeServerLimit, SendsNFramesThenStops) {
+    const fs::path sequence = makeSequence(10, 32, 24, 100.0);
+    mocks::GigeServerOptions options;
+    options.sequence = sequence;
+    options.frames = 15;
+    options.loop = true;  // the limit ends it, not the end of the sequence
+    auto server = mocks::GigeServer::start(options);
+    ASSERT_TRUE(server) << server.error().message;
+    hal::CameraRegistry registry;
+    hal::aravis::registerBackend(registry);
+    auto camera = registry.openConfigured("aravis:127.0.0.1?timeout_ms=60000");
+    ASSERT_TRUE(camera) << camera.error().message;
+    capture::FramePool pool(4, PixelFormat::kGray8, 32, 24);
+    std::atomic<int> frames{0};
+    (*camera)->setFrameAllocator(&pool);
+    (*camera)->setFrameCallback([&](FrameHandle) { frames.fetch_add(1); });
+    ASSERT_TRUE((*camera)->start());
+    for (int i = 0; i < 2000 && !(*server)->finished(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    ASSERT_TRUE((*server)->finished());
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));  // room for a frame too many
+    (*camera)->stop();
+    EXPECT_EQ((*server)->framesServed(), 15u);
+    EXPECT_LE(frames.load(), 15);
+    EXPECT_GE(frames.load(), 1);
+    server->reset();
+    fs::remove_all(sequence);
+}
+
 TEST(GigeServerErrors, AMissingSequenceIsNamed) {
     mocks::GigeServerOptions options;
     options.sequence = "/nonexistent/sequence";
