@@ -384,6 +384,14 @@ void AravisCamera::deliver(void* opaque) {
     const StreamFormat& format = activeFormat();
     size_t size = 0;
     const auto* data = static_cast<const std::uint8_t*>(arv_buffer_get_data(buffer, &size));
+    if (status == ARV_BUFFER_STATUS_SUCCESS && arv_buffer_get_payload_type(buffer) != ARV_BUFFER_PAYLOAD_TYPE_IMAGE) {
+        // Chunk data, JPEG, multipart: not streamed by this backend.
+        frame->image.clear();
+        meta.status = FrameStatus::kCorrupt;
+        meta.arrival_ns = monotonicNowNs();
+        emitFrame(std::move(frame));
+        return;
+    }
     if (status == ARV_BUFFER_STATUS_SUCCESS) {
         const auto pfnc = static_cast<std::uint32_t>(arv_buffer_get_image_pixel_format(buffer));
         const int w = arv_buffer_get_image_width(buffer);
