@@ -149,7 +149,7 @@ std::vector<StreamFormat> AravisCamera::doFormats() const {
     // The device's current format first: without `format`, negotiation keeps it.
     const auto current = static_cast<gint64>(arv_camera_get_pixel_format(impl_->camera, &error));
     g_clear_error(&error);
-    std::stable_partition(pfncs, pfncs + n, [&](gint64 p) { return p == current; });
+    if (gint64* found = std::find(pfncs, pfncs + n, current); found != pfncs + n) std::rotate(pfncs, found, found + 1);
     std::vector<StreamFormat> out;
     for (guint i = 0; i < n; ++i) {
         const auto format = fromPfnc(static_cast<std::uint32_t>(pfncs[i]));
@@ -373,7 +373,7 @@ void AravisCamera::deliver(void* opaque) {
     if (device_ns > 0) {
         const auto mapped = clock_.toHost(device_ns, host_arrival_ns);
         meta.timestamp_ns = mapped.host_ns;
-        meta.timestamp_source = mapped.from_device ? TimestampSource::kSensor : TimestampSource::kHost;
+        meta.timestamp_source = TimestampSource::kSensor;
     } else {
         meta.timestamp_ns = host_arrival_ns;
         meta.timestamp_source = TimestampSource::kHost;

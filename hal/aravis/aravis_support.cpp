@@ -129,7 +129,9 @@ DeviceClockMapper::Mapped DeviceClockMapper::toHost(std::int64_t device_ns, std:
         // Far later than any delay seen: the device clock went back, or a stall. Wait for
         // `confirm_` such samples in a row before believing it.
         above_min_ = above_ == 0 ? sample : std::min(above_min_, sample);
-        if (++above_ < confirm_) return {arrival_ns, false};
+        // Until confirmed it is taken for a delay: the current offset still maps it (exact for
+        // a late frame; for the first frames after a backward jump, early by the jump).
+        if (++above_ < confirm_) return {std::min(device_ns + offset_, arrival_ns), false};
         count_ = 0;
         next_ = 0;
         ++rebases_;
@@ -138,7 +140,7 @@ DeviceClockMapper::Mapped DeviceClockMapper::toHost(std::int64_t device_ns, std:
         count_ = 1;
         above_ = 0;
         offset_ = samples_[0];
-        return {std::min(device_ns + offset_, arrival_ns), true};
+        return {std::min(device_ns + offset_, arrival_ns), true};  // rebased
     }
     above_ = 0;
     if (count_ > 0 && sample < offset_ - jump_ns_) ++rebases_;  // forward jump: the minimum takes it
@@ -148,7 +150,7 @@ DeviceClockMapper::Mapped DeviceClockMapper::toHost(std::int64_t device_ns, std:
     std::int64_t best = std::numeric_limits<std::int64_t>::max();
     for (std::size_t i = 0; i < count_; ++i) best = std::min(best, samples_[i]);
     offset_ = best;
-    return {std::min(device_ns + offset_, arrival_ns), true};
+    return {std::min(device_ns + offset_, arrival_ns), false};
 }
 
 }  // namespace commonlight::hal::aravis

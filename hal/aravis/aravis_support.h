@@ -81,11 +81,12 @@ public:
 
     struct Mapped {
         std::int64_t host_ns = 0;
-        bool from_device = false;  // false: the arrival time (a jump not confirmed yet)
+        bool rebased = false;  // this frame confirmed a jump: the window restarted
     };
     // The host time of a frame whose device timestamp is `device_ns` and which arrived at
-    // `arrival_ns` (CLOCK_MONOTONIC). Never later than the arrival. While a jump is not yet
-    // confirmed, the frame gets its arrival time instead. No allocation.
+    // `arrival_ns` (CLOCK_MONOTONIC). Never later than the arrival. A frame far later than the
+    // estimate is mapped with the current offset until the jump is confirmed (a late frame is
+    // far more common than a clock jump). No allocation.
     Mapped toHost(std::int64_t device_ns, std::int64_t arrival_ns) noexcept;
     void reset() noexcept;
     std::int64_t offsetNs() const noexcept { return offset_; }
