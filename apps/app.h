@@ -30,6 +30,7 @@ void addSimCommand(CLI::App& app, Runner& runner);
 void addCalibrateCommand(CLI::App& app, Runner& runner);
 void addTrackCommand(CLI::App& app, Runner& runner);
 void addBenchCommand(CLI::App& app, Runner& runner);
+void addServeGigeCommand(CLI::App& app, Runner& runner);
 
 // Prints "commonlight: error: <message>" and returns the exit code for the error.
 int reportError(const Error& error);

@@ -28,6 +28,7 @@ int main(int argc, char** argv) {
     apps::addCalibrateCommand(app, runner);
     apps::addTrackCommand(app, runner);
     apps::addBenchCommand(app, runner);
+    apps::addServeGigeCommand(app, runner);
 
     try {
         app.parse(argc, argv);

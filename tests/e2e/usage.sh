@@ -22,6 +22,12 @@ expect_text "rate" "$TMP/err"
 expect_exit 2 "$COMMONLIGHT" record --camera "replay:$SAMPLE?width=320" --out "$TMP/x"
 expect_text "the device offers" "$TMP/err"
 [[ ! -e "$TMP/x" ]] || fail "a usage error must not create the output folder"
-expect_exit 0 "$COMMONLIGHT" cameras --json
-python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); assert "cameras" in d and any(b["scheme"]=="replay" for b in d["backends"])' "$TMP/out"
+# Enumeration runs Aravis discovery, a broadcast on every interface: tests run it only in a
+# private network namespace (loopback only).
+if unshare -n true 2>/dev/null; then
+    expect_exit 0 unshare -n "$COMMONLIGHT" cameras --json
+    python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); assert "cameras" in d and any(b["scheme"]=="replay" for b in d["backends"])' "$TMP/out"
+else
+    echo "note: unshare -n not permitted; commonlight cameras not run (it would broadcast)"
+fi
 echo PASS
