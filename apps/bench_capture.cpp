@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <optional>
 #include <vector>
@@ -108,8 +109,9 @@ CaseResult runGstreamer(const std::string& name, const std::string& address, dou
     if (!gst_is_initialized()) gst_init(nullptr, nullptr);
     char description[256];
     std::snprintf(description, sizeof description,
-                  "aravissrc camera-name=%s frame-rate=%g ! appsink name=sink sync=false max-buffers=2 drop=true",
-                  address.c_str(), fps);
+                  "aravissrc camera-name=%s do-timestamp=true ! video/x-raw,framerate=%d/1 ! "
+                  "appsink name=sink sync=false max-buffers=2 drop=true",
+                  address.c_str(), static_cast<int>(std::lround(fps)));
     GError* parse_error = nullptr;
     GstElement* pipeline = gst_parse_launch(description, &parse_error);
     if (pipeline == nullptr || parse_error != nullptr) {

@@ -48,7 +48,7 @@ python3 -c "import sys; sys.exit(0 if abs($live_rot - $play_rot) < 0.02 and abs(
     fail "live over GigE ($live_rot deg, $live_mm mm) differs from play ($play_rot deg, $play_mm mm)"
 
 # bench capture's GigE cases run and deliver frames.
-expect_exit 0 "$COMMONLIGHT" bench capture --gige 127.0.0.1 --seconds 1 --json "$TMP/bench.json"
+expect_exit 0 "$COMMONLIGHT" bench capture --sequence "$SAMPLE" --gige 127.0.0.1 --seconds 1 --json "$TMP/bench.json"
 python3 - "$TMP/bench.json" <<'PY' || fail "bench capture: a case delivered nothing"
 import json, sys
 cases = {c["case"]: c for c in json.load(open(sys.argv[1]))["cases"]}
