@@ -109,7 +109,7 @@ CaseResult runGstreamer(const std::string& name, const std::string& address, dou
     if (!gst_is_initialized()) gst_init(nullptr, nullptr);
     char description[256];
     std::snprintf(description, sizeof description,
-                  "aravissrc camera-name=%s do-timestamp=true ! video/x-raw,framerate=%d/1 ! "
+                  "aravissrc camera-name=%s do-timestamp=true ! video/x-raw,format=RGB,framerate=%d/1 ! "
                   "appsink name=sink sync=false max-buffers=2 drop=true",
                   address.c_str(), static_cast<int>(std::lround(fps)));
     GError* parse_error = nullptr;
