@@ -33,8 +33,8 @@ public:
 
     // libcamera's adjusted configuration, after configure().
     const DeviceStreamConfig& deviceConfig() const noexcept { return device_config_; }
-    // Completed requests that failed to requeue or arrived while no slot was free are counted
-    // by the base class (framesWithoutSlot()); this counts requests libcamera failed (FrameError).
+    // Requests whose buffer libcamera marked FrameError (delivered as kCorrupt frames when a
+    // slot was free). Frames lost for want of a slot are framesWithoutSlot().
     std::uint64_t failedRequests() const noexcept { return failed_requests_.load(std::memory_order_relaxed); }
 
 private:

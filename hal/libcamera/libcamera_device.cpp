@@ -32,7 +32,6 @@
 #include <libcamera/stream.h>
 #include <libcamera/version.h>
 
-#include "core/log.h"
 #include "hal/libcamera/mapping.h"
 
 #define COMMONLIGHT_LIBCAMERA_AT_LEAST(major, minor) \
