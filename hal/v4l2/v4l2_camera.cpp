@@ -18,6 +18,15 @@ namespace commonlight::hal::v4l2 {
 
 namespace {
 
+// A v4l2_buffer naming buffer `index` of our mmap capture queue.
+v4l2_buffer captureBuffer(std::uint32_t index = 0) noexcept {
+    v4l2_buffer buf{};
+    buf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    buf.memory = V4L2_MEMORY_MMAP;
+    buf.index = index;
+    return buf;
+}
+
 // A short explanation of the errno values V4L2 calls fail with.
 std::string errnoText(int error) {
     std::string text = std::strerror(error);
@@ -351,10 +360,7 @@ Result<void> V4l2Camera::doStart() {
     }
     buffers_.assign(req.count, Buffer{});
     for (std::uint32_t i = 0; i < req.count; ++i) {
-        v4l2_buffer buf{};
-        buf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-        buf.memory = V4L2_MEMORY_MMAP;
-        buf.index = i;
+        v4l2_buffer buf = captureBuffer(i);
         if (xioctl(system_, fd_, VIDIOC_QUERYBUF, &buf) < 0) {
             Error e = callError("VIDIOC_QUERYBUF", errno);
             releaseBuffers();
@@ -369,10 +375,7 @@ Result<void> V4l2Camera::doStart() {
         buffers_[i] = Buffer{data, buf.length};
     }
     for (std::uint32_t i = 0; i < req.count; ++i) {
-        v4l2_buffer buf{};
-        buf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-        buf.memory = V4L2_MEMORY_MMAP;
-        buf.index = i;
+        v4l2_buffer buf = captureBuffer(i);
         if (xioctl(system_, fd_, VIDIOC_QBUF, &buf) < 0) {
             Error e = callError("VIDIOC_QBUF", errno);
             releaseBuffers();
@@ -432,9 +435,7 @@ void V4l2Camera::run(std::stop_token stop) {
         }
         if (fds[0].revents & (POLLERR | POLLHUP | POLLNVAL)) {
             // Find out why: a disconnected device fails DQBUF with ENODEV.
-            v4l2_buffer probe{};
-            probe.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-            probe.memory = V4L2_MEMORY_MMAP;
+            v4l2_buffer probe = captureBuffer();
             const int got = xioctl(system_, fd_, VIDIOC_DQBUF, &probe);
             const int error = got < 0 ? errno : 0;
             if (got == 0 && probe.index < buffers_.size()) {
@@ -456,9 +457,7 @@ void V4l2Camera::run(std::stop_token stop) {
         if (!(fds[0].revents & POLLIN)) continue;
         // Take every buffer that is done.
         while (!stop.stop_requested()) {
-            v4l2_buffer buf{};
-            buf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-            buf.memory = V4L2_MEMORY_MMAP;
+            v4l2_buffer buf = captureBuffer();
             if (xioctl(system_, fd_, VIDIOC_DQBUF, &buf) < 0) {
                 if (errno == EAGAIN) break;
                 deviceError("VIDIOC_DQBUF failed: " + errnoText(errno));
@@ -543,10 +542,7 @@ void V4l2Camera::deliver(const v4l2_buffer& buf) {
         meta.status = status;
     }
     // Give the buffer back to the driver at once; the pixels live in the pool slot now.
-    v4l2_buffer requeue{};
-    requeue.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-    requeue.memory = V4L2_MEMORY_MMAP;
-    requeue.index = buf.index;
+    v4l2_buffer requeue = captureBuffer(buf.index);
     if (xioctl(system_, fd_, VIDIOC_QBUF, &requeue) < 0 && errno != ENODEV) {
         // ENODEV shows up at the next poll/DQBUF as the disconnect it is.
         emitEvent(CameraEvent{CameraEvent::Type::kDeviceError,
