@@ -4,26 +4,9 @@
 # protocol gives the same pose error as `play` on the recording; and `bench capture` runs its
 # GigE cases (ours and GStreamer's aravissrc) on the same served camera. Inside a private
 # network namespace (Aravis discovery broadcasts on every interface).
-if [[ -z ${COMMONLIGHT_IN_PRIVATE_NETNS:-} ]]; then
-    if ! unshare -n true 2>/dev/null; then
-        echo "SKIP: unshare -n is not permitted here (needs CAP_SYS_ADMIN or user namespaces)" >&2
-        exit 77
-    fi
-    COMMONLIGHT_IN_PRIVATE_NETNS=1 exec unshare -n -- bash "$0" "$@"
-fi
+source "$(dirname "$0")/netns.sh"
 source "$(dirname "$0")/lib.sh"
-ip link set lo up || skip "cannot bring lo up in the private network namespace"
-SERVER_PID=
-trap '[[ -n $SERVER_PID ]] && kill -9 $SERVER_PID 2>/dev/null; rm -rf "$TMP"' EXIT
-
-"$COMMONLIGHT" serve-gige --sequence "$SAMPLE" --loop >"$TMP/server.out" 2>"$TMP/server.err" &
-SERVER_PID=$!
-for _ in $(seq 1 200); do
-    grep -q "^serving " "$TMP/server.out" 2>/dev/null && break
-    kill -0 $SERVER_PID 2>/dev/null || { cat "$TMP/server.err"; fail "serve-gige exited"; }
-    sleep 0.05
-done
-grep -q "^serving " "$TMP/server.out" || fail "serve-gige did not start"
+start_serve_gige --sequence "$SAMPLE" --loop
 
 pose_p50() {
     python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["pose_error"][sys.argv[2]]["p50"])' "$1" "$2"

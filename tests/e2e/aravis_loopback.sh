@@ -5,34 +5,13 @@
 # bit-identical and in order, exposure and gain, the server killed mid-stream (device error,
 # exit 4, naming the camera), a restarted server and a new recording, a clean SIGTERM exit,
 # Bayer and the bundled MJPEG sample (served as RGB8).
-if [[ -z ${COMMONLIGHT_IN_PRIVATE_NETNS:-} ]]; then
-    if ! unshare -n true 2>/dev/null; then
-        echo "SKIP: unshare -n is not permitted here (needs CAP_SYS_ADMIN or user namespaces)" >&2
-        exit 77
-    fi
-    COMMONLIGHT_IN_PRIVATE_NETNS=1 exec unshare -n -- bash "$0" "$@"
-fi
+source "$(dirname "$0")/netns.sh"
 source "$(dirname "$0")/lib.sh"
-ip link set lo up || skip "cannot bring lo up in the private network namespace"
 TOOL="${COMMONLIGHT_BINARY_DIR:?set by CTest}/tests/mocks/gige_sequence_tool"
 [[ -x $TOOL ]] || fail "missing $TOOL (built with the tests)"
-SERVER_PID=
-trap '[[ -n $SERVER_PID ]] && kill -9 $SERVER_PID 2>/dev/null; [[ -n ${KEEP_TMP:-} ]] || rm -rf "$TMP"' EXIT
-
-# start_server ARGS...: serve-gige in the background, waits until it serves.
-start_server() {
-    "$COMMONLIGHT" serve-gige "$@" >"$TMP/server.out" 2>"$TMP/server.err" &
-    SERVER_PID=$!
-    for _ in $(seq 1 200); do
-        grep -q "^serving " "$TMP/server.out" 2>/dev/null && return 0
-        kill -0 $SERVER_PID 2>/dev/null || { cat "$TMP/server.err"; fail "serve-gige exited: $*"; }
-        sleep 0.05
-    done
-    fail "serve-gige did not start: $*"
-}
 
 "$TOOL" make "$TMP/seq" 120 320 240 gray8 60 >/dev/null
-start_server --sequence "$TMP/seq" --loop
+start_serve_gige --sequence "$TMP/seq" --loop
 expect_text "at 127.0.0.1" "$TMP/server.out"
 
 # Enumeration (discovery, inside this namespace only).
@@ -81,10 +60,7 @@ grep -Eq "GainRaw = 3( |$)" "$TMP/regs" || { cat "$TMP/regs"; fail "GainRaw not 
 # The server killed mid-stream: a device error naming the camera, exit 4, the frames kept.
 "$COMMONLIGHT" record --camera "aravis:127.0.0.1?timeout_ms=1000" --out "$TMP/rec_kill" >"$TMP/kill.out" 2>"$TMP/kill.err" &
 rec_pid=$!
-for _ in $(seq 1 400); do
-    [[ -f "$TMP/rec_kill/cam0/data.csv" && $(rows "$TMP/rec_kill/cam0/data.csv") -ge 10 ]] && break
-    sleep 0.05
-done
+wait_for_rows "$TMP/rec_kill" 10
 kill -9 $SERVER_PID
 wait $SERVER_PID 2>/dev/null || true
 SERVER_PID=
@@ -97,7 +73,7 @@ expect_text "aravis:127.0.0.1" "$TMP/kill.err"
 [[ $(rows "$TMP/rec_kill/cam0/data.csv") -ge 10 ]] || fail "the frames before the error were not kept"
 
 # Restart the server and reconnect.
-start_server --sequence "$TMP/seq" --loop
+start_serve_gige --sequence "$TMP/seq" --loop
 expect_exit 0 "$COMMONLIGHT" record --camera aravis:127.0.0.1 --out "$TMP/rec2" --frames 20
 "$TOOL" compare "$TMP/seq" "$TMP/rec2" 20 || fail "frames after the restart differ"
 
@@ -113,7 +89,7 @@ expect_text "served " "$TMP/server.out"
 
 # Without --loop, --frames N: the server sends N frames and exits by itself; the client then
 # sees the camera go away (exit 4) with at most N frames recorded, every one as served.
-start_server --sequence "$TMP/seq" --frames 15
+start_serve_gige --sequence "$TMP/seq" --frames 15
 expect_exit 4 "$COMMONLIGHT" record --camera "aravis:127.0.0.1?timeout_ms=1000" --out "$TMP/rec3"
 expect_text "aravis:127.0.0.1" "$TMP/err"
 set +e
@@ -128,11 +104,11 @@ expect_text "served 15 frames" "$TMP/server.out"
 
 # Bayer mosaics (BayerGB8) and the bundled MJPEG sample (served as RGB8) arrive bit-identical.
 "$TOOL" make "$TMP/bayer" 30 160 120 bayer_gbrg8 60 >/dev/null
-start_server --sequence "$TMP/bayer" --loop
+start_serve_gige --sequence "$TMP/bayer" --loop
 expect_exit 0 "$COMMONLIGHT" record --camera "aravis:127.0.0.1?format=bayer_gbrg8" --out "$TMP/rec_bayer" --frames 12
 "$TOOL" compare "$TMP/bayer" "$TMP/rec_bayer" 12 || fail "bayer frames differ"
 kill -TERM $SERVER_PID; wait $SERVER_PID || fail "serve-gige (bayer) did not exit cleanly"; SERVER_PID=
-start_server --sequence "$SAMPLE" --loop
+start_serve_gige --sequence "$SAMPLE" --loop
 expect_text "rgb8 640x480" "$TMP/server.out"
 expect_exit 0 "$COMMONLIGHT" record --camera aravis:127.0.0.1 --out "$TMP/rec_sample" --frames 12
 "$TOOL" compare "$SAMPLE" "$TMP/rec_sample" 12 || fail "frames of the MJPEG sample differ from the decoded ones"

@@ -4,7 +4,8 @@ set -euo pipefail
 SRC=${COMMONLIGHT_SOURCE_DIR:?set by CTest}
 SAMPLE="$SRC/data/sample"
 TMP=$(mktemp -d /tmp/commonlight-e2e-XXXXXX)
-trap 'rm -rf "$TMP"' EXIT
+SERVER_PID=  # a background server a test started (start_serve_gige); killed on exit
+trap '[[ -n $SERVER_PID ]] && kill -9 "$SERVER_PID" 2>/dev/null; [[ -n ${KEEP_TMP:-} ]] || rm -rf "$TMP"' EXIT
 
 fail() { echo "FAIL: $*" >&2; exit 1; }
 skip() { echo "SKIP: $*" >&2; exit 77; }
@@ -48,3 +49,29 @@ rows() { grep -vc '^#' "$1"; }
 
 # Frames in the bundled sample.
 SAMPLE_FRAMES=$(rows "$SAMPLE/cam0/data.csv")
+
+# isolated COMMAND...: runs it in a new private network namespace with only loopback (for
+# commands that may broadcast, such as Aravis discovery in `commonlight cameras`).
+isolated() { unshare -n sh -c 'ip link set lo up 2>/dev/null; exec "$@"' sh "$@"; }
+
+# wait_for_rows SEQ N: waits (up to 30 s) until SEQ/cam0/data.csv lists at least N frames.
+wait_for_rows() {
+    for _ in $(seq 1 600); do
+        [[ -f "$1/cam0/data.csv" && $(rows "$1/cam0/data.csv") -ge $2 ]] && return 0
+        sleep 0.05
+    done
+    fail "$1 did not reach $2 frames"
+}
+
+# start_serve_gige ARGS...: `commonlight serve-gige ARGS` in the background (SERVER_PID), waiting
+# until it serves. Only inside a private network namespace (netns.sh).
+start_serve_gige() {
+    "$COMMONLIGHT" serve-gige "$@" >"$TMP/server.out" 2>"$TMP/server.err" &
+    SERVER_PID=$!
+    for _ in $(seq 1 200); do
+        grep -q "^serving " "$TMP/server.out" 2>/dev/null && return 0
+        kill -0 "$SERVER_PID" 2>/dev/null || { cat "$TMP/server.err"; fail "serve-gige exited: $*"; }
+        sleep 0.05
+    done
+    fail "serve-gige did not start: $*"
+}

@@ -8,7 +8,6 @@ source "$(dirname "$0")/lib.sh"
 if ! unshare -n true 2>/dev/null; then
     skip "needs unshare -n (a private network namespace) to enumerate cameras"
 fi
-isolated() { unshare -n sh -c 'ip link set lo up 2>/dev/null; exec "$@"' sh "$@"; }
 
 expect_exit 0 isolated env -u LIBCAMERA_LOG_LEVELS "$COMMONLIGHT" cameras --json
 if python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); sys.exit(0 if any(b["scheme"]=="libcamera" for b in d["left_out"]) else 1)' "$TMP/out"; then

@@ -4,10 +4,7 @@ source "$(dirname "$0")/lib.sh"
 
 "$COMMONLIGHT" record --camera "replay:$SAMPLE?loop=1&speed=4" --out "$TMP/rec" >"$TMP/out" 2>"$TMP/err" &
 pid=$!
-for _ in $(seq 1 600); do
-    [[ -f "$TMP/rec/cam0/data.csv" && $(rows "$TMP/rec/cam0/data.csv") -ge 20 ]] && break
-    sleep 0.05
-done
+wait_for_rows "$TMP/rec" 20
 kill -9 "$pid"
 wait "$pid" 2>/dev/null || true
 n=$(rows "$TMP/rec/cam0/data.csv")

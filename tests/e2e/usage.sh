@@ -25,7 +25,7 @@ expect_text "the device offers" "$TMP/err"
 # Enumeration runs Aravis discovery, a broadcast on every interface: tests run it only in a
 # private network namespace (loopback only).
 if unshare -n true 2>/dev/null; then
-    expect_exit 0 unshare -n "$COMMONLIGHT" cameras --json
+    expect_exit 0 isolated "$COMMONLIGHT" cameras --json
     python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); assert "cameras" in d and any(b["scheme"]=="replay" for b in d["backends"])' "$TMP/out"
 else
     echo "note: unshare -n not permitted; commonlight cameras not run (it would broadcast)"

@@ -9,17 +9,7 @@
 # XDG_RUNTIME_DIR. Skips (77) when a daemon or tool is missing or cannot start.
 set -euo pipefail
 
-skip_early() { echo "SKIP: $*" >&2; exit 77; }
-if [[ -z ${COMMONLIGHT_V4L2_NETNS:-} ]]; then
-    for args in "-n" "-rn"; do
-        if unshare $args true 2>/dev/null; then
-            exec unshare $args env COMMONLIGHT_V4L2_NETNS=1 bash "$0" "$@"
-        fi
-    done
-    skip_early "cannot make a private network namespace (unshare -n)"
-fi
-ip link set lo up 2>/dev/null || true
-
+source "$(dirname "$0")/netns.sh"
 source "$(dirname "$0")/lib.sh"
 
 PW_V4L2=""
