@@ -1,0 +1,170 @@
+#include "lighting/direct.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "lighting/form_factor.h"
+#include "lighting/sampling.h"
+
+namespace commonlight::lighting {
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+
+// A uniform point on an area light from (u, v) in [0,1)^2: rectangles directly, discs by the
+// concentric map (Shirley and Chiu 1997) so that stratification survives.
+Eigen::Vector3d lightPoint(const LightGeometry& g, const Eigen::Vector2d& u) {
+    if (!g.disc) {
+        return g.world_from_object * Eigen::Vector3d((u.x() - 0.5) * g.size.x(), (u.y() - 0.5) * g.size.y(), 0.0);
+    }
+    const double a = 2.0 * u.x() - 1.0, b = 2.0 * u.y() - 1.0;
+    double r = 0.0, phi = 0.0;
+    if (a == 0.0 && b == 0.0) {
+        r = 0.0;
+    } else if (std::abs(a) > std::abs(b)) {
+        r = a;
+        phi = (kPi / 4.0) * (b / a);
+    } else {
+        r = b;
+        phi = kPi / 2.0 - (kPi / 4.0) * (a / b);
+    }
+    return g.world_from_object * Eigen::Vector3d(g.radius * r * std::cos(phi), g.radius * r * std::sin(phi), 0.0);
+}
+
+}  // namespace
+
+Eigen::Vector3d DirectSource::cellCentre() const {
+    const double c = 0.5 * (cos0 + cos1);
+    const double s = std::sqrt(std::max(0.0, 1.0 - c * c));
+    const double phi = 0.5 * (phi0 + phi1);
+    return {s * std::cos(phi), s * std::sin(phi), c};
+}
+
+std::vector<DirectSource> distantCells(int light, int n) {
+    n = std::max(n, 2);
+    int n_theta = std::max(1, static_cast<int>(std::lround(std::sqrt(n / 2.0))));
+    int n_phi = std::max(1, n / n_theta);
+    std::vector<DirectSource> cells;
+    for (int i = 0; i < n_theta; ++i) {
+        for (int j = 0; j < n_phi; ++j) {
+            DirectSource s;
+            s.kind = DirectSource::Kind::kCell;
+            s.light = light;
+            s.cos0 = static_cast<double>(i) / n_theta;
+            s.cos1 = static_cast<double>(i + 1) / n_theta;
+            s.phi0 = 2.0 * kPi * j / n_phi;
+            s.phi1 = 2.0 * kPi * (j + 1) / n_phi;
+            cells.push_back(s);
+        }
+    }
+    return cells;
+}
+
+void computeDirect(const Radiosity& radiosity, const DirectSource& source, const std::vector<int>& leaves,
+                   const DirectOptions& options, DirectColumn& column) {
+    const std::size_t n = radiosity.hierarchy().elements().size();
+    column.real.resize(n, 0.0f);
+    column.all.resize(n, 0.0f);
+    const RayScene& rays = radiosity.rays();
+    const std::uint64_t source_seed =
+        hashCombine(options.seed, static_cast<std::uint64_t>(source.light) * 1000003ull +
+                                      static_cast<std::uint64_t>(std::llround(1e4 * (source.phi0 + 7.0 * source.cos0))));
+    tbb::parallel_for(std::size_t{0}, leaves.size(), [&](std::size_t k) {
+        const int e = leaves[k];
+        const ElementGeometry g = radiosity.geometry(e);
+        const Element& el = radiosity.hierarchy()[e];
+        const std::uint64_t seed = hashCombine(source_seed, static_cast<std::uint64_t>(e));
+        const bool is_virtual = radiosity.isVirtualElement(e);
+        double real_sum = 0.0, all_sum = 0.0;
+        switch (source.kind) {
+            case DirectSource::Kind::kPolygon: {
+                const LightGeometry& light = *source.polygon;
+                const double distance = (g.centroid - light.centre).norm();
+                const int order = std::min(4, formFactorRule(distance, std::sqrt(el.area), std::sqrt(light.area)));
+                const auto points = quadratureRule(g.corner, g.edge_s, g.edge_t, g.triangle, order);
+                const int rays_per_point = std::max(1, options.rays / static_cast<int>(points.size()));
+                for (std::size_t q = 0; q < points.size(); ++q) {
+                    // Analytic unoccluded irradiance at the Gauss point, times its visible fraction.
+                    const double f = pointToPolygon(points[q].x, g.normal, light.polygon, light.normal);
+                    if (f <= 0.0) continue;
+                    const Eigen::Vector3d x = is_virtual ? radiosity.onSurface(e, points[q].x) : points[q].x;
+                    int vis_real = 0, vis_all = 0;
+                    for (int r = 0; r < rays_per_point; ++r) {
+                        const Eigen::Vector2d u = stratified2d(hashCombine(seed, q), r, rays_per_point);
+                        const Eigen::Vector3d y = lightPoint(light, u);
+                        const bool blocked_real = rays.occludedReal(x, g.normal, y, light.normal);
+                        if (!blocked_real) {
+                            ++vis_real;
+                            if (!rays.occludedVirtual(x, g.normal, y, light.normal)) ++vis_all;
+                        }
+                    }
+                    real_sum += points[q].weight * kPi * f * vis_real / rays_per_point;
+                    all_sum += points[q].weight * kPi * f * vis_all / rays_per_point;
+                }
+                break;
+            }
+            case DirectSource::Kind::kPoint: {
+                const auto points = quadratureRule(g.corner, g.edge_s, g.edge_t, g.triangle, 2);
+                for (std::size_t q = 0; q < points.size(); ++q) {
+                    const Eigen::Vector3d xq = is_virtual ? radiosity.onSurface(e, points[q].x) : points[q].x;
+                    const Eigen::Vector3d d = source.position - xq;
+                    const double d2 = d.squaredNorm();
+                    // Hard case: a point light on the receiver gives no finite irradiance; count none.
+                    if (!(d2 > 1e-12)) continue;
+                    const double cos_theta = g.normal.dot(d) / std::sqrt(d2);
+                    if (cos_theta <= 0.0) continue;
+                    const bool blocked_real = rays.occludedReal(xq, g.normal, source.position);
+                    const bool blocked_virtual = !blocked_real && rays.occludedVirtual(xq, g.normal, source.position);
+                    const double irradiance = cos_theta / d2;
+                    if (!blocked_real) real_sum += points[q].weight * irradiance;
+                    if (!blocked_real && !blocked_virtual) all_sum += points[q].weight * irradiance;
+                }
+                break;
+            }
+            case DirectSource::Kind::kDirection: {
+                const Eigen::Vector3d towards = -source.direction.normalized();
+                const double cos_theta = g.normal.dot(towards);
+                if (cos_theta <= 0.0) break;
+                const auto points = quadratureRule(g.corner, g.edge_s, g.edge_t, g.triangle, 2);
+                for (std::size_t q = 0; q < points.size(); ++q) {
+                    const Eigen::Vector3d xq = is_virtual ? radiosity.onSurface(e, points[q].x) : points[q].x;
+                    const bool blocked_real = rays.occludedRealRay(xq, g.normal, towards);
+                    const bool blocked_virtual = !blocked_real && rays.occludedVirtualRay(xq, g.normal, towards);
+                    if (!blocked_real) real_sum += points[q].weight * cos_theta;
+                    if (!blocked_real && !blocked_virtual) all_sum += points[q].weight * cos_theta;
+                }
+                break;
+            }
+            case DirectSource::Kind::kCell: {
+                const double omega = source.solidAngle();
+                const int m = std::max(1, options.cell_rays);
+                for (int r = 0; r < m; ++r) {
+                    const Eigen::Vector2d u = stratified2d(seed, r, m);
+                    const double c = source.cos0 + u.x() * (source.cos1 - source.cos0);
+                    const double s = std::sqrt(std::max(0.0, 1.0 - c * c));
+                    const double phi = source.phi0 + u.y() * (source.phi1 - source.phi0);
+                    const Eigen::Vector3d w(s * std::cos(phi), s * std::sin(phi), c);
+                    const double cos_theta = g.normal.dot(w);
+                    if (cos_theta <= 0.0) continue;
+                    // One point per direction, spread over the leaf.
+                    const Eigen::Vector2d p = stratified2d(hash64(seed), (r * 5 + 1) % m, m);
+                    Eigen::Vector3d x = samplePolygon(g.corner, g.edge_s, g.edge_t, g.triangle, p.x(), p.y());
+                    if (is_virtual) x = radiosity.onSurface(e, x);
+                    const bool blocked_real = rays.occludedRealRay(x, g.normal, w);
+                    const bool blocked_virtual = !blocked_real && rays.occludedVirtualRay(x, g.normal, w);
+                    if (!blocked_real) real_sum += omega * cos_theta / m;
+                    if (!blocked_real && !blocked_virtual) all_sum += omega * cos_theta / m;
+                }
+                break;
+            }
+        }
+        column.real[static_cast<std::size_t>(e)] = static_cast<float>(real_sum);
+        column.all[static_cast<std::size_t>(e)] = static_cast<float>(all_sum);
+    });
+}
+
+}  // namespace commonlight::lighting

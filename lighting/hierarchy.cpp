@@ -1,0 +1,149 @@
+#include "lighting/hierarchy.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace commonlight::lighting {
+
+bool insideUnit(double a, double b, bool triangle, double tolerance) {
+    if (a < -tolerance || b < -tolerance) return false;
+    if (triangle) return a + b <= 1.0 + tolerance;
+    return a <= 1.0 + tolerance && b <= 1.0 + tolerance;
+}
+
+std::vector<Eigen::Vector3d> ElementGeometry::polygon() const {
+    if (triangle) return {corner, corner + edge_s, corner + edge_t};
+    return {corner, corner + edge_s, corner + edge_s + edge_t, corner + edge_t};
+}
+
+namespace {
+
+Element makeElement(const Face& face, int face_index, const Eigen::Vector2d& st, const Eigen::Vector2d& ds,
+                    const Eigen::Vector2d& dt, bool triangle) {
+    Element e;
+    e.face = face_index;
+    e.triangle = triangle;
+    e.st = st;
+    e.ds = ds;
+    e.dt = dt;
+    const Eigen::Vector3d es = ds.x() * face.edge_s + ds.y() * face.edge_t;
+    const Eigen::Vector3d et = dt.x() * face.edge_s + dt.y() * face.edge_t;
+    e.size_s = es.norm();
+    e.size_t_ = et.norm();
+    const double cross = es.cross(et).norm();
+    e.area = triangle ? 0.5 * cross : cross;
+    return e;
+}
+
+}  // namespace
+
+Hierarchy::Hierarchy(const std::vector<Face>& faces) : faces_(faces) {
+    elements_.reserve(faces.size() * 8);
+    for (std::size_t f = 0; f < faces.size(); ++f) {
+        roots_.push_back(static_cast<int>(elements_.size()));
+        elements_.push_back(makeElement(faces[f], static_cast<int>(f), Eigen::Vector2d::Zero(), Eigen::Vector2d::UnitX(),
+                                        Eigen::Vector2d::UnitY(), faces[f].triangle));
+    }
+    leaf_count_ = static_cast<int>(faces.size());
+}
+
+bool Hierarchy::canSubdivide(int element, double min_size) const {
+    const Element& e = elements_[static_cast<std::size_t>(element)];
+    if (!e.leaf()) return false;
+    if (e.triangle) return 0.5 * std::min(e.size_s, e.size_t_) >= min_size;
+    return 0.5 * std::max(e.size_s, e.size_t_) >= min_size;
+}
+
+bool Hierarchy::subdivide(int element, double min_size) {
+    if (!canSubdivide(element, min_size)) return false;
+    const Element e = elements_[static_cast<std::size_t>(element)];
+    const Face& face = faces_[static_cast<std::size_t>(e.face)];
+    std::vector<Element> children;
+    if (e.triangle) {
+        // Four similar triangles: three at the corners and the inverted middle one.
+        const Eigen::Vector2d hs = 0.5 * e.ds, ht = 0.5 * e.dt;
+        children.push_back(makeElement(face, e.face, e.st, hs, ht, true));
+        children.push_back(makeElement(face, e.face, e.st + hs, hs, ht, true));
+        children.push_back(makeElement(face, e.face, e.st + ht, hs, ht, true));
+        children.push_back(makeElement(face, e.face, e.st + hs + ht, -hs, -ht, true));
+    } else {
+        // Keep elements near square: halve only the long side of an elongated one.
+        const int ns = 0.5 * e.size_s >= min_size && !(e.size_t_ > 1.6 * e.size_s) ? 2 : 1;
+        const int nt = 0.5 * e.size_t_ >= min_size && !(e.size_s > 1.6 * e.size_t_) ? 2 : 1;
+        if (ns * nt == 1) return false;
+        const Eigen::Vector2d cs = e.ds / ns, ct = e.dt / nt;
+        for (int j = 0; j < nt; ++j) {
+            for (int i = 0; i < ns; ++i) children.push_back(makeElement(face, e.face, e.st + i * cs + j * ct, cs, ct, false));
+        }
+    }
+    Element& parent = elements_[static_cast<std::size_t>(element)];
+    parent.first_child = static_cast<int>(elements_.size());
+    parent.child_count = static_cast<int>(children.size());
+    for (Element& c : children) {
+        c.parent = element;
+        c.level = e.level + 1;
+        c.buried = e.buried;
+        elements_.push_back(c);
+    }
+    leaf_count_ += static_cast<int>(children.size()) - 1;
+    return true;
+}
+
+ElementGeometry Hierarchy::geometry(const Element& e, const Face& face) {
+    ElementGeometry g;
+    g.triangle = e.triangle;
+    g.corner = face.origin + e.st.x() * face.edge_s + e.st.y() * face.edge_t;
+    g.edge_s = e.ds.x() * face.edge_s + e.ds.y() * face.edge_t;
+    g.edge_t = e.dt.x() * face.edge_s + e.dt.y() * face.edge_t;
+    g.normal = face.normal;
+    g.centroid = g.corner + (e.triangle ? 1.0 / 3.0 : 0.5) * (g.edge_s + g.edge_t);
+    return g;
+}
+
+int Hierarchy::leafAt(int face, Eigen::Vector2d st) const {
+    const bool tri = faces_[static_cast<std::size_t>(face)].triangle;
+    st = st.cwiseMax(0.0).cwiseMin(1.0);
+    if (tri && st.sum() > 1.0) st /= st.sum();
+    int current = roots_[static_cast<std::size_t>(face)];
+    while (!elements_[static_cast<std::size_t>(current)].leaf()) {
+        const Element& e = elements_[static_cast<std::size_t>(current)];
+        int next = -1;
+        double best_outside = 1e300;
+        for (int c = 0; c < e.child_count; ++c) {
+            const Element& child = elements_[static_cast<std::size_t>(e.first_child + c)];
+            Eigen::Matrix2d m;
+            m.col(0) = child.ds;
+            m.col(1) = child.dt;
+            const Eigen::Vector2d ab = m.inverse() * (st - child.st);
+            if (insideUnit(ab.x(), ab.y(), child.triangle, 1e-9)) {
+                next = e.first_child + c;
+                break;
+            }
+            // Rounding at shared borders: fall back to the nearest child.
+            const double outside = std::max({-ab.x(), -ab.y(), child.triangle ? ab.sum() - 1.0 : std::max(ab.x(), ab.y()) - 1.0});
+            if (outside < best_outside) {
+                best_outside = outside;
+                next = e.first_child + c;
+            }
+        }
+        current = next;
+    }
+    return current;
+}
+
+void Hierarchy::leavesUnder(int element, std::vector<int>& out) const {
+    const Element& e = elements_[static_cast<std::size_t>(element)];
+    if (e.leaf()) {
+        out.push_back(element);
+        return;
+    }
+    for (int c = 0; c < e.child_count; ++c) leavesUnder(e.first_child + c, out);
+}
+
+void Hierarchy::setBuried(int element, bool buried) {
+    Element& e = elements_[static_cast<std::size_t>(element)];
+    e.buried = buried;
+    for (int c = 0; c < e.child_count; ++c) setBuried(e.first_child + c, buried);
+}
+
+}  // namespace commonlight::lighting

@@ -1,0 +1,84 @@
+// Elements: the faces of lighting/proxy_geometry.h subdivided into a hierarchy (a quadtree per
+// parallelogram, halving along one side when it is much longer than the other; four children per
+// triangle), the finite elements of the radiosity solution.
+//
+// An element is a parallelogram or triangle in its face's (s, t) coordinates: corner + a * ds +
+// b * dt, (a, b) in [0, 1]^2 (or a + b <= 1). Elements are created on demand (subdivide()) and
+// never destroyed, so indices stay valid; a leaf is an element without children. Each face's
+// root is element `roots[face]`.
+#pragma once
+
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "lighting/proxy_geometry.h"
+
+namespace commonlight::lighting {
+
+struct Element {
+    int face = 0;
+    int parent = -1;
+    int first_child = -1;  // children are contiguous
+    int child_count = 0;
+    int level = 0;
+    bool triangle = false;
+    Eigen::Vector2d st = Eigen::Vector2d::Zero();  // corner in face (s, t)
+    Eigen::Vector2d ds = Eigen::Vector2d::UnitX(); // edge vectors in face (s, t)
+    Eigen::Vector2d dt = Eigen::Vector2d::UnitY();
+    double area = 0.0;        // m^2
+    double size_s = 0.0;      // metres along ds
+    double size_t_ = 0.0;     // metres along dt
+    bool buried = false;      // inside another proxy (a box's bottom on a table): takes no part in transport
+
+    bool leaf() const { return child_count == 0; }
+};
+
+// The element's polygon in world coordinates: corner, edge vectors.
+struct ElementGeometry {
+    Eigen::Vector3d corner;
+    Eigen::Vector3d edge_s;
+    Eigen::Vector3d edge_t;
+    Eigen::Vector3d normal;
+    Eigen::Vector3d centroid;
+    bool triangle = false;
+    std::vector<Eigen::Vector3d> polygon() const;
+};
+
+class Hierarchy {
+public:
+    // One root element per face.
+    explicit Hierarchy(const std::vector<Face>& faces);
+
+    const std::vector<Element>& elements() const noexcept { return elements_; }
+    const Element& operator[](int i) const { return elements_[static_cast<std::size_t>(i)]; }
+    int root(int face) const { return roots_[static_cast<std::size_t>(face)]; }
+    std::size_t faceCount() const noexcept { return roots_.size(); }
+    int leafCount() const noexcept { return leaf_count_; }
+
+    // Splits a leaf into 2 or 4 children; returns false (and does nothing) when the element is not
+    // a leaf or its children would be smaller than `min_size` metres along a split side.
+    bool subdivide(int element, double min_size);
+    bool canSubdivide(int element, double min_size) const;
+
+    // World geometry of an element with its face placed by `face` (for virtual faces: the posed face).
+    static ElementGeometry geometry(const Element& e, const Face& face);
+    // The leaf containing face point (s, t) (clamped into the face), starting from the face's root.
+    int leafAt(int face, Eigen::Vector2d st) const;
+    // Leaves under an element (itself when it is a leaf).
+    void leavesUnder(int element, std::vector<int>& out) const;
+    // Marks an element and everything under it buried (or not).
+    void setBuried(int element, bool buried);
+
+private:
+    std::vector<Element> elements_;
+    std::vector<int> roots_;
+    std::vector<Face> faces_;  // metric sizes of the (s, t) edges
+    int leaf_count_ = 0;
+};
+
+// Whether (a, b) lies in the unit parallelogram / triangle, with a tolerance.
+bool insideUnit(double a, double b, bool triangle, double tolerance = 1e-12);
+
+}  // namespace commonlight::lighting

@@ -1,0 +1,414 @@
+#include "lighting/radiosity.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <numbers>
+
+#include "lighting/form_factor.h"
+#include "lighting/sampling.h"
+
+namespace commonlight::lighting {
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+
+std::vector<Face> concat(std::vector<Face> a, const std::vector<Face>& b) {
+    a.insert(a.end(), b.begin(), b.end());
+    return a;
+}
+
+double maxComponent(const Eigen::Vector3d& v) { return v.cwiseAbs().maxCoeff(); }
+
+}  // namespace
+
+Radiosity::Radiosity(std::vector<Face> real_faces, std::vector<Face> virtual_faces, std::vector<double> sphere_radius,
+                     const RayScene& rays, RadiosityOptions options)
+    : faces_(concat(std::move(real_faces), virtual_faces)),
+      posed_(faces_),
+      sphere_radius_(std::move(sphere_radius)),
+      real_count_(faces_.size() - virtual_faces.size()),
+      rays_(&rays),
+      options_(options),
+      hierarchy_(faces_),
+      poses_(sphere_radius_.size(), Rigid3d::identity()) {
+    link_offsets_.assign(hierarchy_.elements().size() + 1, 0);
+}
+
+void Radiosity::setVirtualPoses(const std::vector<Rigid3d>& world_from_object) {
+    poses_ = world_from_object;
+    poses_.resize(sphere_radius_.size(), Rigid3d::identity());
+    for (std::size_t f = real_count_; f < faces_.size(); ++f) {
+        posed_[f] = transformed(faces_[f], poses_[static_cast<std::size_t>(faces_[f].object_index)]);
+    }
+    virtual_links_dirty_ = true;
+}
+
+Eigen::Vector3d Radiosity::surfacePoint(int element, double a, double b) const {
+    const ElementGeometry g = geometry(element);
+    // Hard case: a sample on the element's border may lie on the plane of a touching face (a wall
+    // corner, a box standing on a table), where a ray grazes that face. Keep samples 0.1% inside.
+    constexpr double kMargin = 1e-3;
+    a = kMargin + (1.0 - 2.0 * kMargin) * a;
+    b = kMargin + (1.0 - 2.0 * kMargin) * b;
+    if (g.triangle && a + b > 1.0) {
+        a = 1.0 - a;
+        b = 1.0 - b;
+    }
+    return onSurface(element, g.corner + a * g.edge_s + b * g.edge_t);
+}
+
+Eigen::Vector3d Radiosity::onSurface(int element, const Eigen::Vector3d& x) const {
+    const int f = hierarchy_[element].face;
+    if (!isVirtualFace(f)) return x;
+    const auto object = static_cast<std::size_t>(faces_[static_cast<std::size_t>(f)].object_index);
+    const double r = sphere_radius_[object];
+    if (!(r > 0.0)) return x;
+    // The flat facet lies inside the exact sphere Embree traces: use the sphere's surface.
+    const Eigen::Vector3d c = poses_[object].translation;
+    const Eigen::Vector3d d = x - c;
+    return d.norm() > 0.0 ? Eigen::Vector3d(c + d.normalized() * r) : x;
+}
+
+void Radiosity::subdivideTo(double size, double virtual_size) {
+    // Breadth-first so the budget, if it binds, leaves a uniform mesh rather than one deep corner.
+    std::vector<int> queue;
+    for (std::size_t f = 0; f < faces_.size(); ++f) queue.push_back(hierarchy_.root(static_cast<int>(f)));
+    for (std::size_t q = 0; q < queue.size(); ++q) {
+        const int e = queue[q];
+        const Element& el = hierarchy_[e];
+        const double target = isVirtualFace(el.face) ? virtual_size : size;
+        if (std::max(el.size_s, el.size_t_) <= target) continue;
+        if (hierarchy_.leafCount() >= options_.max_elements) break;
+        if (hierarchy_.subdivide(e, std::min(options_.min_element_size, target))) {
+            const Element& parent = hierarchy_[e];
+            for (int c = 0; c < parent.child_count; ++c) queue.push_back(parent.first_child + c);
+        }
+    }
+}
+
+void Radiosity::markBuried() {
+    // Boxes: real objects with six parallelogram faces (lighting/proxy_geometry.h numbering).
+    std::map<int, std::vector<const Face*>> boxes;
+    for (std::size_t f = 0; f < real_count_; ++f) boxes[faces_[f].object_index].push_back(&faces_[f]);
+    std::erase_if(boxes, [](const auto& kv) {
+        return kv.second.size() != 6 || std::any_of(kv.second.begin(), kv.second.end(), [](const Face* f) { return f->triangle; });
+    });
+    const double lift = 4.0 * rays_->epsilon();
+    const auto inside = [&](const Eigen::Vector3d& p, int own_object) {
+        for (const auto& [object, box_faces] : boxes) {
+            if (object == own_object) continue;
+            bool in = true;
+            for (const Face* f : box_faces) {
+                if ((p - f->origin).dot(f->normal) >= 0.0) {
+                    in = false;
+                    break;
+                }
+            }
+            if (in) return true;
+        }
+        return false;
+    };
+    const auto& elements = hierarchy_.elements();
+    for (std::size_t e = 0; e < elements.size(); ++e) {
+        if (!elements[e].leaf() || isVirtualFace(elements[e].face) || elements[e].buried) continue;
+        const ElementGeometry g = geometry(static_cast<int>(e));
+        const Face& f = faces_[static_cast<std::size_t>(elements[e].face)];
+        if (inside(g.centroid + lift * g.normal, f.object_index)) hierarchy_.setBuried(static_cast<int>(e), true);
+    }
+}
+
+bool Radiosity::facing(int a, int b) const {
+    const ElementGeometry ga = geometry(a), gb = geometry(b);
+    const double tol = rays_->epsilon();
+    const auto above = [&](const ElementGeometry& plane, const ElementGeometry& other) {
+        for (const Eigen::Vector3d& c : other.polygon()) {
+            if ((c - plane.corner).dot(plane.normal) > tol) return true;
+        }
+        return false;
+    };
+    return above(ga, gb) && above(gb, ga);
+}
+
+void Radiosity::refine(int r, int s, int depth) {
+    if (!facing(r, s)) return;
+    const ElementGeometry gr = geometry(r), gs = geometry(s);
+    const auto source = gs.polygon();
+    // The oracle (directed: r gathers from s). The point form factor to the whole source polygon is
+    // exact, so what a link gets wrong is (1) the variation of F over the receiver (the gathered
+    // irradiance is pushed down as uniform) and (2) visibility: a partly hidden source seen through
+    // a few rays. Step 1: F at the receiver's corners and centre; refine the receiver where it varies.
+    std::vector<Eigen::Vector3d> probes = gr.polygon();
+    probes.push_back(gr.centroid);
+    double f_min = 1e300, f_max = 0.0, f_centre = 0.0;
+    for (std::size_t i = 0; i < probes.size(); ++i) {
+        // Corners pulled 1% inwards: a corner on the shared edge of adjacent faces has no defined F.
+        const Eigen::Vector3d x = probes[i] + 0.01 * (gr.centroid - probes[i]);
+        const double f = pointToPolygon(x, gr.normal, source, gs.normal);
+        f_min = std::min(f_min, f);
+        f_max = std::max(f_max, f);
+        if (i + 1 == probes.size()) f_centre = f;
+    }
+    const bool budget = hierarchy_.leafCount() + 3 < options_.max_elements;
+    const double min_size = options_.min_element_size;
+    const auto can_descend = [&](int e) { return !hierarchy_[e].leaf() || (budget && hierarchy_.canSubdivide(e, min_size)); };
+    if (depth < 40 && f_max - f_min > options_.link_epsilon && can_descend(r)) {
+        if (hierarchy_[r].leaf()) hierarchy_.subdivide(r, min_size);
+        const int first = hierarchy_[r].first_child, count = hierarchy_[r].child_count;
+        for (int c = 0; c < count; ++c) refine(first + c, s, depth + 1);
+        return;
+    }
+    // Step 2: a large source seen in part (a shadow boundary across the link) is split so that
+    // visibility is resolved where it matters.
+    if (depth < 40 && f_centre > options_.link_epsilon * options_.partial_visibility_factor && can_descend(s)) {
+        constexpr int kProbeRays = 8;
+        const std::uint64_t seed = hashCombine(options_.seed ^ 0x5bd1e995ull,
+                                               hashCombine(static_cast<std::uint64_t>(r), static_cast<std::uint64_t>(s)));
+        int visible = 0;
+        for (int k = 0; k < kProbeRays; ++k) {
+            const Eigen::Vector2d ur = stratified2d(seed, k, kProbeRays);
+            const Eigen::Vector2d us = stratified2d(hash64(seed), (k * 3 + 1) % kProbeRays, kProbeRays);
+            if (!rays_->occludedReal(surfacePoint(r, ur.x(), ur.y()), gr.normal, surfacePoint(s, us.x(), us.y()), gs.normal)) {
+                ++visible;
+            }
+        }
+        if (visible > 0 && visible < kProbeRays) {
+            if (hierarchy_[s].leaf()) hierarchy_.subdivide(s, min_size);
+            const int first = hierarchy_[s].first_child, count = hierarchy_[s].child_count;
+            for (int c = 0; c < count; ++c) refine(r, first + c, depth + 1);
+            return;
+        }
+        if (visible == 0) return;  // fully hidden: no link at all
+    }
+    addLink(r, s);
+}
+
+void Radiosity::addLink(int receiver, int source) { pending_pairs_.emplace_back(receiver, source); }
+
+void Radiosity::computeLink(Link& link, bool virtual_only) const {
+    const int r = link.receiver, s = link.source;
+    const ElementGeometry gr = geometry(r), gs = geometry(s);
+    const Element& er = hierarchy_[r];
+    const Element& es = hierarchy_[s];
+    const double rsize = std::sqrt(er.area), ssize = std::sqrt(es.area);
+    const double distance = (gr.centroid - gs.centroid).norm();
+    if (!virtual_only) {
+        // F: Gauss rule over the receiver, exact point form factor to the source polygon.
+        const int order = formFactorRule(distance, rsize, ssize);
+        const auto poly = gs.polygon();
+        double f = 0.0;
+        for (const QuadraturePoint& q : quadratureRule(gr.corner, gr.edge_s, gr.edge_t, gr.triangle, order)) {
+            f += q.weight * pointToPolygon(q.x, gr.normal, poly, gs.normal);
+        }
+        link.form_factor = static_cast<float>(f);
+        link.samples = static_cast<std::uint8_t>(order >= 4 ? 16 : std::clamp(options_.visibility_rays, 1, 16));
+    }
+    // V: jittered pairs of points, the same pairs for both worlds.
+    const std::uint64_t seed =
+        hashCombine(options_.seed, hashCombine(static_cast<std::uint64_t>(r), static_cast<std::uint64_t>(s)));
+    const int n = link.samples;
+    const bool touches_virtual = isVirtualElement(r) || isVirtualElement(s);
+    int unblocked_real = 0, unblocked_all = 0;
+    std::uint16_t blocked_mask = virtual_only ? link.real_blocked : 0;
+    for (int k = 0; k < n; ++k) {
+        const Eigen::Vector2d ur = stratified2d(seed, k, n);
+        const Eigen::Vector2d us = stratified2d(hash64(seed), (k * 7 + 3) % n, n);
+        const Eigen::Vector3d xr = surfacePoint(r, ur.x(), ur.y());
+        const Eigen::Vector3d xs = surfacePoint(s, us.x(), us.y());
+        bool blocked_real;
+        if (virtual_only) {
+            blocked_real = (blocked_mask >> k) & 1u;
+        } else {
+            blocked_real = rays_->occludedReal(xr, gr.normal, xs, gs.normal);
+            if (blocked_real) blocked_mask = static_cast<std::uint16_t>(blocked_mask | (1u << k));
+        }
+        if (!blocked_real) {
+            ++unblocked_real;
+            if (!rays_->occludedVirtual(xr, gr.normal, xs, gs.normal)) ++unblocked_all;
+        }
+    }
+    link.real_blocked = blocked_mask;
+    link.vis_real = static_cast<float>(unblocked_real) / static_cast<float>(n);
+    link.vis_all = static_cast<float>(unblocked_all) / static_cast<float>(n);
+    link.touches_virtual = touches_virtual;
+}
+
+std::vector<Link> Radiosity::takePendingLinks() {
+    std::vector<Link> out;
+    out.reserve(pending_pairs_.size());
+    for (const auto& [r, s] : pending_pairs_) {
+        if (hierarchy_[r].buried || hierarchy_[s].buried) continue;
+        Link l;
+        l.receiver = r;
+        l.source = s;
+        out.push_back(l);
+    }
+    pending_pairs_.clear();
+    tbb::parallel_for(std::size_t{0}, out.size(), [&](std::size_t i) { computeLink(out[i], false); });
+    std::erase_if(out, [](const Link& l) { return l.form_factor <= 0.0f || l.vis_real + l.vis_all <= 0.0f; });
+    return out;
+}
+
+void Radiosity::buildRealLinks() {
+    links_.clear();
+    pending_pairs_.clear();
+    if (options_.hierarchical) {
+        for (std::size_t fr = 0; fr < real_count_; ++fr) {
+            for (std::size_t fs = 0; fs < real_count_; ++fs) {
+                if (fr != fs) refine(hierarchy_.root(static_cast<int>(fr)), hierarchy_.root(static_cast<int>(fs)), 0);
+            }
+        }
+    } else {
+        // The baseline: every ordered pair of (unburied) leaves on different faces, no hierarchy.
+        const std::vector<int> leaves_real = leaves(Mode::kReal);
+        for (int r : leaves_real) {
+            for (int s : leaves_real) {
+                if (hierarchy_[r].face != hierarchy_[s].face && facing(r, s)) pending_pairs_.emplace_back(r, s);
+            }
+        }
+    }
+    links_ = takePendingLinks();
+    virtual_links_dirty_ = true;
+    sortLinks();
+}
+
+void Radiosity::updateVirtualLinks() {
+    if (!virtual_links_dirty_) return;
+    // Step 1: drop the links touching virtual elements; recompute the real links' virtual part.
+    std::erase_if(links_, [](const Link& l) { return l.touches_virtual; });
+    tbb::parallel_for(std::size_t{0}, links_.size(), [&](std::size_t i) { computeLink(links_[i], true); });
+    // Step 2: links between virtual elements and everything else, by the same oracle, both ways.
+    pending_pairs_.clear();
+    for (std::size_t fv = real_count_; fv < faces_.size(); ++fv) {
+        for (std::size_t f = 0; f < faces_.size(); ++f) {
+            if (f == fv) continue;
+            const int rv = hierarchy_.root(static_cast<int>(fv)), rf = hierarchy_.root(static_cast<int>(f));
+            if (f >= real_count_) {
+                // Between virtual faces: each ordered pair once (from the loop over fv), other objects only.
+                if (faces_[f].object_index != faces_[fv].object_index) refine(rv, rf, 0);
+                continue;
+            }
+            refine(rv, rf, 0);
+            refine(rf, rv, 0);
+        }
+    }
+    std::vector<Link> added = takePendingLinks();
+    links_.insert(links_.end(), added.begin(), added.end());
+    sortLinks();
+    virtual_links_dirty_ = false;
+}
+
+void Radiosity::sortLinks() {
+    std::stable_sort(links_.begin(), links_.end(), [](const Link& x, const Link& y) { return x.receiver < y.receiver; });
+    link_offsets_.assign(hierarchy_.elements().size() + 1, 0);
+    for (const Link& l : links_) ++link_offsets_[static_cast<std::size_t>(l.receiver) + 1];
+    for (std::size_t i = 1; i < link_offsets_.size(); ++i) link_offsets_[i] += link_offsets_[i - 1];
+}
+
+int Radiosity::linkCount(Mode mode) const {
+    if (mode == Mode::kAll) return static_cast<int>(links_.size());
+    return static_cast<int>(std::count_if(links_.begin(), links_.end(), [](const Link& l) { return !l.touches_virtual; }));
+}
+
+std::vector<int> Radiosity::leaves(Mode mode) const {
+    std::vector<int> out;
+    const auto& elements = hierarchy_.elements();
+    for (std::size_t e = 0; e < elements.size(); ++e) {
+        if (!elements[e].leaf() || elements[e].buried) continue;
+        if (mode == Mode::kReal && isVirtualFace(elements[e].face)) continue;
+        out.push_back(static_cast<int>(e));
+    }
+    return out;
+}
+
+void Radiosity::pull(std::vector<Eigen::Vector3d>& radiance) const {
+    const auto& elements = hierarchy_.elements();
+    // Children always have larger indices than their parent: one backward sweep pulls everything.
+    for (std::size_t i = elements.size(); i-- > 0;) {
+        const Element& e = elements[i];
+        if (e.leaf()) continue;
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        double area = 0.0;
+        for (int c = 0; c < e.child_count; ++c) {
+            const Element& child = elements[static_cast<std::size_t>(e.first_child + c)];
+            if (child.buried) continue;
+            sum += child.area * radiance[static_cast<std::size_t>(e.first_child + c)];
+            area += child.area;
+        }
+        radiance[i] = area > 0.0 ? Eigen::Vector3d(sum / area) : Eigen::Vector3d::Zero();
+    }
+}
+
+std::vector<Eigen::Vector3d> Radiosity::gatherIndirect(Mode mode, const std::vector<Eigen::Vector3d>& radiance) const {
+    const auto& elements = hierarchy_.elements();
+    std::vector<Eigen::Vector3d> gathered(elements.size(), Eigen::Vector3d::Zero());
+    for (const Link& l : links_) {
+        if (mode == Mode::kReal && l.touches_virtual) continue;
+        const double fv = l.form_factor * (mode == Mode::kReal ? l.vis_real : l.vis_all);
+        gathered[static_cast<std::size_t>(l.receiver)] += kPi * fv * radiance[static_cast<std::size_t>(l.source)];
+    }
+    // Push: every leaf receives what its ancestors gathered (parents precede children).
+    for (std::size_t i = 0; i < elements.size(); ++i) {
+        const Element& e = elements[i];
+        for (int c = 0; c < e.child_count; ++c) gathered[static_cast<std::size_t>(e.first_child + c)] += gathered[i];
+    }
+    for (std::size_t i = 0; i < elements.size(); ++i) {
+        if (!elements[i].leaf()) gathered[i].setZero();
+    }
+    return gathered;
+}
+
+Solution Radiosity::solve(Mode mode, const std::vector<Eigen::Vector3d>& rho, const std::vector<Eigen::Vector3d>& emission,
+                          const std::vector<Eigen::Vector3d>& direct) const {
+    const auto& elements = hierarchy_.elements();
+    const std::size_t n = elements.size();
+    Solution out;
+    out.radiance.assign(n, Eigen::Vector3d::Zero());
+    out.irradiance.assign(n, Eigen::Vector3d::Zero());
+    out.indirect.assign(n, Eigen::Vector3d::Zero());
+    const std::vector<int> active = leaves(mode);
+    std::vector<char> in_mode(n, 0);
+    for (int e : active) in_mode[static_cast<std::size_t>(e)] = 1;
+    // Step 1: the first estimate: emission plus reflected direct light.
+    for (int e : active) {
+        const auto i = static_cast<std::size_t>(e);
+        out.radiance[i] = emission[i] + rho[i].cwiseProduct(direct[i]) / kPi;
+    }
+    pull(out.radiance);
+    // Step 2: Jacobi iterations of gather + push-pull until the largest change is small.
+    std::vector<Eigen::Vector3d> next(n);
+    double scale = 0.0;
+    for (int e : active) scale = std::max(scale, maxComponent(out.radiance[static_cast<std::size_t>(e)]));
+    int iteration = 0;
+    double residual = scale > 0.0 ? 1.0 : 0.0;
+    while (residual > options_.residual && iteration < options_.max_iterations) {
+        ++iteration;
+        const std::vector<Eigen::Vector3d> gathered = gatherIndirect(mode, out.radiance);
+        double change = 0.0;
+        for (int e : active) {
+            const auto i = static_cast<std::size_t>(e);
+            next[i] = emission[i] + rho[i].cwiseProduct(direct[i] + gathered[i]) / kPi;
+            change = std::max(change, maxComponent(next[i] - out.radiance[i]));
+            out.indirect[i] = gathered[i];
+        }
+        for (int e : active) out.radiance[static_cast<std::size_t>(e)] = next[static_cast<std::size_t>(e)];
+        pull(out.radiance);
+        for (int e : active) scale = std::max(scale, maxComponent(out.radiance[static_cast<std::size_t>(e)]));
+        residual = scale > 0.0 ? change / scale : 0.0;
+    }
+    for (int e : active) {
+        const auto i = static_cast<std::size_t>(e);
+        out.irradiance[i] = direct[i] + out.indirect[i];
+    }
+    out.summary.iterations = iteration;
+    out.summary.residual = residual;
+    out.summary.converged = residual <= options_.residual;
+    out.summary.elements = static_cast<int>(active.size());
+    out.summary.links = linkCount(mode);
+    return out;
+}
+
+}  // namespace commonlight::lighting

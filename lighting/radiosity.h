@@ -1,0 +1,155 @@
+// Hierarchical radiosity over the proxies and the virtual objects (Hanrahan, Salzman and Aupperle
+// 1991; seed 000 sec. 4), with Embree visibility.
+//
+// Quantities (lighting/snapshot.h: relative units): L radiance of a Lambertian element
+// (W/(m^2 sr)), H irradiance (W/m^2), rho reflectance in [0, 1). Per element i:
+//     L_i = Le_i + rho_i / pi * (D_i + H_i),   H_i = pi * sum_j F_ij V_ij L_j
+// D_i the direct irradiance from the lights (lighting/direct.h), F_ij the element-to-element form
+// factor from i to j (area average over i of the point-to-polygon form factor: lighting/form_factor.h)
+// and V_ij the fraction of jittered rays between them that are not blocked. Links connect
+// elements at the level the refinement oracle allows; a link's gather goes to its receiver's
+// level and push-pull carries it to the leaves (push: irradiance down, pull: area-weighted
+// radiance up).
+//
+// Two worlds share the links: the real scene alone (`Mode::kReal`: visibility through real
+// proxies only, virtual elements take no part) gives B~; with the virtual objects (`kAll`:
+// virtual elements reflect and emit, and block) gives B. Each link keeps both visibilities.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/pose.h"
+#include "core/result.h"
+#include "lighting/hierarchy.h"
+#include "lighting/proxy_geometry.h"
+#include "lighting/ray_scene.h"
+#include "lighting/snapshot.h"
+
+namespace commonlight::lighting {
+
+struct RadiosityOptions {
+    // Link refinement (directed: a receiver gathers from a source). A receiver is split while the
+    // point form factor to the source varies over it by more than this (the gathered irradiance is
+    // pushed down as if uniform). Smaller: more links, more accuracy.
+    double link_epsilon = 0.01;
+    // A source seen in part (a shadow boundary across the link) is split while the form factor to
+    // it exceeds link_epsilon x this factor.
+    double partial_visibility_factor = 1.0;
+    double min_element_size = 0.02;  // metres: elements are not split below this
+    int max_elements = 8000;         // leaf budget
+    int visibility_rays = 4;         // jittered rays per link (16 for near pairs)
+    bool hierarchical = true;        // false: every pair of leaves linked (the uniform-grid gather baseline)
+    double residual = 1e-4;          // stop when the largest radiance change of an iteration is below this fraction of the largest radiance
+    int max_iterations = 2000;
+    std::uint64_t seed = 1;          // of every jittered sample
+};
+
+enum class Mode : std::uint8_t { kReal, kAll };
+
+struct Link {
+    int receiver = 0;
+    int source = 0;
+    float form_factor = 0.0f;  // F(receiver -> source), area average over the receiver
+    float vis_real = 1.0f;     // unblocked fraction, real occluders only
+    float vis_all = 1.0f;      // unblocked fraction, real and virtual occluders
+    std::uint16_t real_blocked = 0;  // which of the jittered samples the real scene blocks
+    std::uint8_t samples = 0;
+    bool touches_virtual = false;     // receiver or source is a virtual element
+};
+
+// A solution: radiance per element (every level), irradiance per leaf.
+struct Solution {
+    std::vector<Eigen::Vector3d> radiance;    // L, by element index
+    std::vector<Eigen::Vector3d> irradiance;  // D + H at leaves (zero elsewhere)
+    std::vector<Eigen::Vector3d> indirect;    // H at leaves: the part gathered through links
+    SolveSummary summary;
+};
+
+class Radiosity {
+public:
+    // Faces: the real ones (world) and the virtual ones (object frames) with their object index.
+    // `rays` must outlive this object; its virtual poses are the caller's (setVirtualPoses here
+    // poses the faces, the caller poses the Embree instances).
+    Radiosity(std::vector<Face> real_faces, std::vector<Face> virtual_faces, std::vector<double> sphere_radius,
+              const RayScene& rays, RadiosityOptions options);
+
+    const RadiosityOptions& options() const noexcept { return options_; }
+    void setOptions(const RadiosityOptions& options) { options_ = options; }
+
+    // Poses the virtual faces (by virtual object index) and marks the links touching them stale.
+    void setVirtualPoses(const std::vector<Rigid3d>& world_from_object);
+    const std::vector<Rigid3d>& virtualPoses() const noexcept { return poses_; }
+
+    Hierarchy& hierarchy() noexcept { return hierarchy_; }
+    const Hierarchy& hierarchy() const noexcept { return hierarchy_; }
+    std::size_t realFaceCount() const noexcept { return real_count_; }
+    bool isVirtualFace(int face) const noexcept { return static_cast<std::size_t>(face) >= real_count_; }
+    bool isVirtualElement(int element) const { return isVirtualFace(hierarchy_[element].face); }
+    int virtualObjectOfFace(int face) const { return faces_[static_cast<std::size_t>(face)].object_index; }
+    // The face as placed now (virtual faces at their pose).
+    const Face& face(int f) const { return posed_[static_cast<std::size_t>(f)]; }
+    ElementGeometry geometry(int element) const { return Hierarchy::geometry(hierarchy_[element], face(hierarchy_[element].face)); }
+    // A point of an element at (a, b) of its own parametrisation, on the surface that blocks rays
+    // (virtual spheres: pushed out onto the exact sphere).
+    Eigen::Vector3d surfacePoint(int element, double a, double b) const;
+    // A point of an element's flat polygon moved onto the surface that blocks rays (identity except
+    // for virtual spheres, whose facets lie inside the exact sphere).
+    Eigen::Vector3d onSurface(int element, const Eigen::Vector3d& x) const;
+    const RayScene& rays() const noexcept { return *rays_; }
+
+    // Step 1: the initial mesh: real faces split until no element is larger than `size` metres
+    // (within the budget); virtual faces once to `virtual_size`.
+    void subdivideTo(double size, double virtual_size);
+    // Marks leaves whose centre lies inside another real box (a box resting on a table: its bottom
+    // and the table under it) as buried: they neither receive nor send light. Call after
+    // subdividing; buried leaves stay buried.
+    void markBuried();
+
+    // Step 2: links among real elements (F, V_real) by the refinement oracle. Clears every link.
+    void buildRealLinks();
+    // Step 3: links touching virtual elements (rebuilt on every pose change) and the virtual part of
+    // the real links' visibility. Cheap when no virtual object moved.
+    void updateVirtualLinks();
+
+    // The solve: Jacobi gathering over links with push-pull, to options().residual.
+    // rho, emission and direct are indexed by element (only leaves are read); emission is Le.
+    Solution solve(Mode mode, const std::vector<Eigen::Vector3d>& rho, const std::vector<Eigen::Vector3d>& emission,
+                   const std::vector<Eigen::Vector3d>& direct) const;
+    // Irradiance gathered through links by one leaf from given element radiances (one gather,
+    // no iteration): inverse radiosity (seed 003 sec. 5.2) uses it with observed radiances.
+    std::vector<Eigen::Vector3d> gatherIndirect(Mode mode, const std::vector<Eigen::Vector3d>& radiance) const;
+
+    int linkCount(Mode mode) const;
+    const std::vector<Link>& links() const noexcept { return links_; }
+    // Leaves in use for a mode (not buried; virtual leaves only in kAll).
+    std::vector<int> leaves(Mode mode) const;
+    // Pull: fills non-leaf radiances as area-weighted means of their children.
+    void pull(std::vector<Eigen::Vector3d>& radiance) const;
+
+private:
+    void refine(int receiver, int source, int depth);
+    void addLink(int receiver, int source);
+    std::vector<Link> takePendingLinks();  // computes F and V of the pending pairs
+    void computeLink(Link& link, bool virtual_only) const;
+    bool facing(int a, int b) const;
+    void sortLinks();
+
+    std::vector<Face> faces_;  // real (world) then virtual (object frame)
+    std::vector<Face> posed_;  // real then virtual (world)
+    std::vector<double> sphere_radius_;  // per virtual object; 0: not a sphere
+    std::size_t real_count_ = 0;
+    const RayScene* rays_;
+    RadiosityOptions options_;
+    Hierarchy hierarchy_;
+    std::vector<Rigid3d> poses_;
+    std::vector<Link> links_;            // sorted by receiver
+    std::vector<int> link_offsets_;      // CSR over elements: links_[offsets[e], offsets[e+1]) have receiver e
+    bool virtual_links_dirty_ = true;
+    std::vector<std::pair<int, int>> pending_pairs_;  // during refinement
+};
+
+}  // namespace commonlight::lighting

@@ -1,0 +1,413 @@
+#include "lighting/ray_scene.h"
+
+#include <embree3/rtcore.h>
+
+#include <algorithm>
+#include <cmath>
+#include <mutex>
+#include <string>
+
+#include "core/log.h"
+
+namespace commonlight::lighting {
+
+namespace {
+
+// Embree's error callback: runs on the thread that made the failing call; keeps the first message.
+struct EmbreeErrors {
+    std::mutex mutex;
+    std::string first;
+    int count = 0;
+    static void callback(void* user, RTCError code, const char* message) {
+        auto* self = static_cast<EmbreeErrors*>(user);
+        const std::lock_guard lock(self->mutex);
+        if (self->count++ == 0) self->first = "Embree error " + std::to_string(static_cast<int>(code)) + ": " + message;
+        log::error(std::string("lighting: Embree error ") + std::to_string(static_cast<int>(code)) + ": " + message);
+    }
+    Result<void> check(const char* step) {
+        const std::lock_guard lock(mutex);
+        if (count == 0) return {};
+        return fail(ErrorCode::kInternal, std::string(step) + ": " + first);
+    }
+};
+
+constexpr unsigned kFacesGeometry = 0;  // geometry ids inside the real scene
+constexpr unsigned kLightsGeometry = 1;
+
+// A triangle geometry from a list of triangles (world or object frame). Owned by the caller until
+// attached.
+RTCGeometry trianglesGeometry(RTCDevice device, const std::vector<std::array<Eigen::Vector3d, 3>>& triangles) {
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                                 3 * sizeof(float), 3 * triangles.size()));
+    auto* indices = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                                   3 * sizeof(unsigned), triangles.size()));
+    if (vertices && indices) {
+        for (std::size_t t = 0; t < triangles.size(); ++t) {
+            for (int k = 0; k < 3; ++k) {
+                for (int c = 0; c < 3; ++c) vertices[9 * t + 3 * k + c] = static_cast<float>(triangles[t][k][c]);
+                indices[3 * t + k] = static_cast<unsigned>(3 * t + k);
+            }
+        }
+    }
+    rtcCommitGeometry(geom);
+    return geom;
+}
+
+// Triangles of a face: one for a triangle, two for a parallelogram.
+void appendTriangles(const Face& f, int owner, std::vector<std::array<Eigen::Vector3d, 3>>& triangles,
+                     std::vector<int>& owners) {
+    const Eigen::Vector3d a = f.origin, b = f.origin + f.edge_s, d = f.origin + f.edge_t;
+    triangles.push_back({a, b, d});
+    owners.push_back(owner);
+    if (!f.triangle) {
+        triangles.push_back({b, b + f.edge_t, d});
+        owners.push_back(owner);
+    }
+}
+
+RTCScene newScene(RTCDevice device) {
+    RTCScene scene = rtcNewScene(device);
+    // Robust traversal: no hit lost on a shared edge (a closed room must stay closed).
+    rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_HIGH);
+    return scene;
+}
+
+RTCGeometry instanceOf(RTCDevice device, RTCScene child, const Eigen::Matrix4f& world_from_object) {
+    RTCGeometry inst = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_INSTANCE);
+    rtcSetGeometryInstancedScene(inst, child);
+    rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT4X4_COLUMN_MAJOR, world_from_object.data());
+    rtcCommitGeometry(inst);
+    return inst;
+}
+
+}  // namespace
+
+struct RayScene::Impl {
+    EmbreeErrors errors;
+    RTCDevice device = nullptr;
+    RTCScene real = nullptr;                   // static: faces + lights
+    std::vector<RTCScene> virtual_scenes;      // one per virtual object
+    RTCScene real_top = nullptr;               // instance of `real`
+    RTCScene virtual_top = nullptr;            // instances of the virtual scenes
+    RTCScene all_top = nullptr;                // both
+    std::vector<RTCGeometry> virtual_instances;      // in virtual_top, by virtual index
+    std::vector<RTCGeometry> all_virtual_instances;  // in all_top, by virtual index
+    unsigned all_real_instance = 0;                  // geometry id of the real instance in all_top
+    std::vector<int> virtual_of_geom_virtual_top;
+    std::vector<int> virtual_of_geom_all_top;
+    std::vector<int> face_of_prim;                   // real faces geometry: primitive -> face index
+    std::vector<int> light_of_prim;                  // lights geometry: primitive -> LightGeometry index
+    std::vector<std::vector<int>> virtual_face_of_prim;  // per virtual object: primitive -> face (-1: sphere)
+    std::vector<Eigen::Matrix4f> pending_poses;
+    std::vector<bool> pose_dirty;
+
+    ~Impl() {
+        for (RTCScene s : {all_top, virtual_top, real_top, real}) {
+            if (s) rtcReleaseScene(s);
+        }
+        for (RTCScene s : virtual_scenes) {
+            if (s) rtcReleaseScene(s);
+        }
+        if (device) rtcReleaseDevice(device);
+    }
+
+    RayHit decode(const RTCRayHit& rh, RTCScene top) const {
+        RayHit hit;
+        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return hit;
+        hit.distance = rh.ray.tfar;
+        const unsigned inst = rh.hit.instID[0];
+        bool is_real = false;
+        int virtual_index = -1;
+        if (top == real_top) {
+            is_real = true;
+        } else if (top == virtual_top) {
+            virtual_index = inst < virtual_of_geom_virtual_top.size() ? virtual_of_geom_virtual_top[inst] : -1;
+        } else {
+            if (inst == all_real_instance) {
+                is_real = true;
+            } else {
+                virtual_index = inst < virtual_of_geom_all_top.size() ? virtual_of_geom_all_top[inst] : -1;
+            }
+        }
+        if (is_real) {
+            if (rh.hit.geomID == kFacesGeometry) {
+                hit.kind = HitKind::kRealFace;
+                hit.index = face_of_prim.at(rh.hit.primID);
+            } else {
+                hit.kind = HitKind::kLight;
+                hit.index = light_of_prim.at(rh.hit.primID);
+            }
+        } else if (virtual_index >= 0) {
+            hit.kind = HitKind::kVirtual;
+            hit.index = virtual_index;
+            const auto& prims = virtual_face_of_prim[static_cast<std::size_t>(virtual_index)];
+            hit.primitive = rh.hit.primID < prims.size() ? prims[rh.hit.primID] : -1;
+        }
+        return hit;
+    }
+
+    RayHit intersect(RTCScene top, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                     double max_distance) const {
+        RTCIntersectContext context;
+        rtcInitIntersectContext(&context);
+        RTCRayHit rh{};
+        rh.ray.org_x = static_cast<float>(origin.x());
+        rh.ray.org_y = static_cast<float>(origin.y());
+        rh.ray.org_z = static_cast<float>(origin.z());
+        rh.ray.dir_x = static_cast<float>(direction.x());
+        rh.ray.dir_y = static_cast<float>(direction.y());
+        rh.ray.dir_z = static_cast<float>(direction.z());
+        rh.ray.tnear = 0.0f;
+        rh.ray.tfar = static_cast<float>(std::min(max_distance, 1e30));
+        rh.ray.mask = 0xFFFFFFFFu;
+        rh.ray.flags = 0;
+        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+        rtcIntersect1(top, &context, &rh);
+        return decode(rh, top);
+    }
+
+    bool occluded(RTCScene top, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar) const {
+        if (!(tfar > 0.0)) return false;
+        RTCIntersectContext context;
+        rtcInitIntersectContext(&context);
+        RTCRay ray{};
+        ray.org_x = static_cast<float>(origin.x());
+        ray.org_y = static_cast<float>(origin.y());
+        ray.org_z = static_cast<float>(origin.z());
+        ray.dir_x = static_cast<float>(direction.x());
+        ray.dir_y = static_cast<float>(direction.y());
+        ray.dir_z = static_cast<float>(direction.z());
+        ray.tnear = 0.0f;
+        ray.tfar = static_cast<float>(std::min(tfar, 1e30));
+        ray.mask = 0xFFFFFFFFu;
+        rtcOccluded1(top, &context, &ray);
+        return ray.tfar < 0.0f;  // Embree sets tfar to -inf on a hit
+    }
+};
+
+RayScene::RayScene(std::unique_ptr<Impl> impl, double epsilon) : impl_(std::move(impl)), epsilon_(epsilon) {}
+RayScene::~RayScene() = default;
+
+Result<std::unique_ptr<RayScene>> RayScene::build(const std::vector<Face>& real_faces,
+                                                  const std::vector<LightGeometry>& lights,
+                                                  const std::vector<VirtualShape>& virtual_shapes) {
+    auto impl = std::make_unique<Impl>();
+    impl->device = rtcNewDevice(nullptr);  // owned by impl
+    if (!impl->device) {
+        return fail(ErrorCode::kInternal, "lighting: rtcNewDevice failed (Embree error " +
+                                              std::to_string(static_cast<int>(rtcGetDeviceError(nullptr))) + ")");
+    }
+    rtcSetDeviceErrorFunction(impl->device, &EmbreeErrors::callback, &impl->errors);
+
+    // Step 1: the static real scene: every proxy face and every light polygon.
+    Eigen::AlignedBox3d bounds;
+    std::vector<std::array<Eigen::Vector3d, 3>> triangles;
+    for (std::size_t i = 0; i < real_faces.size(); ++i) {
+        appendTriangles(real_faces[i], static_cast<int>(i), triangles, impl->face_of_prim);
+        for (const Eigen::Vector3d& c : real_faces[i].corners()) bounds.extend(c);
+    }
+    impl->real = newScene(impl->device);  // owned by impl
+    RTCGeometry faces = trianglesGeometry(impl->device, triangles);
+    rtcAttachGeometryByID(impl->real, faces, kFacesGeometry);
+    rtcReleaseGeometry(faces);  // the scene holds it
+    std::vector<std::array<Eigen::Vector3d, 3>> light_triangles;
+    for (std::size_t i = 0; i < lights.size(); ++i) {
+        const auto& poly = lights[i].polygon;
+        for (std::size_t k = 1; k + 1 < poly.size(); ++k) {  // a fan: polygons are convex
+            light_triangles.push_back({poly[0], poly[k], poly[k + 1]});
+            impl->light_of_prim.push_back(static_cast<int>(i));
+        }
+        for (const Eigen::Vector3d& c : poly) bounds.extend(c);
+    }
+    if (!light_triangles.empty()) {
+        RTCGeometry lg = trianglesGeometry(impl->device, light_triangles);
+        rtcAttachGeometryByID(impl->real, lg, kLightsGeometry);
+        rtcReleaseGeometry(lg);
+    }
+    rtcCommitScene(impl->real);
+    CL_TRY_VOID(impl->errors.check("lighting: building the real scene"));
+
+    // Step 2: one scene per virtual object, in its own frame.
+    impl->virtual_face_of_prim.resize(virtual_shapes.size());
+    for (std::size_t v = 0; v < virtual_shapes.size(); ++v) {
+        RTCScene scene = newScene(impl->device);  // owned by impl->virtual_scenes
+        impl->virtual_scenes.push_back(scene);
+        const VirtualShape& shape = virtual_shapes[v];
+        if (shape.sphere_radius > 0.0) {
+            RTCGeometry sphere = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
+            auto* p = static_cast<float*>(
+                rtcSetNewGeometryBuffer(sphere, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
+            if (p) {
+                p[0] = p[1] = p[2] = 0.0f;
+                p[3] = static_cast<float>(shape.sphere_radius);
+            }
+            rtcCommitGeometry(sphere);
+            rtcAttachGeometry(scene, sphere);
+            rtcReleaseGeometry(sphere);
+            impl->virtual_face_of_prim[v] = {-1};
+        } else {
+            std::vector<std::array<Eigen::Vector3d, 3>> vt;
+            for (std::size_t i = 0; i < shape.faces.size(); ++i) {
+                appendTriangles(shape.faces[i], static_cast<int>(i), vt, impl->virtual_face_of_prim[v]);
+            }
+            RTCGeometry g = trianglesGeometry(impl->device, vt);
+            rtcAttachGeometry(scene, g);
+            rtcReleaseGeometry(g);
+        }
+        rtcCommitScene(scene);
+    }
+    CL_TRY_VOID(impl->errors.check("lighting: building the virtual objects"));
+
+    // Step 3: the top-level scenes of instances.
+    impl->real_top = newScene(impl->device);
+    impl->virtual_top = newScene(impl->device);
+    impl->all_top = newScene(impl->device);
+    rtcSetSceneBuildQuality(impl->virtual_top, RTC_BUILD_QUALITY_LOW);  // rebuilt when objects move
+    rtcSetSceneBuildQuality(impl->all_top, RTC_BUILD_QUALITY_LOW);
+    const Eigen::Matrix4f identity = Eigen::Matrix4f::Identity();
+    {
+        RTCGeometry inst = instanceOf(impl->device, impl->real, identity);
+        rtcAttachGeometry(impl->real_top, inst);
+        rtcReleaseGeometry(inst);
+        RTCGeometry inst_all = instanceOf(impl->device, impl->real, identity);
+        impl->all_real_instance = rtcAttachGeometry(impl->all_top, inst_all);
+        rtcReleaseGeometry(inst_all);
+    }
+    for (std::size_t v = 0; v < virtual_shapes.size(); ++v) {
+        RTCGeometry a = instanceOf(impl->device, impl->virtual_scenes[v], identity);
+        const unsigned id_v = rtcAttachGeometry(impl->virtual_top, a);
+        impl->virtual_instances.push_back(a);  // borrowed: the scene holds the reference
+        rtcReleaseGeometry(a);
+        RTCGeometry b = instanceOf(impl->device, impl->virtual_scenes[v], identity);
+        const unsigned id_a = rtcAttachGeometry(impl->all_top, b);
+        impl->all_virtual_instances.push_back(b);
+        rtcReleaseGeometry(b);
+        if (impl->virtual_of_geom_virtual_top.size() <= id_v) impl->virtual_of_geom_virtual_top.resize(id_v + 1, -1);
+        if (impl->virtual_of_geom_all_top.size() <= id_a) impl->virtual_of_geom_all_top.resize(id_a + 1, -1);
+        impl->virtual_of_geom_virtual_top[id_v] = static_cast<int>(v);
+        impl->virtual_of_geom_all_top[id_a] = static_cast<int>(v);
+    }
+    impl->pending_poses.assign(virtual_shapes.size(), identity);
+    impl->pose_dirty.assign(virtual_shapes.size(), false);
+    rtcCommitScene(impl->real_top);
+    rtcCommitScene(impl->virtual_top);
+    rtcCommitScene(impl->all_top);
+    CL_TRY_VOID(impl->errors.check("lighting: building the top-level scenes"));
+
+    const double extent = bounds.isEmpty() ? 1.0 : bounds.diagonal().norm();
+    const double epsilon = std::max(1e-5 * extent, 1e-5);
+    return std::unique_ptr<RayScene>(new RayScene(std::move(impl), epsilon));
+}
+
+std::size_t RayScene::virtualCount() const noexcept { return impl_->virtual_scenes.size(); }
+
+void RayScene::setVirtualPose(int index, const Rigid3d& world_from_object) {
+    const auto i = static_cast<std::size_t>(index);
+    impl_->pending_poses.at(i) = world_from_object.matrix().cast<float>();
+    impl_->pose_dirty[i] = true;
+}
+
+Result<void> RayScene::commitVirtual() {
+    bool any = false;
+    for (std::size_t i = 0; i < impl_->pending_poses.size(); ++i) {
+        if (!impl_->pose_dirty[i]) continue;
+        for (RTCGeometry inst : {impl_->virtual_instances[i], impl_->all_virtual_instances[i]}) {
+            rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT4X4_COLUMN_MAJOR, impl_->pending_poses[i].data());
+            rtcCommitGeometry(inst);
+        }
+        impl_->pose_dirty[i] = false;
+        any = true;
+    }
+    if (any) {
+        rtcCommitScene(impl_->virtual_top);
+        rtcCommitScene(impl_->all_top);
+    }
+    return impl_->errors.check("lighting: moving the virtual objects");
+}
+
+namespace {
+
+// The origin lifted off its surface towards the side the ray leaves to.
+Eigen::Vector3d lifted(const Eigen::Vector3d& from, const Eigen::Vector3d& normal, const Eigen::Vector3d& dir,
+                       double epsilon) {
+    if (normal.squaredNorm() == 0.0) return from;
+    return from + (dir.dot(normal) >= 0.0 ? epsilon : -epsilon) * normal;
+}
+
+}  // namespace
+
+bool RayScene::occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                               const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const {
+    if (virtual_scene && impl_->virtual_scenes.empty()) return false;
+    const Eigen::Vector3d d = to - from;
+    const double length = d.norm();
+    if (length <= 2.0 * epsilon_) return false;  // hard case: touching points see each other
+    const Eigen::Vector3d dir = d / length;
+    const Eigen::Vector3d o = lifted(from, from_normal, dir, epsilon_);
+    const Eigen::Vector3d t = lifted(to, to_normal, -dir, epsilon_);
+    const Eigen::Vector3d span = t - o;
+    const double span_length = span.norm();
+    if (!(span_length > 0.0)) return false;
+    const double tfar = to_normal.squaredNorm() > 0.0 ? span_length : span_length - epsilon_;
+    return impl_->occluded(virtual_scene ? impl_->virtual_top : impl_->real_top, o, span / span_length, tfar);
+}
+
+bool RayScene::occludedReal(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,
+                            const Eigen::Vector3d& to_normal) const {
+    return occludedSegment(false, from, from_normal, to, to_normal);
+}
+
+bool RayScene::occludedVirtual(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                               const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const {
+    return occludedSegment(true, from, from_normal, to, to_normal);
+}
+
+bool RayScene::occludedRealRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                               const Eigen::Vector3d& direction) const {
+    return impl_->occluded(impl_->real_top, lifted(from, from_normal, direction, epsilon_), direction, 1e30);
+}
+
+bool RayScene::occludedVirtualRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                                  const Eigen::Vector3d& direction) const {
+    if (impl_->virtual_scenes.empty()) return false;
+    return impl_->occluded(impl_->virtual_top, lifted(from, from_normal, direction, epsilon_), direction, 1e30);
+}
+
+RayHit RayScene::intersectReal(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                               double max_distance) const {
+    return impl_->intersect(impl_->real_top, origin, direction, max_distance);
+}
+
+RayHit RayScene::intersectVirtual(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                                  double max_distance) const {
+    if (impl_->virtual_scenes.empty()) return {};
+    return impl_->intersect(impl_->virtual_top, origin, direction, max_distance);
+}
+
+RayHit RayScene::intersectAll(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                              double max_distance) const {
+    return impl_->intersect(impl_->all_top, origin, direction, max_distance);
+}
+
+RayHit RayScene::intersectVirtualExcept(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, int excluded,
+                                        double max_distance) const {
+    // Few virtual objects: step past hits on the excluded one.
+    Eigen::Vector3d o = origin;
+    double travelled = 0.0;
+    for (int guard = 0; guard < 16; ++guard) {
+        RayHit hit = intersectVirtual(o, direction, max_distance - travelled);
+        if (hit.kind == HitKind::kNone || hit.index != excluded) {
+            if (hit.kind != HitKind::kNone) hit.distance += travelled;
+            return hit;
+        }
+        const double step = hit.distance + epsilon_;
+        o += step * direction;
+        travelled += step;
+    }
+    return {};
+}
+
+}  // namespace commonlight::lighting

@@ -1,0 +1,98 @@
+// Visibility for the lighting module: Embree 3 scenes of the proxies, the area lights and the
+// virtual objects (STYLE.md: opaque handles, error callback right after the device; edits and
+// commits on one thread, queries from many).
+//
+// The static real scene (proxy faces and light polygons) is its own Embree scene, instanced into
+// the top-level scenes; each virtual object is its own scene too (an exact sphere, or its faces),
+// instanced with its pose. Moving a virtual object changes an instance transform and recommits the
+// small top-level scenes: the real scene's BVH is never rebuilt.
+//
+// Three top-level scenes: `real` (the real instance alone: what the real scene's own light
+// transport sees), `virtual` (the virtual instances alone) and `all` (both, for camera rays).
+// A segment is blocked "with the virtual objects" when either the real or the virtual scene blocks it.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/pose.h"
+#include "core/result.h"
+#include "lighting/proxy_geometry.h"
+
+namespace commonlight::lighting {
+
+// A virtual object's shape for visibility: an exact sphere, or faces in its own frame.
+struct VirtualShape {
+    double sphere_radius = 0.0;  // > 0: a sphere centred on the object origin
+    std::vector<Face> faces;     // otherwise: its faces (object frame)
+};
+
+enum class HitKind : std::uint8_t { kNone, kRealFace, kLight, kVirtual };
+
+struct RayHit {
+    HitKind kind = HitKind::kNone;
+    int index = -1;        // real face index (kRealFace), LightGeometry index (kLight), virtual object (kVirtual)
+    int primitive = -1;    // kVirtual: the face index within the object (-1 for a sphere)
+    double distance = 0.0; // along the unit direction, metres
+};
+
+class RayScene {
+public:
+    // `real_faces` in world coordinates; `lights` their polygons (lights absorb and block like any
+    // surface); `virtual_shapes` in object frames, placed at the identity until setVirtualPose().
+    static Result<std::unique_ptr<RayScene>> build(const std::vector<Face>& real_faces,
+                                                   const std::vector<LightGeometry>& lights,
+                                                   const std::vector<VirtualShape>& virtual_shapes);
+    ~RayScene();
+    RayScene(const RayScene&) = delete;
+    RayScene& operator=(const RayScene&) = delete;
+
+    // Moves virtual object `index`; takes effect at the next commitVirtual(). Lighting thread only.
+    void setVirtualPose(int index, const Rigid3d& world_from_object);
+    // Recommits the top-level scenes after pose changes (microseconds: no BVH of the real scene is rebuilt).
+    Result<void> commitVirtual();
+
+    // Whether the open segment from `from` to `to` is blocked. Both ends are lifted by epsilon()
+    // off their surfaces along their normals, towards the other end (a zero normal: no lift; the
+    // segment then stops epsilon() short of that end), so neither end's own surface blocks it even
+    // at grazing angles (adjacent faces, a light in a ceiling).
+    bool occludedReal(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,
+                      const Eigen::Vector3d& to_normal = Eigen::Vector3d::Zero()) const;
+    bool occludedVirtual(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,
+                         const Eigen::Vector3d& to_normal = Eigen::Vector3d::Zero()) const;
+    // Same for a ray towards infinity along `direction` (unit): distant lights.
+    bool occludedRealRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                         const Eigen::Vector3d& direction) const;
+    bool occludedVirtualRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                            const Eigen::Vector3d& direction) const;
+
+    // First hit along a ray (unit direction) in the real scene, in the virtual scene, or in both.
+    RayHit intersectReal(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                         double max_distance = 1e30) const;
+    RayHit intersectVirtual(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                            double max_distance = 1e30) const;
+    RayHit intersectAll(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                        double max_distance = 1e30) const;
+    // Same as intersectVirtual but ignoring one virtual object (rays leaving it, for its probes).
+    RayHit intersectVirtualExcept(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, int excluded,
+                                  double max_distance = 1e30) const;
+
+    // Lift of ray origins and shortening of segments, metres: 1e-5 x the real scene's extent, at
+    // least 10 um.
+    double epsilon() const noexcept { return epsilon_; }
+    std::size_t virtualCount() const noexcept;
+
+private:
+    bool occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                         const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const;
+
+    struct Impl;
+    explicit RayScene(std::unique_ptr<Impl> impl, double epsilon);
+    std::unique_ptr<Impl> impl_;
+    double epsilon_;
+};
+
+}  // namespace commonlight::lighting
