@@ -87,24 +87,34 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
                 const int order = std::min(4, formFactorRule(distance, std::sqrt(el.area), std::sqrt(light.area)));
                 const auto points = quadratureRule(g.corner, g.edge_s, g.edge_t, g.triangle, order);
                 const int rays_per_point = std::max(1, options.rays / static_cast<int>(points.size()));
-                for (std::size_t q = 0; q < points.size(); ++q) {
-                    // Analytic unoccluded irradiance at the Gauss point, times its visible fraction.
-                    const double f = pointToPolygon(points[q].x, g.normal, light.polygon, light.normal);
-                    if (f <= 0.0) continue;
-                    const Eigen::Vector3d x = is_virtual ? radiosity.onSurface(e, points[q].x) : points[q].x;
-                    int vis_real = 0, vis_all = 0;
-                    for (int r = 0; r < rays_per_point; ++r) {
-                        const Eigen::Vector2d u = stratified2d(hashCombine(seed, q), r, rays_per_point);
-                        const Eigen::Vector3d y = lightPoint(light, u);
-                        const bool blocked_real = rays.occludedReal(x, g.normal, y, light.normal);
-                        if (!blocked_real) {
-                            ++vis_real;
-                            if (!rays.occludedVirtual(x, g.normal, y, light.normal)) ++vis_all;
+                // Two passes: the first decides whether a shadow boundary crosses the leaf; then
+                // penumbrae get four times the rays (their visibility is what shows).
+                std::vector<double> f_at(points.size(), 0.0);
+                for (std::size_t q = 0; q < points.size(); ++q) f_at[q] = pointToPolygon(points[q].x, g.normal, light.polygon, light.normal);
+                const auto visibility = [&](int per_point, double& out_real, double& out_all) {
+                    out_real = out_all = 0.0;
+                    for (std::size_t q = 0; q < points.size(); ++q) {
+                        if (f_at[q] <= 0.0) continue;
+                        const Eigen::Vector3d x = is_virtual ? radiosity.onSurface(e, points[q].x) : points[q].x;
+                        int vis_real = 0, vis_all = 0;
+                        for (int r = 0; r < per_point; ++r) {
+                            const Eigen::Vector2d u = stratified2d(hashCombine(seed, q), r, per_point);
+                            const Eigen::Vector3d y = lightPoint(light, u);
+                            const bool blocked_real = rays.occludedReal(x, g.normal, y, light.normal);
+                            if (!blocked_real) {
+                                ++vis_real;
+                                if (!rays.occludedVirtual(x, g.normal, y, light.normal)) ++vis_all;
+                            }
                         }
+                        out_real += points[q].weight * kPi * f_at[q] * vis_real / per_point;
+                        out_all += points[q].weight * kPi * f_at[q] * vis_all / per_point;
                     }
-                    real_sum += points[q].weight * kPi * f * vis_real / rays_per_point;
-                    all_sum += points[q].weight * kPi * f * vis_all / rays_per_point;
-                }
+                };
+                double open = 0.0;
+                for (std::size_t q = 0; q < points.size(); ++q) open += points[q].weight * kPi * f_at[q];
+                visibility(rays_per_point, real_sum, all_sum);
+                const bool partial = (real_sum > 0.0 && real_sum < 0.999 * open) || (all_sum > 0.0 && all_sum < 0.999 * real_sum);
+                if (partial) visibility(4 * rays_per_point, real_sum, all_sum);
                 break;
             }
             case DirectSource::Kind::kPoint: {
@@ -165,6 +175,52 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
         column.real[static_cast<std::size_t>(e)] = static_cast<float>(real_sum);
         column.all[static_cast<std::size_t>(e)] = static_cast<float>(all_sum);
     });
+}
+
+double directAtPoint(const RayScene& rays, const DirectSource& source, const Eigen::Vector3d& x,
+                     const Eigen::Vector3d& normal, int samples, std::uint64_t seed) {
+    samples = std::max(1, samples);
+    switch (source.kind) {
+        case DirectSource::Kind::kPolygon: {
+            const LightGeometry& light = *source.polygon;
+            const double f = pointToPolygon(x, normal, light.polygon, light.normal);
+            if (f <= 0.0) return 0.0;
+            int visible = 0;
+            for (int r = 0; r < samples; ++r) {
+                if (!rays.occludedReal(x, normal, lightPoint(light, stratified2d(seed, r, samples)), light.normal)) ++visible;
+            }
+            return kPi * f * visible / samples;
+        }
+        case DirectSource::Kind::kPoint: {
+            const Eigen::Vector3d d = source.position - x;
+            const double d2 = d.squaredNorm();
+            if (!(d2 > 1e-12)) return 0.0;
+            const double c = normal.dot(d) / std::sqrt(d2);
+            if (c <= 0.0 || rays.occludedReal(x, normal, source.position)) return 0.0;
+            return c / d2;
+        }
+        case DirectSource::Kind::kDirection: {
+            const Eigen::Vector3d towards = -source.direction.normalized();
+            const double c = normal.dot(towards);
+            if (c <= 0.0 || rays.occludedRealRay(x, normal, towards)) return 0.0;
+            return c;
+        }
+        case DirectSource::Kind::kCell: {
+            double sum = 0.0;
+            for (int r = 0; r < samples; ++r) {
+                const Eigen::Vector2d u = stratified2d(seed, r, samples);
+                const double c = source.cos0 + u.x() * (source.cos1 - source.cos0);
+                const double s = std::sqrt(std::max(0.0, 1.0 - c * c));
+                const double phi = source.phi0 + u.y() * (source.phi1 - source.phi0);
+                const Eigen::Vector3d w(s * std::cos(phi), s * std::sin(phi), c);
+                const double cos_theta = normal.dot(w);
+                if (cos_theta <= 0.0 || rays.occludedRealRay(x, normal, w)) continue;
+                sum += cos_theta;
+            }
+            return source.solidAngle() * sum / samples;
+        }
+    }
+    return 0.0;
 }
 
 }  // namespace commonlight::lighting

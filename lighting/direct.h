@@ -51,6 +51,11 @@ struct DirectOptions {
 void computeDirect(const Radiosity& radiosity, const DirectSource& source, const std::vector<int>& leaves,
                    const DirectOptions& options, DirectColumn& column);
 
+// Irradiance per unit emission at one point facing `normal` through the real occluders (a tag's
+// white border, a probe): the same estimators as computeDirect with `rays` visibility samples.
+double directAtPoint(const RayScene& rays, const DirectSource& source, const Eigen::Vector3d& x,
+                     const Eigen::Vector3d& normal, int samples, std::uint64_t seed);
+
 // The N equal-solid-angle cells of the upper hemisphere (seed 003 sec. 5.3: theta = acos(u0),
 // phi = 2 pi u1 on a uniform partition): n_theta x n_phi with n_phi = 2 n_theta as near as N allows.
 std::vector<DirectSource> distantCells(int light, int n);

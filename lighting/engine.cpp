@@ -234,6 +234,7 @@ void LightingEngine::Impl::run() {
 Result<void> LightingEngine::Impl::process(OwnedObservation& observation, const std::vector<Rigid3d>& poses) {
     const std::int64_t start_ns = monotonicNowNs();
     // Step 1: accumulate what the frame shows (a frame without a pose contributes nothing).
+    model->setVirtualPoses(poses);
     if (observation.cam_from_world) {
         CL_TRY_VOID(model->observe(observation.rgb.view(), *observation.cam_from_world, observation.exposure_s,
                                    observation.analog_gain, observation.timestamp_ns));

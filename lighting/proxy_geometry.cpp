@@ -43,7 +43,8 @@ std::vector<Face> boxFaces(FaceOwner owner, int object, const Eigen::Vector3d& s
 }
 
 // Faces of a shape in the object's own frame. `what` names the object in errors.
-Result<std::vector<Face>> shapeFaces(FaceOwner owner, int object, const Shape& shape, const std::string& what) {
+Result<std::vector<Face>> shapeFaces(FaceOwner owner, int object, const Shape& shape, const std::string& what,
+                                    int sphere_levels = 2) {
     std::vector<Face> faces;
     if (const auto* plane = std::get_if<PlaneShape>(&shape)) {
         if (!(plane->size.allFinite() && plane->size.x() > 0.0 && plane->size.y() > 0.0)) {
@@ -62,7 +63,7 @@ Result<std::vector<Face>> shapeFaces(FaceOwner owner, int object, const Shape& s
             return fail(ErrorCode::kBadInput, what + ": sphere radius must be positive");
         }
         int index = 0;
-        for (const auto& tri : icosphere(2)) {
+        for (const auto& tri : icosphere(sphere_levels)) {
             const Eigen::Vector3d a = sphere->radius * tri[0], b = sphere->radius * tri[1], c = sphere->radius * tri[2];
             faces.push_back(makeFace(owner, object, index++, a, b - a, c - a, true));
         }
@@ -132,10 +133,10 @@ Result<std::vector<Face>> realFaces(const Scene& scene) {
     return all;
 }
 
-Result<std::vector<Face>> virtualFaces(const Scene& scene, int virtual_index) {
+Result<std::vector<Face>> virtualFaces(const Scene& scene, int virtual_index, int sphere_levels) {
     const VirtualObject& object = scene.virtual_objects.at(static_cast<std::size_t>(virtual_index));
     const std::string what = "virtual object '" + object.name + "'";
-    CL_TRY(std::vector<Face> faces, shapeFaces(FaceOwner::kVirtual, virtual_index, object.shape, what));
+    CL_TRY(std::vector<Face> faces, shapeFaces(FaceOwner::kVirtual, virtual_index, object.shape, what, sphere_levels));
     for (Face& f : faces) {
         // GGX objects take part in the radiosity solution as Lambertian reflectors of the same
         // albedo (their bounce onto real surfaces; the renderer shades their own look).

@@ -6,7 +6,8 @@
 // (triangle). Its front side looks along `normal` = normalize(edge_s x edge_t).
 //
 // Face numbering (FaceModulation::face): box 0..5 = +x, -x, +y, -y, +z, -z (outward normals);
-// plane 0 (front, +z); mesh: triangle index; sphere: triangle index of its icosphere.
+// plane 0 (front, +z); mesh: triangle index; sphere: triangle index of its icosphere (real
+// spheres: 320 triangles).
 #pragma once
 
 #include <string>
@@ -67,8 +68,9 @@ struct LightGeometry {
 // non-finite pose. Degenerate triangles of an otherwise valid mesh are skipped.
 Result<std::vector<Face>> realFaces(const Scene& scene);
 
-// Faces of one virtual object in its own frame (spheres as an icosphere of 320 triangles).
-Result<std::vector<Face>> virtualFaces(const Scene& scene, int virtual_index);
+// Faces of one virtual object in its own frame (spheres as an icosphere of 20 x 4^sphere_levels
+// triangles: 80 by default, enough for the light it bounces; its shadow comes from the exact sphere).
+Result<std::vector<Face>> virtualFaces(const Scene& scene, int virtual_index, int sphere_levels = 1);
 
 // Area and disc lights (polygons); other kinds are skipped. Errors: a light of zero or negative
 // size (kBadInput naming it).

@@ -143,25 +143,55 @@ void Radiosity::refine(int r, int s, int depth) {
     // a few rays. Step 1: F at the receiver's corners and centre; refine the receiver where it varies.
     std::vector<Eigen::Vector3d> probes = gr.polygon();
     probes.push_back(gr.centroid);
-    double f_min = 1e300, f_max = 0.0, f_centre = 0.0;
+    // The receiver's point nearest the source's centre: where F peaks when the source is close to
+    // one side of a large receiver (a floor beside a table), which corner and centre probes miss.
+    {
+        Eigen::Matrix<double, 3, 2> b;
+        b.col(0) = gr.edge_s;
+        b.col(1) = gr.edge_t;
+        Eigen::Vector2d ab = (b.transpose() * b).inverse() * (b.transpose() * (gs.centroid - gr.corner));
+        ab = ab.cwiseMax(0.0).cwiseMin(1.0);
+        if (gr.triangle && ab.sum() > 1.0) ab /= ab.sum();
+        probes.push_back(gr.corner + ab.x() * gr.edge_s + ab.y() * gr.edge_t);
+    }
+    // Distance from the source's centre to the receiver, and the form factor a point that close
+    // would see at most (A_s / (pi d^2), capped at 1): a source close to a large receiver makes F
+    // peak somewhere the probes may not be (a table's side is seen edge-on from its own foot).
+    const double nearest = (probes.back() - gs.centroid).norm();
+    const double receiver_size = std::sqrt(hierarchy_[r].area);
+    const double peak = std::min(1.0, hierarchy_[s].area / (std::numbers::pi * std::max(nearest * nearest, 1e-12)));
+    double f_min = 1e300, f_max = 0.0;
     for (std::size_t i = 0; i < probes.size(); ++i) {
-        // Corners pulled 1% inwards: a corner on the shared edge of adjacent faces has no defined F.
+        // Probes pulled 1% towards the centre: a point on the shared edge of adjacent faces has no defined F.
         const Eigen::Vector3d x = probes[i] + 0.01 * (gr.centroid - probes[i]);
         const double f = pointToPolygon(x, gr.normal, source, gs.normal);
         f_min = std::min(f_min, f);
         f_max = std::max(f_max, f);
-        if (i + 1 == probes.size()) f_centre = f;
     }
+    const double f_centre = f_max;
     const bool budget = hierarchy_.leafCount() + 3 < options_.max_elements;
-    const double min_size = options_.min_element_size;
-    const auto can_descend = [&](int e) { return !hierarchy_[e].leaf() || (budget && hierarchy_.canSubdivide(e, min_size)); };
-    if (depth < 40 && f_max - f_min > options_.link_epsilon && can_descend(r)) {
+    const double min_size = std::max(options_.min_element_size, options_.min_link_size);
+    const auto can_descend = [&](int e) {
+        return !hierarchy_[e].leaf() || (budget && hierarchy_.canSubdivide(e, min_size));
+    };
+    const bool close = nearest < receiver_size && peak > options_.link_epsilon;
+    if (depth < 40 && (f_max - f_min > options_.link_epsilon || close) && can_descend(r)) {
         if (hierarchy_[r].leaf()) hierarchy_.subdivide(r, min_size);
         const int first = hierarchy_[r].first_child, count = hierarchy_[r].child_count;
         for (int c = 0; c < count; ++c) refine(first + c, s, depth + 1);
         return;
     }
-    // Step 2: a large source seen in part (a shadow boundary across the link) is split so that
+    // Step 2 (the BF oracle on the source side): a source whose radiance varies over it (a floor
+    // bright under a lamp and dark in a shadow) is split while F times that variation is more than
+    // source_epsilon of the scene's largest radiance: the link would spread its mean.
+    const double variation = static_cast<std::size_t>(s) < source_range_.size() ? source_range_[static_cast<std::size_t>(s)] : 1.0;
+    if (depth < 40 && f_centre * variation > options_.source_epsilon && can_descend(s)) {
+        if (hierarchy_[s].leaf()) hierarchy_.subdivide(s, min_size);
+        const int first = hierarchy_[s].first_child, count = hierarchy_[s].child_count;
+        for (int c = 0; c < count; ++c) refine(r, first + c, depth + 1);
+        return;
+    }
+    // Step 3: a source seen in part (a shadow boundary across the link) is split so that
     // visibility is resolved where it matters.
     if (depth < 40 && f_centre > options_.link_epsilon * options_.partial_visibility_factor && can_descend(s)) {
         constexpr int kProbeRays = 8;
@@ -181,9 +211,32 @@ void Radiosity::refine(int r, int s, int depth) {
             for (int c = 0; c < count; ++c) refine(r, first + c, depth + 1);
             return;
         }
-        if (visible == 0) return;  // fully hidden: no link at all
     }
     addLink(r, s);
+}
+
+void Radiosity::setSourceRadiance(const std::vector<double>& radiance) {
+    const auto& elements = hierarchy_.elements();
+    std::vector<double> lo(elements.size(), 1e300), hi(elements.size(), -1e300);
+    double scale = 0.0;
+    for (std::size_t i = 0; i < elements.size(); ++i) {
+        if (elements[i].leaf() && i < radiance.size() && !elements[i].buried) {
+            lo[i] = hi[i] = radiance[i];
+            scale = std::max(scale, radiance[i]);
+        }
+    }
+    // Children follow parents: a backward sweep gathers each node's range.
+    for (std::size_t i = elements.size(); i-- > 0;) {
+        const Element& e = elements[i];
+        for (int c = 0; c < e.child_count; ++c) {
+            lo[i] = std::min(lo[i], lo[static_cast<std::size_t>(e.first_child + c)]);
+            hi[i] = std::max(hi[i], hi[static_cast<std::size_t>(e.first_child + c)]);
+        }
+    }
+    source_range_.assign(elements.size(), 0.0);
+    for (std::size_t i = 0; i < elements.size(); ++i) {
+        if (hi[i] >= lo[i] && scale > 0.0) source_range_[i] = (hi[i] - lo[i]) / scale;
+    }
 }
 
 void Radiosity::addLink(int receiver, int source) { pending_pairs_.emplace_back(receiver, source); }

@@ -36,10 +36,16 @@ struct RadiosityOptions {
     // point form factor to the source varies over it by more than this (the gathered irradiance is
     // pushed down as if uniform). Smaller: more links, more accuracy.
     double link_epsilon = 0.01;
+    // A source is split while (its form factor from the receiver) x (the spread of its radiance,
+    // relative to the scene's largest) exceeds this: the BF oracle of Hanrahan et al. 1991 on the
+    // source side (setSourceRadiance() gives the radiance; without it every source counts as varying fully).
+    double source_epsilon = 0.002;
     // A source seen in part (a shadow boundary across the link) is split while the form factor to
     // it exceeds link_epsilon x this factor.
     double partial_visibility_factor = 1.0;
-    double min_element_size = 0.02;  // metres: elements are not split below this
+    double min_element_size = 0.01;  // metres: elements are not split below this (shadows, observations)
+    double min_link_size = 0.15;     // metres: link refinement creates no element smaller than this
+                                     // (it descends into existing smaller ones)
     int max_elements = 8000;         // leaf budget
     int visibility_rays = 4;         // jittered rays per link (16 for near pairs)
     bool hierarchical = true;        // false: every pair of leaves linked (the uniform-grid gather baseline)
@@ -109,6 +115,11 @@ public:
     // subdividing; buried leaves stay buried.
     void markBuried();
 
+    // An estimate of each leaf's radiance (direct light x a nominal reflectance is enough) for the
+    // source oracle: each node's spread of radiance, relative to the largest. Call before
+    // buildRealLinks(); elements created later count as uniform.
+    void setSourceRadiance(const std::vector<double>& radiance);
+
     // Step 2: links among real elements (F, V_real) by the refinement oracle. Clears every link.
     void buildRealLinks();
     // Step 3: links touching virtual elements (rebuilt on every pose change) and the virtual part of
@@ -150,6 +161,7 @@ private:
     std::vector<int> link_offsets_;      // CSR over elements: links_[offsets[e], offsets[e+1]) have receiver e
     bool virtual_links_dirty_ = true;
     std::vector<std::pair<int, int>> pending_pairs_;  // during refinement
+    std::vector<double> source_range_;                // per element: radiance spread / scene maximum
 };
 
 }  // namespace commonlight::lighting

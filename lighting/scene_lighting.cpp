@@ -1,23 +1,25 @@
 #include "lighting/scene_lighting.h"
 
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numbers>
+#include <variant>
+
+#include "lighting/direct.h"
+#include "lighting/estimator.h"
+#include "lighting/light_fit.h"
+#include "lighting/observations.h"
+#include "lighting/radiosity.h"
+#include "lighting/snapshot_builder.h"
+
 namespace commonlight::lighting {
 
-namespace {
-
-// Interim model while the estimator is being built: accepts observations and publishes a
-// snapshot that changes nothing (every ratio 1, no light), which the renderer accepts.
-class PassThroughLighting final : public SceneLighting {
-public:
-    Result<void> observe(const ImageView&, const Rigid3d&, double, double, std::int64_t) override { return {}; }
-    Result<LightingSnapshot> update(const std::vector<Rigid3d>&) override { return LightingSnapshot{}; }
-};
-
-}  // namespace
-
-Result<std::unique_ptr<SceneLighting>> SceneLighting::create(const Scene&, const CameraModel& camera,
-                                                             const SceneLightingOptions&) {
+Result<std::unique_ptr<SceneLighting>> SceneLighting::create(const Scene& scene, const CameraModel& camera,
+                                                             const SceneLightingOptions& options) {
     CL_TRY_VOID(camera.validate());
-    return std::unique_ptr<SceneLighting>(new PassThroughLighting());
+    CL_TRY(std::unique_ptr<Estimator> estimator, Estimator::create(scene, camera, options));
+    return std::unique_ptr<SceneLighting>(std::move(estimator));
 }
 
 std::vector<Rigid3d> SceneLighting::scenePoses(const Scene& scene, double t_s) {

@@ -34,6 +34,8 @@ public:
                                                          const SceneLightingOptions& options);
     virtual ~SceneLighting() = default;
 
+    // The virtual objects' poses for the next observe() (their pixels are left out) and update().
+    virtual void setVirtualPoses(const std::vector<Rigid3d>& world_from_object) = 0;
     // Adds one frame's observations. `rgb8` is the distorted frame at the camera's size.
     // exposure_s x gain must be positive (the caller substitutes 1 when unknown).
     virtual Result<void> observe(const ImageView& rgb8, const Rigid3d& cam_from_world, double exposure_s,

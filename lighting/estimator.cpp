@@ -1,0 +1,794 @@
+#include "lighting/estimator.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <numbers>
+#include <variant>
+
+#include "core/log.h"
+#include "lighting/form_factor.h"
+#include "lighting/sampling.h"
+#include "lighting/snapshot_builder.h"
+
+namespace commonlight::lighting {
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+
+// Milliseconds since `start` added to `total` when the scope ends.
+class ScopedMs {
+public:
+    explicit ScopedMs(double& total) : total_(total), start_(std::chrono::steady_clock::now()) {}
+    ~ScopedMs() { total_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start_).count(); }
+    ScopedMs(const ScopedMs&) = delete;
+    ScopedMs& operator=(const ScopedMs&) = delete;
+
+private:
+    double& total_;
+    std::chrono::steady_clock::time_point start_;
+};
+
+double luma(const Eigen::Vector3d& v) { return 0.2126 * v.x() + 0.7152 * v.y() + 0.0722 * v.z(); }
+
+}  // namespace
+
+// A column of the light model: a light, or one cell of a distant one.
+struct Source {
+    int light = -1;
+    DirectSource direct;
+    bool estimate = false;
+    Eigen::Vector3d known = Eigen::Vector3d::Zero();  // relative units, when !estimate
+    DirectColumn column;
+    bool dominant = false;  // the refined direction of a distant light
+};
+
+struct Estimator::Impl {
+    Scene scene;
+    CameraModel camera;
+    SceneLightingOptions options;
+    std::vector<Face> real_faces;
+    std::vector<Face> virtual_faces;
+    std::vector<double> sphere_radius;
+    std::vector<LightGeometry> light_geometry;  // stable: sources point into it
+    std::vector<Source> sources;
+    std::vector<char> column_valid;             // per element: every source's column is current
+    std::vector<Rigid3d> poses;
+    bool poses_changed = true;
+    bool mesh_built = false;
+    std::uint64_t frames_at_refinement = 0;
+    std::vector<int> group_of_object;  // real object -> reflectance group (-1: albedo given)
+    int groups = 0;
+    std::vector<Eigen::Vector3d> group_albedo;  // last fit, per group
+    // Tags: per tag, per source, the unit-emission irradiance at its white ring (real occluders).
+    std::vector<std::vector<double>> tag_columns;
+    std::vector<int> tag_columns_face;
+    // Distant lights: the refined dominant direction (towards the light) and when it was found.
+    std::map<int, Eigen::Vector3d> dominant;
+    std::map<int, std::uint64_t> dominant_frames;
+    Eigen::Vector3d illuminant = Eigen::Vector3d::Ones();
+    bool links_from_fit = false;  // the links were rebuilt with the first fit's lights
+    std::vector<std::string> setup_warnings;
+};
+
+Estimator::Estimator(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Estimator::~Estimator() = default;
+
+Result<std::unique_ptr<Estimator>> Estimator::create(const Scene& scene, const CameraModel& camera,
+                                                     const SceneLightingOptions& options,
+                                                     const EstimatorOptions& estimator_options) {
+    CL_TRY_VOID(camera.validate());
+    auto impl = std::make_unique<Impl>();
+    impl->scene = scene;
+    impl->camera = camera;
+    impl->options = options;
+    // Step 1: faces and their validation (errors name the object).
+    CL_TRY(impl->real_faces, realFaces(scene));
+    std::vector<VirtualShape> shapes;
+    for (std::size_t v = 0; v < scene.virtual_objects.size(); ++v) {
+        CL_TRY(std::vector<Face> faces, virtualFaces(scene, static_cast<int>(v)));
+        VirtualShape shape;
+        const auto* sphere = std::get_if<SphereShape>(&scene.virtual_objects[v].shape);
+        if (sphere) {
+            shape.sphere_radius = sphere->radius;
+        } else {
+            shape.faces = faces;
+        }
+        impl->sphere_radius.push_back(sphere ? sphere->radius : 0.0);
+        impl->virtual_faces.insert(impl->virtual_faces.end(), faces.begin(), faces.end());
+        shapes.push_back(std::move(shape));
+    }
+    CL_TRY(impl->light_geometry, lightGeometry(scene));
+
+    auto out = std::unique_ptr<Estimator>(new Estimator(std::move(impl)));
+    Impl& d = *out->impl_;
+    out->options_ = estimator_options;
+    out->options_.radiosity.max_elements = std::max(64, scene.lighting.max_elements);
+    out->radiance_scale_ = options.radiance_scale.value_or(1.0);
+    if (!options.radiance_scale) {
+        d.setup_warnings.push_back(
+            "the camera is not radiometrically calibrated (no radiance_scale): emissions are in relative units");
+    }
+
+    // Step 2: Embree scenes, the radiosity system and the observation grids.
+    CL_TRY(out->rays_, RayScene::build(d.real_faces, d.light_geometry, shapes));
+    out->radiosity_ = std::make_unique<Radiosity>(d.real_faces, d.virtual_faces, d.sphere_radius, *out->rays_,
+                                                  out->options_.radiosity);
+    out->observations_ = std::make_unique<Observations>(d.real_faces, scene, camera, options.response,
+                                                        options.observation_stride, out->options_.observation_cell);
+    d.poses = scenePoses(scene, 0.0);
+
+    // Step 3: the light model's columns.
+    for (std::size_t i = 0; i < scene.lights.size(); ++i) {
+        const Light& light = scene.lights[i];
+        const bool estimate = light.emission.isEstimate();
+        const Eigen::Vector3d known = estimate ? Eigen::Vector3d::Zero() : Eigen::Vector3d(*light.emission.value * out->radiance_scale_);
+        Source s;
+        s.light = static_cast<int>(i);
+        s.estimate = estimate;
+        s.known = known;
+        if (std::holds_alternative<AreaLightShape>(light.shape) || std::holds_alternative<DiscLightShape>(light.shape)) {
+            s.direct.kind = DirectSource::Kind::kPolygon;
+            for (const LightGeometry& g : d.light_geometry) {
+                if (g.light_index == static_cast<int>(i)) s.direct.polygon = &g;
+            }
+            if (!s.direct.polygon) continue;
+        } else if (std::holds_alternative<PointLightShape>(light.shape)) {
+            s.direct.kind = DirectSource::Kind::kPoint;
+            s.direct.position = light.world_from_object.translation;
+        } else if (const auto* dir = std::get_if<DirectionalLightShape>(&light.shape)) {
+            s.direct.kind = DirectSource::Kind::kDirection;
+            if (!(dir->direction.allFinite() && dir->direction.norm() > 0.0)) {
+                return fail(ErrorCode::kBadInput, "light '" + light.name + "': direction must be a non-zero vector");
+            }
+            s.direct.direction = dir->direction.normalized();
+        } else if (const auto* distant = std::get_if<DistantLightShape>(&light.shape)) {
+            const int n = distant->directions > 0 ? distant->directions : 128;
+            for (DirectSource cell : distantCells(static_cast<int>(i), n)) {
+                Source c = s;
+                c.direct = cell;
+                d.sources.push_back(std::move(c));
+            }
+            continue;
+        }
+        s.direct.light = static_cast<int>(i);
+        d.sources.push_back(std::move(s));
+    }
+    // Reflectance groups: one per real object whose albedo is to be estimated.
+    d.group_of_object.assign(scene.real_objects.size(), -1);
+    for (std::size_t o = 0; o < scene.real_objects.size(); ++o) {
+        if (scene.real_objects[o].albedo.isEstimate()) d.group_of_object[o] = d.groups++;
+    }
+    d.group_albedo.assign(static_cast<std::size_t>(d.groups), Eigen::Vector3d::Constant(0.5));
+    return out;
+}
+
+void Estimator::setVirtualPoses(const std::vector<Rigid3d>& world_from_object) {
+    Impl& d = *impl_;
+    if (world_from_object.size() != d.scene.virtual_objects.size()) return;
+    bool changed = false;
+    for (std::size_t i = 0; i < world_from_object.size(); ++i) {
+        const Rigid3d& a = world_from_object[i];
+        const Rigid3d& b = d.poses[i];
+        if (!a.isValid()) continue;  // hard case: a NaN pose keeps the last good one
+        if ((a.translation - b.translation).norm() > 1e-9 || a.rotation.angularDistance(b.rotation) > 1e-9) {
+            d.poses[i] = a;
+            changed = true;
+        }
+    }
+    if (changed || !d.mesh_built) d.poses_changed = true;
+}
+
+Result<void> Estimator::observe(const ImageView& rgb8, const Rigid3d& cam_from_world, double exposure_s,
+                                double analog_gain, std::int64_t) {
+    Impl& d = *impl_;
+    if (d.poses_changed) {
+        for (std::size_t v = 0; v < d.poses.size(); ++v) rays_->setVirtualPose(static_cast<int>(v), d.poses[v]);
+        CL_TRY_VOID(rays_->commitVirtual());
+    }
+    CL_TRY(FrameObservation frame, observations_->add(rgb8, cam_from_world, exposure_s, analog_gain, *rays_, d.illuminant));
+    (void)frame;
+    return {};
+}
+
+const DirectColumn* Estimator::column(int light) const {
+    for (const Source& s : impl_->sources) {
+        if (s.light == light && s.direct.kind != DirectSource::Kind::kCell) return &s.column;
+    }
+    return nullptr;
+}
+
+namespace {
+
+// Unoccluded unit irradiance of a (non-cell) source at a point: for the "is this leaf in a
+// shadow boundary" test.
+double unoccluded(const DirectSource& s, const Eigen::Vector3d& x, const Eigen::Vector3d& n) {
+    switch (s.kind) {
+        case DirectSource::Kind::kPolygon:
+            return kPi * pointToPolygon(x, n, s.polygon->polygon, s.polygon->normal);
+        case DirectSource::Kind::kPoint: {
+            const Eigen::Vector3d d = s.position - x;
+            const double d2 = d.squaredNorm();
+            return d2 > 1e-12 ? std::max(0.0, n.dot(d) / std::sqrt(d2)) / d2 : 0.0;
+        }
+        case DirectSource::Kind::kDirection:
+            return std::max(0.0, n.dot(-s.direction));
+        case DirectSource::Kind::kCell:
+            return 0.0;
+    }
+    return 0.0;
+}
+
+}  // namespace
+
+// The whole update; see estimator.h for the cases.
+Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_world_from_object) {
+    Impl& d = *impl_;
+    warnings_ = d.setup_warnings;
+    if (!d.links_from_fit || d.sources.empty()) stats_ = {};
+    setVirtualPoses(virtual_world_from_object);
+    Radiosity& rad = *radiosity_;
+    Hierarchy& h = rad.hierarchy();
+    const RadiosityOptions& ro = options_.radiosity;
+
+    // Step 1: the virtual objects where they are now.
+    if (d.poses_changed) {
+        for (std::size_t v = 0; v < d.poses.size(); ++v) rays_->setVirtualPose(static_cast<int>(v), d.poses[v]);
+        CL_TRY_VOID(rays_->commitVirtual());
+        rad.setVirtualPoses(d.poses);
+    }
+
+    // Columns of every source for the leaves that lack them (all leaves when the virtual objects
+    // moved: their `all` part changed).
+    const auto refresh_columns = [&](bool all_leaves) {
+        d.column_valid.resize(h.elements().size(), 0);
+        std::vector<int> todo;
+        for (int e : rad.leaves(Mode::kAll)) {
+            if (all_leaves || !d.column_valid[static_cast<std::size_t>(e)]) todo.push_back(e);
+        }
+        if (todo.empty()) return;
+        ScopedMs timer(stats_.ms_columns);
+        DirectOptions dopt;
+        for (Source& s : d.sources) computeDirect(rad, s.direct, todo, dopt, s.column);
+        for (int e : todo) d.column_valid[static_cast<std::size_t>(e)] = 1;
+    };
+
+    // The real scene's links, with the source oracle fed by an estimate of each leaf's radiance:
+    // the fitted lights when there are some, else every light at unit emission (reflectance 0.5).
+    const auto build_links = [&](const std::optional<std::vector<Eigen::Vector3d>>& emission) {
+        std::vector<double> radiance(h.elements().size(), 0.0);
+        for (int e : rad.leaves(Mode::kReal)) {
+            double l = 0.0;
+            for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                const Source& s = d.sources[k];
+                const double em = emission ? luma((*emission)[k]) : (s.estimate ? 1.0 : luma(s.known));
+                l += em * s.column.real[static_cast<std::size_t>(e)];
+            }
+            const Face& f = rad.face(h[e].face);
+            const double r = f.albedo_known ? luma(f.albedo)
+                             : rho_.size() > static_cast<std::size_t>(e) ? luma(rho_[static_cast<std::size_t>(e)])
+                                                                        : 0.5;
+            radiance[static_cast<std::size_t>(e)] = r / kPi * l;
+        }
+        rad.setSourceRadiance(radiance);
+        {
+            ScopedMs timer(stats_.ms_links);
+            rad.buildRealLinks();
+        }
+        rad.markBuried();
+        refresh_columns(false);
+        d.poses_changed = true;  // the virtual links go with the real ones
+    };
+
+    // Step 2: the mesh and the real scene's links (once); refinement where the light varies and
+    // where the observations vary (when enough new frames came).
+    if (!d.mesh_built) {
+        double size = options_.initial_element_size;
+        if (!(size > 0.0)) {
+            double area = 0.0;
+            for (const Face& f : d.real_faces) area += f.area;
+            size = std::clamp(std::sqrt(area / std::max(1.0, ro.max_elements / 16.0)), 0.05, 1.0);
+        }
+        rad.subdivideTo(size, 0.05);
+        rad.markBuried();
+        stats_.leaves_initial = h.leafCount();
+        refresh_columns(true);
+        if (options_.refine_by_light) {
+            for (int round = 0; round < 4; ++round) {
+                int split = 0;
+                for (int e : rad.leaves(Mode::kReal)) {
+                    if (h.leafCount() + 4 >= ro.max_elements) break;
+                    if (!h.canSubdivide(e, options_.light_refinement_size)) continue;
+                    // Model only what the scene needs: where the camera has looked.
+                    if (!options_.refine_unobserved && observations_->aggregate(h[e]).pixels == 0) continue;
+                    const ElementGeometry g = rad.geometry(e);
+                    bool vary = false;
+                    for (const Source& s : d.sources) {
+                        if (s.direct.kind == DirectSource::Kind::kCell) continue;
+                        const double open = unoccluded(s.direct, g.centroid, g.normal);
+                        if (!(open > 0.0)) continue;
+                        const double v = s.column.real[static_cast<std::size_t>(e)] / open;
+                        // A shadow boundary across the leaf, or a light close enough that its
+                        // irradiance changes a lot over the leaf.
+                        if (v > 0.05 && v < 0.95) vary = true;
+                        double lo = open, hi = open;
+                        for (const Eigen::Vector3d& c : g.polygon()) {
+                            const double f = unoccluded(s.direct, c + 0.02 * (g.centroid - c), g.normal);
+                            lo = std::min(lo, f);
+                            hi = std::max(hi, f);
+                        }
+                        if (hi > 2.0 * std::max(lo, 1e-12)) vary = true;
+                        if (vary) break;
+                    }
+                    if (vary && h.subdivide(e, options_.light_refinement_size)) ++split;
+                }
+                rad.markBuried();
+                refresh_columns(false);
+                if (split == 0) break;
+            }
+        }
+        stats_.leaves_light = h.leafCount();
+        build_links(std::nullopt);
+        stats_.leaves_links = h.leafCount();
+        d.mesh_built = true;
+    }
+    if (options_.refine_by_observation && observations_->frames() >= std::max<std::uint64_t>(1, d.frames_at_refinement * 2)) {
+        int split = 0;
+        for (int e : rad.leaves(Mode::kReal)) {
+            if (h.leafCount() + 4 >= ro.max_elements) break;
+            if (!h.canSubdivide(e, options_.light_refinement_size)) continue;
+            if (observations_->spread(h[e], 2) > 0.2 && h.subdivide(e, options_.light_refinement_size)) ++split;
+        }
+        d.frames_at_refinement = observations_->frames();
+        stats_.leaves_observation = h.leafCount();
+        if (split > 0) {
+            rad.markBuried();
+            refresh_columns(false);
+        }
+    }
+
+    // Step 3: links touching the virtual objects, and their shadows refined.
+    if (d.poses_changed) {
+        {
+            ScopedMs timer(stats_.ms_links);
+            rad.updateVirtualLinks();
+        }
+        rad.markBuried();
+        refresh_columns(true);
+        if (options_.refine_by_virtual) {
+            for (int round = 0; round < 6; ++round) {
+                int split = 0;
+                for (int e : rad.leaves(Mode::kReal)) {
+                    if (h.leafCount() + 4 >= ro.max_elements) break;
+                    if (!h.canSubdivide(e, ro.min_element_size)) continue;
+                    bool shadowed = false;
+                    for (const Source& s : d.sources) {
+                        const auto i = static_cast<std::size_t>(e);
+                        const double r = s.column.real[i], a = s.column.all[i];
+                        if (r > 0.0 && a < 0.98 * r && a > 0.0) shadowed = true;   // a partial virtual shadow
+                        if (r > 0.0 && a <= 0.0 && h[e].level < 12) {
+                            // Fully in a virtual shadow: split only at its border (a neighbour lit).
+                            shadowed = shadowed || std::min(h[e].size_s, h[e].size_t_) > 4.0 * ro.min_element_size;
+                        }
+                        if (shadowed) break;
+                    }
+                    if (shadowed && h.subdivide(e, ro.min_element_size)) ++split;
+                }
+                rad.markBuried();
+                refresh_columns(false);
+                if (split == 0) break;
+            }
+        }
+        d.poses_changed = false;
+        stats_.leaves_virtual = h.leafCount();
+    }
+
+    // Step 4: what was observed, per real leaf.
+    const std::size_t n = h.elements().size();
+    std::vector<Eigen::Vector3d> observed(n, Eigen::Vector3d::Zero());
+    std::vector<double> weight(n, 0.0);
+    std::vector<int> observed_leaves;
+    stats_.leaves_observation = std::max(stats_.leaves_observation, h.leafCount());
+    for (int e : rad.leaves(Mode::kReal)) {
+        const RadianceStats stats = observations_->aggregate(h[e]);
+        if (stats.pixels >= static_cast<std::uint32_t>(options_.min_pixels) && stats.weight > 0.0) {
+            observed[static_cast<std::size_t>(e)] = stats.mean();
+            weight[static_cast<std::size_t>(e)] = stats.weight;
+            observed_leaves.push_back(e);
+        }
+    }
+    stats_.observed_leaves = static_cast<int>(observed_leaves.size());
+    LightingSnapshot snapshot;
+    snapshot.radiance_scale = radiance_scale_;
+    snapshot.radiance_scale_known = d.options.radiance_scale.has_value();
+    snapshot.frames_used = observations_->frames();
+    bool all_known = d.groups == 0 && !d.sources.empty();
+    for (const Source& s : d.sources) all_known = all_known && !s.estimate;
+    if (observed_leaves.empty() && !all_known) {
+        warnings_.push_back("nothing of the real scene observed yet: no lighting change is drawn");
+        snapshot.warnings = warnings_;
+        return snapshot;
+    }
+
+    // Fallback radiance for leaves never seen: the object's mean observed radiance, else the scene's.
+    std::map<int, std::pair<Eigen::Vector3d, double>> object_mean;
+    Eigen::Vector3d scene_mean = Eigen::Vector3d::Zero();
+    double scene_area = 0.0;
+    for (int e : observed_leaves) {
+        const int object = d.real_faces[static_cast<std::size_t>(h[e].face)].object_index;
+        auto& [sum, area] = object_mean[object];
+        if (area == 0.0) sum.setZero();
+        sum += h[e].area * observed[static_cast<std::size_t>(e)];
+        area += h[e].area;
+        scene_mean += h[e].area * observed[static_cast<std::size_t>(e)];
+        scene_area += h[e].area;
+    }
+    if (scene_area > 0.0) scene_mean /= scene_area;
+    const auto fallback_radiance = [&](int e) -> Eigen::Vector3d {
+        const int object = d.real_faces[static_cast<std::size_t>(h[e].face)].object_index;
+        const auto it = object_mean.find(object);
+        if (it != object_mean.end() && it->second.second > 0.0) return it->second.first / it->second.second;
+        return scene_mean;
+    };
+    // Radiance of every element for inverse radiosity: observed where seen, else the last model's
+    // (or the fallback), pulled up the hierarchy.
+    const auto mixed_radiance = [&]() {
+        std::vector<Eigen::Vector3d> l(n, Eigen::Vector3d::Zero());
+        const bool have_model = without_.radiance.size() == n;
+        for (int e : rad.leaves(Mode::kReal)) {
+            const auto i = static_cast<std::size_t>(e);
+            l[i] = weight[i] > 0.0 ? observed[i] : (have_model ? without_.radiance[i] : fallback_radiance(e));
+        }
+        rad.pull(l);
+        return l;
+    };
+
+    // Tags: unit irradiance at their white rings (cached; real occluders only).
+    const auto& tags = observations_->tags();
+    d.tag_columns.resize(tags.size());
+    d.tag_columns_face.resize(tags.size(), -2);
+    for (std::size_t t = 0; t < tags.size(); ++t) {
+        if (tags[t].face < 0 || tags[t].white.pixels < 10) continue;
+        if (d.tag_columns_face[t] == tags[t].face && d.tag_columns[t].size() == d.sources.size()) continue;
+        d.tag_columns[t].assign(d.sources.size(), 0.0);
+        tbb::parallel_for(std::size_t{0}, d.sources.size(), [&](std::size_t k) {
+            double sum = 0.0;
+            for (std::size_t p = 0; p < tags[t].ring_points.size(); ++p) {
+                sum += directAtPoint(*rays_, d.sources[k].direct, tags[t].ring_points[p], tags[t].normal, 8,
+                                     hashCombine(t * 7919 + p, k));
+            }
+            d.tag_columns[t][k] = sum / static_cast<double>(std::max<std::size_t>(1, tags[t].ring_points.size()));
+        });
+        d.tag_columns_face[t] = tags[t].face;
+    }
+
+    // Step 5: lights and reflectances.
+    rho_.assign(n, Eigen::Vector3d::Constant(0.5));
+    for (std::size_t e = 0; e < n; ++e) {
+        const Face& f = rad.face(h[static_cast<int>(e)].face);
+        if (f.albedo_known) rho_[e] = f.albedo;
+    }
+    std::vector<Eigen::Vector3d> emission_le(n, Eigen::Vector3d::Zero());  // Le per leaf (virtual emitters, case 3)
+    for (int e : rad.leaves(Mode::kAll)) {
+        if (rad.isVirtualElement(e)) {
+            emission_le[static_cast<std::size_t>(e)] = rad.face(h[e].face).emission * radiance_scale_;
+        }
+    }
+    std::vector<Eigen::Vector3d> source_emission(d.sources.size(), Eigen::Vector3d::Zero());
+    for (std::size_t k = 0; k < d.sources.size(); ++k) {
+        if (!d.sources[k].estimate) source_emission[k] = d.sources[k].known;
+    }
+    estimates_.clear();
+    const bool nothing_known = d.sources.empty();
+    std::vector<int> estimate_index;  // sources being estimated
+    for (std::size_t k = 0; k < d.sources.size(); ++k) {
+        if (d.sources[k].estimate) estimate_index.push_back(static_cast<int>(k));
+    }
+    std::array<FitResult, 3> fits{};
+    const auto direct_real = [&](int e) {
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        for (std::size_t k = 0; k < d.sources.size(); ++k) sum += source_emission[k] * d.sources[k].column.real[static_cast<std::size_t>(e)];
+        return sum;
+    };
+    const auto direct_all = [&](int e) {
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        for (std::size_t k = 0; k < d.sources.size(); ++k) sum += source_emission[k] * d.sources[k].column.all[static_cast<std::size_t>(e)];
+        return sum;
+    };
+
+    if (nothing_known) {
+        // Case 3: every observed surface emits what interreflection does not explain. Reflectances
+        // from the ambient heuristic (seed 000 eq. 4: rho proportional to radiance), its scale
+        // taken from the tags when seen (a surface beside a white ring of known albedo has
+        // rho = albedo_white * L / L_white), else a mean reflectance of mean_albedo_prior.
+        double kappa = 0.0;
+        double ring_weight = 0.0;
+        for (const TagReference& ref : tags) {
+            if (ref.white.pixels < 10) continue;
+            const double lw = luma(ref.white.mean());
+            if (lw > 0.0) {
+                kappa += ref.white.weight * ref.albedo_white / lw;
+                ring_weight += ref.white.weight;
+            }
+        }
+        if (ring_weight > 0.0) {
+            kappa /= ring_weight;
+        } else {
+            kappa = options_.mean_albedo_prior / std::max(luma(scene_mean), 1e-12);
+            warnings_.push_back("no light in the scene and no tag seen: reflectances assume a mean of " +
+                                std::to_string(options_.mean_albedo_prior));
+        }
+        for (int e : rad.leaves(Mode::kReal)) {
+            const auto i = static_cast<std::size_t>(e);
+            const Face& f = rad.face(h[e].face);
+            if (f.albedo_known) continue;
+            const Eigen::Vector3d l = weight[i] > 0.0 ? observed[i] : fallback_radiance(e);
+            rho_[i] = (kappa * l).cwiseMax(0.01).cwiseMin(0.98);
+        }
+        const std::vector<Eigen::Vector3d> l = mixed_radiance();
+        const std::vector<Eigen::Vector3d> gathered = rad.gatherIndirect(Mode::kReal, l);
+        for (int e : rad.leaves(Mode::kReal)) {
+            const auto i = static_cast<std::size_t>(e);
+            emission_le[i] = (l[i] - rho_[i].cwiseProduct(gathered[i]) / kPi).cwiseMax(0.0);
+        }
+        warnings_.push_back("the scene names no light: every observed surface is treated as an emitter (seed 001 sec. 4.4.2)");
+    } else {
+        // Cases 1 and 2: fit, reflectances, solve; twice (the indirect light of unseen elements
+        // comes from the previous pass's model).
+        for (int pass = 0; pass < std::max(1, options_.fit_iterations); ++pass) {
+            const std::vector<Eigen::Vector3d> l = mixed_radiance();
+            const std::vector<Eigen::Vector3d> gathered = rad.gatherIndirect(Mode::kReal, l);
+            if (!estimate_index.empty()) {
+                // Distant lights with a refined direction add it as one more column.
+                for (int channel = 0; channel < 3; ++channel) {
+                    FitProblem problem;
+                    problem.sources = static_cast<int>(estimate_index.size());
+                    problem.groups = d.groups;
+                    bool distant = false;
+                    for (int k : estimate_index) distant = distant || d.sources[static_cast<std::size_t>(k)].direct.kind == DirectSource::Kind::kCell;
+                    problem.tikhonov = distant ? options_.distant_tikhonov : options_.tikhonov;
+                    problem.prior_albedo = options_.mean_albedo_prior;
+                    for (const Eigen::Vector3d& g : d.group_albedo) problem.initial_group_albedo.push_back(g[channel]);
+                    for (int e : observed_leaves) {
+                        const auto i = static_cast<std::size_t>(e);
+                        const Face& f = rad.face(h[e].face);
+                        FitObservation o;
+                        o.radiance = observed[i][channel];
+                        o.weight = weight[i];
+                        o.group = d.group_of_object[static_cast<std::size_t>(f.object_index)];
+                        o.albedo = f.albedo[channel];
+                        o.area = h[e].area;
+                        o.constant = gathered[i][channel];
+                        for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                            if (!d.sources[k].estimate) o.constant += d.sources[k].known[channel] * d.sources[k].column.real[i];
+                        }
+                        for (int k : estimate_index) o.columns.push_back(d.sources[static_cast<std::size_t>(k)].column.real[i]);
+                        problem.observations.push_back(std::move(o));
+                    }
+                    for (std::size_t t = 0; t < tags.size(); ++t) {
+                        if (tags[t].face < 0 || tags[t].white.pixels < 10 || d.tag_columns[t].size() != d.sources.size()) continue;
+                        FitObservation o;
+                        o.radiance = tags[t].white.mean()[channel];
+                        o.weight = tags[t].white.weight;
+                        o.group = -1;
+                        o.albedo = tags[t].albedo_white;
+                        // Indirect light at the ring: that of the leaves under its points.
+                        double indirect = 0.0;
+                        for (const Eigen::Vector3d& p : tags[t].ring_points) {
+                            const Face& f = rad.face(tags[t].face);
+                            Eigen::Matrix<double, 3, 2> b;
+                            b.col(0) = f.edge_s;
+                            b.col(1) = f.edge_t;
+                            const Eigen::Vector2d st = (b.transpose() * b).inverse() * (b.transpose() * (p - f.origin));
+                            indirect += gathered[static_cast<std::size_t>(h.leafAt(tags[t].face, st))][channel];
+                        }
+                        o.constant = indirect / static_cast<double>(std::max<std::size_t>(1, tags[t].ring_points.size()));
+                        for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                            if (!d.sources[k].estimate) o.constant += d.sources[k].known[channel] * d.tag_columns[t][k];
+                        }
+                        for (int k : estimate_index) o.columns.push_back(d.tag_columns[t][static_cast<std::size_t>(k)]);
+                        problem.observations.push_back(std::move(o));
+                    }
+                    ScopedMs timer(stats_.ms_fit);
+                    CL_TRY(fits[static_cast<std::size_t>(channel)], fitChannel(problem));
+                }
+                for (std::size_t j = 0; j < estimate_index.size(); ++j) {
+                    for (int c = 0; c < 3; ++c) {
+                        source_emission[static_cast<std::size_t>(estimate_index[j])][c] = fits[static_cast<std::size_t>(c)].emission[j];
+                    }
+                }
+                for (int g = 0; g < d.groups; ++g) {
+                    for (int c = 0; c < 3; ++c) d.group_albedo[static_cast<std::size_t>(g)][c] = fits[static_cast<std::size_t>(c)].group_albedo[static_cast<std::size_t>(g)];
+                }
+            }
+            // Reflectances per element: rho = pi L / H where observed (seed 000 eq. 4 with the
+            // fitted light instead of an ambient term), else the area-weighted mean of the object's
+            // observed elements, else its group's fit.
+            std::map<int, std::pair<Eigen::Vector3d, double>> object_rho;
+            for (int e : rad.leaves(Mode::kReal)) {
+                const auto i = static_cast<std::size_t>(e);
+                const Face& f = rad.face(h[e].face);
+                if (f.albedo_known || !(weight[i] > 0.0)) continue;
+                const Eigen::Vector3d irradiance = direct_real(e) + gathered[i];
+                const int group = d.group_of_object[static_cast<std::size_t>(f.object_index)];
+                Eigen::Vector3d r = d.group_albedo[static_cast<std::size_t>(group)];
+                for (int c = 0; c < 3; ++c) {
+                    // Hard case: no light reaches the element in the model: keep the group's value.
+                    if (irradiance[c] > 1e-9 * std::max(1.0, luma(scene_mean))) r[c] = kPi * observed[i][c] / irradiance[c];
+                }
+                rho_[i] = r.cwiseMax(0.0).cwiseMin(0.98);
+                auto& [sum, area] = object_rho[f.object_index];
+                if (area == 0.0) sum.setZero();
+                sum += h[e].area * rho_[i];
+                area += h[e].area;
+            }
+            for (int e : rad.leaves(Mode::kReal)) {
+                const auto i = static_cast<std::size_t>(e);
+                const Face& f = rad.face(h[e].face);
+                if (f.albedo_known || weight[i] > 0.0) continue;
+                const auto it = object_rho.find(f.object_index);
+                const int group = d.group_of_object[static_cast<std::size_t>(f.object_index)];
+                rho_[i] = it != object_rho.end() && it->second.second > 0.0 ? Eigen::Vector3d(it->second.first / it->second.second)
+                                                                             : d.group_albedo[static_cast<std::size_t>(group)];
+            }
+            std::vector<Eigen::Vector3d> dr(n, Eigen::Vector3d::Zero());
+            for (int e : rad.leaves(Mode::kReal)) dr[static_cast<std::size_t>(e)] = direct_real(e);
+            ScopedMs timer(stats_.ms_solve);
+            without_ = rad.solve(Mode::kReal, rho_, emission_le, dr);
+        }
+    }
+
+    // The first fit's lights and reflectances make a better source oracle than unit emissions:
+    // rebuild the links once with them and update again.
+    if (!estimate_index.empty() && !d.links_from_fit) {
+        d.links_from_fit = true;
+        build_links(source_emission);
+        return update(virtual_world_from_object);
+    }
+
+    // Step 6: the two solutions.
+    {
+        std::vector<Eigen::Vector3d> dr(n, Eigen::Vector3d::Zero()), da(n, Eigen::Vector3d::Zero());
+        for (int e : rad.leaves(Mode::kReal)) dr[static_cast<std::size_t>(e)] = direct_real(e);
+        for (int e : rad.leaves(Mode::kAll)) da[static_cast<std::size_t>(e)] = direct_all(e);
+        ScopedMs timer(stats_.ms_solve);
+        without_ = rad.solve(Mode::kReal, rho_, emission_le, dr);
+        with_ = rad.solve(Mode::kAll, rho_, emission_le, da);
+    }
+
+    // Step 7: the estimates and warnings, per light.
+    for (std::size_t i = 0; i < d.scene.lights.size(); ++i) {
+        LightEstimate est;
+        est.light = static_cast<int>(i);
+        est.estimated = d.scene.lights[i].emission.isEstimate();
+        const std::string& name = d.scene.lights[i].name;
+        double column_weight = 0.0, max_column_weight = 0.0;
+        for (std::size_t j = 0; j < estimate_index.size(); ++j) {
+            for (int c = 0; c < 3; ++c) max_column_weight = std::max(max_column_weight, fits[static_cast<std::size_t>(c)].column_weight.empty() ? 0.0 : fits[static_cast<std::size_t>(c)].column_weight[j]);
+        }
+        for (std::size_t k = 0; k < d.sources.size(); ++k) {
+            const Source& s = d.sources[k];
+            if (s.light != static_cast<int>(i)) continue;
+            const auto pos = std::find(estimate_index.begin(), estimate_index.end(), static_cast<int>(k));
+            if (s.direct.kind == DirectSource::Kind::kCell) {
+                est.cells.push_back(source_emission[k]);
+                est.emission += source_emission[k] * s.direct.solidAngle();  // irradiance on an upward surface, unoccluded, is sum L w cos; here sum L w
+            } else {
+                est.emission = source_emission[k];
+            }
+            if (pos != estimate_index.end()) {
+                const auto j = static_cast<std::size_t>(pos - estimate_index.begin());
+                for (int c = 0; c < 3; ++c) {
+                    est.relative_error[c] = std::max(est.relative_error[c], fits[static_cast<std::size_t>(c)].relative_error[j]);
+                    column_weight = std::max(column_weight, fits[static_cast<std::size_t>(c)].column_weight[j]);
+                }
+                est.condition_number = fits[1].condition_number;
+                est.negative_in_plain_least_squares = fits[1].negative_in_plain_least_squares;
+            }
+        }
+        if (est.estimated && std::get_if<DistantLightShape>(&d.scene.lights[i].shape) == nullptr) {
+            if (max_column_weight > 0.0 && column_weight < 1e-3 * max_column_weight) {
+                est.warning = "light '" + name + "' contributes almost nothing to what was observed: its emission is regularised towards 0";
+            } else if (!(est.relative_error.maxCoeff() < 0.5)) {
+                est.warning = "light '" + name + "' is poorly determined by what was observed (relative error " +
+                              std::to_string(est.relative_error.maxCoeff()) + "): its emission is regularised";
+            }
+        }
+        if (!est.warning.empty()) warnings_.push_back(est.warning);
+        estimates_.push_back(est);
+    }
+    if (!estimate_index.empty() && observed_leaves.size() + tags.size() < estimate_index.size()) {
+        warnings_.push_back("fewer observed elements (" + std::to_string(observed_leaves.size()) + ") than unknown emissions (" +
+                            std::to_string(estimate_index.size()) + "): the answer is regularised");
+    }
+    if (!estimate_index.empty() && fits[1].scale_from_prior) {
+        warnings_.push_back("no surface of known albedo observed (a tag's white border, or an albedo in the scene): the "
+                            "emissions' scale assumes a mean reflectance of " + std::to_string(options_.mean_albedo_prior));
+    }
+    // The illuminant's colour for the next frames' highlight test.
+    {
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        for (const Eigen::Vector3d& e : source_emission) sum += e;
+        if (sum.sum() > 0.0) d.illuminant = sum;
+    }
+
+    // Step 8: the snapshot.
+    ScopedMs snapshot_timer(stats_.ms_snapshot);
+    snapshot.faces = buildFaceModulations(rad, d.scene, without_, with_, rho_);
+    std::vector<ProbeLight> probe_lights;
+    for (std::size_t k = 0; k < d.sources.size(); ++k) {
+        ProbeLight pl;
+        pl.source = d.sources[k].direct;
+        pl.emission = source_emission[k];
+        pl.indirect = d.sources[k].direct.kind == DirectSource::Kind::kCell;
+        probe_lights.push_back(pl);
+    }
+    snapshot.virtual_objects = buildProbes(rad, d.scene, with_, probe_lights);
+    for (const LightEstimate& est : estimates_) {
+        const Light& light = d.scene.lights[static_cast<std::size_t>(est.light)];
+        EstimatedLight out;
+        out.name = light.name;
+        out.world_from_object = light.world_from_object;
+        out.estimated = est.estimated;
+        out.relative_error = est.relative_error.maxCoeff();
+        out.warning = est.warning;
+        out.emission = est.emission / radiance_scale_;
+        if (const auto* area = std::get_if<AreaLightShape>(&light.shape)) {
+            out.kind = LightKind::kArea;
+            out.size = area->size;
+        } else if (const auto* disc = std::get_if<DiscLightShape>(&light.shape)) {
+            out.kind = LightKind::kDisc;
+            out.radius = disc->radius;
+        } else if (std::holds_alternative<PointLightShape>(light.shape)) {
+            out.kind = LightKind::kPoint;
+        } else if (const auto* dir = std::get_if<DirectionalLightShape>(&light.shape)) {
+            out.kind = LightKind::kDirectional;
+            out.direction = dir->direction.normalized();
+        } else {
+            continue;  // distant: its dominant direction (below) and the probes
+        }
+        snapshot.lights.push_back(out);
+    }
+    snapshot.solve = with_.summary;
+    snapshot.solve.elements = static_cast<int>(rad.leaves(Mode::kAll).size());
+    snapshot.solve.links = rad.linkCount(Mode::kAll);
+    snapshot.warnings = warnings_;
+    return snapshot;
+}
+
+Result<void> Estimator::solveWith(const std::vector<Eigen::Vector3d>& emission, const std::vector<Eigen::Vector3d>& albedo,
+                                  const std::vector<Rigid3d>& virtual_world_from_object) {
+    Impl& d = *impl_;
+    if (emission.size() != d.scene.lights.size() || albedo.size() != d.scene.real_objects.size()) {
+        return fail(ErrorCode::kUsage, "solveWith: one emission per light and one albedo per real object");
+    }
+    for (Source& s : d.sources) {
+        s.estimate = false;
+        s.known = emission[static_cast<std::size_t>(s.light)];
+    }
+    for (std::size_t f = 0; f < d.real_faces.size(); ++f) {
+        d.real_faces[f].albedo = albedo[static_cast<std::size_t>(d.real_faces[f].object_index)];
+        d.real_faces[f].albedo_known = true;
+    }
+    // The radiosity system reads albedos from its own faces: rebuild it with the new ones.
+    radiosity_ = std::make_unique<Radiosity>(d.real_faces, d.virtual_faces, d.sphere_radius, *rays_, options_.radiosity);
+    d.mesh_built = false;
+    d.links_from_fit = false;
+    d.poses_changed = true;
+    d.column_valid.clear();
+    for (Source& s : d.sources) s.column = {};
+    for (auto& g : d.group_of_object) g = -1;
+    d.groups = 0;
+    d.group_albedo.clear();
+    // Nothing needs observing: a pseudo-observation is not used by the known-everything path.
+    CL_TRY(LightingSnapshot ignored, update(virtual_world_from_object));
+    (void)ignored;
+    return {};
+}
+
+}  // namespace commonlight::lighting

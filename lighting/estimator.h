@@ -1,0 +1,127 @@
+// The estimator behind SceneLighting (lighting/scene_lighting.h): observations -> lights and
+// reflectances -> radiosity with and without the virtual objects -> snapshot. Public so that
+// tests and the benchmark can reach its intermediate results (the fit, the solutions).
+//
+// The three light cases, chosen per light by the scene file (issue 10, seeds 001 and 003):
+//   1. Known geometry, unknown emission (`radiance: estimate`): one unit-emission direct column per
+//      light; emissions fitted jointly with per-object reflectances (lighting/light_fit.h).
+//   2. Unknown distant light (`distant: {directions: N}`): N equal-solid-angle cells of the upper
+//      hemisphere as columns, interreflection removed first (inverse radiosity), NNLS with a small
+//      Tikhonov term; then the dominant direction refined continuously (a pattern search on the
+//      direction of a directional light added to the fit).
+//   3. No light at all in the scene: every observed surface emits what is not explained by
+//      interreflection (seed 001 sec. 4.4.2), so virtual objects still shadow and bounce light.
+// Lights whose emission the scene gives are used as given (in scene units, times radiance_scale).
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "lighting/direct.h"
+#include "lighting/light_fit.h"
+#include "lighting/observations.h"
+#include "lighting/radiosity.h"
+#include "lighting/ray_scene.h"
+#include "lighting/scene_lighting.h"
+
+namespace commonlight::lighting {
+
+struct EstimatorOptions {
+    RadiosityOptions radiosity;
+    double initial_element_size = 0.0;  // metres; 0: from the scene's area and the element budget (1/16 of it)
+    double light_refinement_size = 0.04;  // metres: refinement by light and observations stops here
+    double observation_cell = 0.01;     // metres
+    double tikhonov = 1e-4;             // relative (lighting/light_fit.h), known-geometry lights
+    double distant_tikhonov = 1e-3;     // relative, distant cells
+    int fit_iterations = 2;             // outer passes of (fit, reflectances, solve)
+    bool refine_distant = true;         // continuous refinement of the dominant distant direction
+    int min_pixels = 3;                 // an element counts as observed from this many pixels
+    bool refine_by_light = true;        // split leaves where direct light varies (shadow boundaries)
+    bool refine_unobserved = false;     // ... also where no frame has looked (benchmarks of the solver)
+    bool refine_by_observation = true;  // split observed leaves whose radiance varies
+    bool refine_by_virtual = true;      // split leaves in the virtual objects' shadows and light
+    double mean_albedo_prior = 0.5;     // scale of reflectances when nothing of known albedo is seen
+};
+
+// One light's estimate, in relative units (multiply by 1 / radiance_scale for scene units).
+struct LightEstimate {
+    int light = -1;                 // Scene::lights index
+    Eigen::Vector3d emission = Eigen::Vector3d::Zero();  // per-unit of the light's quantity (radiance, intensity, irradiance)
+    bool estimated = false;
+    Eigen::Vector3d relative_error = Eigen::Vector3d::Zero();
+    std::string warning;
+    // Distant lights: the cells' radiance and the refined dominant direction (towards the light).
+    std::vector<Eigen::Vector3d> cells;
+    std::optional<Eigen::Vector3d> dominant_direction;
+    Eigen::Vector3d dominant_irradiance = Eigen::Vector3d::Zero();  // on a surface facing it, relative
+    double condition_number = 0.0;
+    int negative_in_plain_least_squares = 0;
+};
+
+// Where an update's time and elements went (the benchmark reports them).
+struct EstimatorStats {
+    int leaves_initial = 0;       // after the initial mesh
+    int leaves_light = 0;         // after refinement where direct light varies
+    int leaves_links = 0;         // after link refinement
+    int leaves_virtual = 0;       // after refinement in the virtual objects' shadows
+    int leaves_observation = 0;   // after refinement where the observations vary
+    int observed_leaves = 0;
+    double ms_columns = 0.0;      // direct-light columns (visibility rays)
+    double ms_links = 0.0;        // link refinement, form factors and visibility
+    double ms_fit = 0.0;          // light and reflectance fit (all passes)
+    double ms_solve = 0.0;        // the radiosity solves
+    double ms_snapshot = 0.0;     // textures and probes
+};
+
+class Estimator final : public SceneLighting {
+public:
+    static Result<std::unique_ptr<Estimator>> create(const Scene& scene, const CameraModel& camera,
+                                                     const SceneLightingOptions& options,
+                                                     const EstimatorOptions& estimator = {});
+    ~Estimator() override;
+
+    void setVirtualPoses(const std::vector<Rigid3d>& world_from_object) override;
+    Result<void> observe(const ImageView& rgb8, const Rigid3d& cam_from_world, double exposure_s, double analog_gain,
+                         std::int64_t timestamp_ns) override;
+    Result<LightingSnapshot> update(const std::vector<Rigid3d>& virtual_world_from_object) override;
+
+    // After update(): the estimates and solutions it used.
+    const std::vector<LightEstimate>& lights() const noexcept { return estimates_; }
+    const Radiosity& radiosity() const noexcept { return *radiosity_; }
+    const Observations& observations() const noexcept { return *observations_; }
+    const Solution& without() const noexcept { return without_; }   // B~
+    const Solution& with() const noexcept { return with_; }         // B
+    const std::vector<Eigen::Vector3d>& reflectance() const noexcept { return rho_; }  // per element
+    const std::vector<std::string>& warnings() const noexcept { return warnings_; }
+    const EstimatorStats& stats() const noexcept { return stats_; }
+    double radianceScale() const noexcept { return radiance_scale_; }
+    EstimatorOptions& options() noexcept { return options_; }
+    // Solve with given emissions and reflectances (no fit): for benchmarks that isolate the solver.
+    // `emission`: per scene light, relative units; `albedo_override`: per real object.
+    Result<void> solveWith(const std::vector<Eigen::Vector3d>& emission, const std::vector<Eigen::Vector3d>& albedo,
+                           const std::vector<Rigid3d>& virtual_world_from_object);
+    // The unit-emission direct column of a scene light (area, disc, point, directional), for tests.
+    const DirectColumn* column(int light) const;
+
+    struct Impl;
+
+private:
+    explicit Estimator(std::unique_ptr<Impl> impl);
+
+    std::unique_ptr<Impl> impl_;
+    EstimatorOptions options_;
+    std::unique_ptr<RayScene> rays_;
+    std::unique_ptr<Radiosity> radiosity_;
+    std::unique_ptr<Observations> observations_;
+    std::vector<LightEstimate> estimates_;
+    Solution without_;
+    Solution with_;
+    std::vector<Eigen::Vector3d> rho_;
+    std::vector<std::string> warnings_;
+    EstimatorStats stats_;
+    double radiance_scale_ = 1.0;
+};
+
+}  // namespace commonlight::lighting

@@ -1,0 +1,75 @@
+// Fitting light emissions and reflectances to what the frames show (seed 001 sec. 4.3, seed 003
+// sec. 5.3), one colour channel at a time.
+//
+// Each observation is a surface patch (a leaf element, or a tag's white border) with observed
+// radiance L (relative units) and weight W (pixel weights). Its model, linear in the emissions
+// E_k of the unknown sources and in its reflectance rho:
+//     L = rho / pi * (sum_k E_k D_k + C)
+// D_k the direct irradiance of source k at unit emission (lighting/direct.h), C the irradiance that
+// does not depend on the unknowns: known lights' direct light and the indirect light gathered
+// from the observed radiance of the other surfaces (inverse radiosity, seed 003 sec. 5.2: the
+// interreflection is removed before the fit). Reflectances are one per group (a proxy object, per
+// channel: a uniform material) or known (tags, albedos the scene gives).
+//
+// The problem is bilinear (rho x E); it is solved jointly by Ceres with bounds (E >= 0, rho in
+// [0.005, 0.98]) and a small Tikhonov term on E, after a linear NNLS start at rho = 0.5. Known
+// albedos fix the overall scale that rho and E otherwise share; without any, a weak prior holds
+// the area-weighted mean reflectance at `prior_albedo` and the result says so.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/result.h"
+
+namespace commonlight::lighting {
+
+struct FitObservation {
+    double radiance = 0.0;        // L, relative radiance (one channel)
+    double weight = 0.0;          // W > 0
+    int group = -1;               // reflectance group; -1: `albedo` is known
+    double albedo = 0.5;          // known reflectance (group -1)
+    double area = 0.0;            // m^2 (the prior's area weighting)
+    std::vector<double> columns;  // D_k, one per source
+    double constant = 0.0;        // C
+};
+
+struct FitProblem {
+    int sources = 0;
+    int groups = 0;
+    std::vector<FitObservation> observations;
+    // Tikhonov weight relative to the mean diagonal of the weighted normal matrix: the fit minimises
+    // sum W r^2 + tikhonov * mean(diag(A^T W A)) * |E|^2.
+    double tikhonov = 1e-4;
+    double prior_albedo = 0.5;
+    std::vector<double> initial_group_albedo;  // optional start (size groups), else 0.5
+    int max_iterations = 100;
+};
+
+struct FitResult {
+    std::vector<double> emission;        // per source, >= 0
+    std::vector<double> group_albedo;    // per group, in [0.005, 0.98]
+    std::vector<double> relative_error;  // per source: standard error / emission (from the residual; inf when 0)
+    std::vector<double> column_weight;   // per source: sqrt of its column's weighted energy (how much it is seen)
+    double condition_number = 0.0;       // of the weighted design matrix at the solution's albedos
+    double residual_rms = 0.0;           // weighted RMS of L - model, relative radiance
+    double relative_residual = 0.0;      // residual_rms / weighted RMS of L
+    int negative_in_plain_least_squares = 0;  // unconstrained LS solution's negative entries (diagnostic)
+    bool scale_from_prior = false;       // no known albedo anchored the scale
+    int iterations = 0;
+};
+
+// Solves one channel. Errors (kBadInput): no observation, sizes that do not match, non-finite input.
+Result<FitResult> fitChannel(const FitProblem& problem);
+
+// Non-negative least squares with Tikhonov regularisation: min |sqrt(W)(A x - b)|^2 + lambda |x|^2,
+// x >= 0, by Ceres with lower bounds (Eigen 3.4 has no NNLS). Errors: sizes, non-finite input.
+Result<Eigen::VectorXd> nnls(const Eigen::MatrixXd& a, const Eigen::VectorXd& b, const Eigen::VectorXd& weights,
+                             double lambda);
+
+// sigma_max / sigma_min of a matrix (infinity when singular).
+double conditionNumber(const Eigen::MatrixXd& a);
+
+}  // namespace commonlight::lighting

@@ -1,0 +1,371 @@
+#include "lighting/observations.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <numbers>
+
+namespace commonlight::lighting {
+
+namespace {
+
+int powerOfTwoCells(double length, double cell_size) {
+    int n = 1;
+    while (n < 256 && length / n > cell_size) n *= 2;
+    return n;
+}
+
+// Per-sample result of Step 1.
+struct Sample {
+    int face = -1;          // -1 nothing, -2 virtual, -3 light
+    int cell = -1;
+    int tag = -1;           // tag whose printed area it hits
+    bool ring = false;      // on that tag's white ring
+    bool excluded = false;
+    std::uint8_t reason = 0;  // 1 saturated, 2 dark
+    Eigen::Vector3d radiance = Eigen::Vector3d::Zero();
+    double weight = 0.0;
+    int block = -1;         // highlight neighbourhood key within the face
+};
+
+double luma(const Eigen::Vector3d& rgb) { return 0.2126 * rgb.x() + 0.7152 * rgb.y() + 0.0722 * rgb.z(); }
+
+}  // namespace
+
+TagLayout tagLayout(std::string_view family) {
+    if (family == "tag36h11" || family == "tag36h10") return {8, 10, true};
+    if (family == "tag25h9") return {7, 9, true};
+    if (family == "tag16h5") return {6, 8, true};
+    if (family == "tagStandard41h12") return {5, 9, true};
+    if (family == "tagStandard52h13") return {6, 10, true};
+    if (family == "tagCircle21h7") return {5, 9, true};
+    if (family == "tagCircle49h12") return {5, 11, true};
+    if (family == "tagCustom48h12") return {6, 10, true};
+    return {};
+}
+
+Observations::Observations(const std::vector<Face>& real_faces, const Scene& scene, const CameraModel& camera,
+                           const ResponseCurve& response, int stride, double cell_size)
+    : faces_(real_faces), camera_(camera), response_(response), stride_(std::max(1, stride)) {
+    // Step 0a: a grid per face.
+    for (const Face& f : faces_) {
+        Grid g;
+        g.triangle = f.triangle;
+        g.ns = powerOfTwoCells(f.lengthS(), cell_size);
+        g.nt = powerOfTwoCells(f.lengthT(), cell_size);
+        g.cells.resize(static_cast<std::size_t>(g.ns) * static_cast<std::size_t>(g.nt));
+        Eigen::Matrix<double, 3, 2> basis;
+        basis.col(0) = f.edge_s;
+        basis.col(1) = f.edge_t;
+        const Eigen::Matrix2d gram = basis.transpose() * basis;
+        const Eigen::Matrix<double, 2, 3> dual = gram.inverse() * basis.transpose();
+        g.ds_star = dual.row(0).transpose();
+        g.dt_star = dual.row(1).transpose();
+        g.cell_area = (f.triangle ? 2.0 : 1.0) * f.area / (g.ns * g.nt);
+        grids_.push_back(std::move(g));
+    }
+    // Step 0b: the tags' frames and their white rings.
+    const TagLayout layout = tagLayout(scene.tags.family);
+    for (std::size_t i = 0; i < scene.tags.items.size(); ++i) {
+        const TagItem& item = scene.tags.items[i];
+        TagFrame tf;
+        tf.tag_from_world = item.world_from_tag.inverse();
+        tf.cell = item.size / layout.width_at_border;
+        tf.half_black = 0.5 * item.size;
+        tf.half_total = 0.5 * tf.cell * layout.total_width;
+        tf.white_ring = layout.known && layout.total_width == layout.width_at_border + 2;
+        tag_frames_.push_back(tf);
+        TagReference ref;
+        ref.tag = static_cast<int>(i);
+        ref.albedo_white = item.albedo_white;
+        ref.normal = item.world_from_tag.rotationMatrix().col(2);
+        const double r = tf.half_black + 0.5 * tf.cell;  // the ring's middle line
+        for (int k = 0; k < 16; ++k) {
+            // 16 points round the ring's middle line: 4 per side.
+            const int side = k / 4;
+            const double u = -r + 2.0 * r * ((k % 4) + 0.5) / 4.0;
+            const Eigen::Vector2d p = side == 0 ? Eigen::Vector2d(u, -r)
+                                    : side == 1 ? Eigen::Vector2d(r, u)
+                                    : side == 2 ? Eigen::Vector2d(-u, r)
+                                                : Eigen::Vector2d(-r, -u);
+            ref.ring_points.push_back(item.world_from_tag * Eigen::Vector3d(p.x(), p.y(), 0.0));
+        }
+        tags_.push_back(std::move(ref));
+    }
+    // Step 0c: the camera rays of the sample grid (the lens inverted once, not per frame).
+    samples_x_ = (camera_.width + stride_ - 1) / stride_;
+    samples_y_ = (camera_.height + stride_ - 1) / stride_;
+    rays_in_cam_.resize(static_cast<std::size_t>(samples_x_) * static_cast<std::size_t>(samples_y_));
+    for (int j = 0; j < samples_y_; ++j) {
+        for (int i = 0; i < samples_x_; ++i) {
+            const Eigen::Vector2d pixel(std::min(i * stride_ + stride_ / 2, camera_.width - 1),
+                                        std::min(j * stride_ + stride_ / 2, camera_.height - 1));
+            const auto ray = camera_.unproject(pixel);
+            rays_in_cam_[static_cast<std::size_t>(j) * samples_x_ + i] =
+                ray ? Eigen::Vector3f(ray->normalized().cast<float>()) : Eigen::Vector3f::Constant(std::nanf(""));
+        }
+    }
+}
+
+const RadianceStats& Observations::cell(int face, int i, int j) const {
+    const Grid& g = grids_[static_cast<std::size_t>(face)];
+    return g.cells[static_cast<std::size_t>(j) * static_cast<std::size_t>(g.ns) + static_cast<std::size_t>(i)];
+}
+
+Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d& cam_from_world, double exposure_s,
+                                           double gain, const RayScene& rays, const Eigen::Vector3d& illuminant) {
+    if (rgb8.format != PixelFormat::kRgb8 || rgb8.width != camera_.width || rgb8.height != camera_.height) {
+        return fail(ErrorCode::kBadInput, "lighting: observation must be RGB8 at the camera's size");
+    }
+    if (!cam_from_world.isValid()) return fail(ErrorCode::kBadInput, "lighting: the camera pose is not finite");
+    if (!(exposure_s > 0.0 && gain > 0.0 && std::isfinite(exposure_s * gain))) {
+        return fail(ErrorCode::kBadInput, "lighting: exposure x gain must be positive and finite");
+    }
+    const Rigid3d world_from_cam = cam_from_world.inverse();
+    const Eigen::Matrix3d rotation = world_from_cam.rotationMatrix();
+    const Eigen::Vector3d origin = world_from_cam.translation;
+    const double to_relative = 1.0 / (exposure_s * gain);
+    std::vector<Sample> samples(rays_in_cam_.size());
+
+    // Step 1: one ray per sample, in parallel; the per-pixel decisions that need no neighbour.
+    tbb::parallel_for(0, samples_y_, [&](int j) {
+        for (int i = 0; i < samples_x_; ++i) {
+            const std::size_t k = static_cast<std::size_t>(j) * samples_x_ + i;
+            Sample& s = samples[k];
+            const Eigen::Vector3f& d = rays_in_cam_[k];
+            if (!d.allFinite()) continue;
+            const int px = std::min(i * stride_ + stride_ / 2, camera_.width - 1);
+            const int py = std::min(j * stride_ + stride_ / 2, camera_.height - 1);
+            const std::uint8_t* c = rgb8.row(py) + 3 * px;
+            const Eigen::Vector3d dir = rotation * d.cast<double>();
+            const RayHit hit = rays.intersectAll(origin, dir);
+            if (hit.kind == HitKind::kVirtual) {
+                s.face = -2;
+                continue;
+            }
+            if (hit.kind != HitKind::kRealFace) {
+                s.face = hit.kind == HitKind::kLight ? -3 : -1;
+                continue;
+            }
+            s.face = hit.index;
+            const Eigen::Vector3d p = origin + hit.distance * dir;
+            const Face& f = faces_[static_cast<std::size_t>(s.face)];
+            const Grid& g = grids_[static_cast<std::size_t>(s.face)];
+            const double st_s = std::clamp((p - f.origin).dot(g.ds_star), 0.0, 1.0);
+            const double st_t = std::clamp((p - f.origin).dot(g.dt_star), 0.0, 1.0);
+            const int ci = std::min(static_cast<int>(st_s * g.ns), g.ns - 1);
+            const int cj = std::min(static_cast<int>(st_t * g.nt), g.nt - 1);
+            s.cell = cj * g.ns + ci;
+            s.block = (cj / 8) * ((g.ns + 7) / 8) + ci / 8;
+            // Tags lie on surfaces as decals: a hit inside a tag's printed square is the tag.
+            for (std::size_t t = 0; t < tag_frames_.size(); ++t) {
+                const TagFrame& tf = tag_frames_[t];
+                const Eigen::Vector3d q = tf.tag_from_world * p;
+                if (std::abs(q.z()) > std::max(3e-3, 4.0 * rays.epsilon())) continue;
+                const double m = std::max(std::abs(q.x()), std::abs(q.y()));
+                if (m > tf.half_total) continue;
+                s.tag = static_cast<int>(t);
+                // The middle half of the white ring only: its edges blur into black and background.
+                s.ring = tf.white_ring && m > tf.half_black + 0.25 * tf.cell && m < tf.half_black + 0.75 * tf.cell;
+                break;
+            }
+            if (c[0] >= 250 || c[1] >= 250 || c[2] >= 250) {
+                s.excluded = true;
+                s.reason = 1;
+                continue;
+            }
+            if (c[0] <= 4 && c[1] <= 4 && c[2] <= 4) {
+                s.excluded = true;
+                s.reason = 2;
+                continue;
+            }
+            s.radiance = Eigen::Vector3d(response_.toLinear(0, c[0]), response_.toLinear(1, c[1]),
+                                         response_.toLinear(2, c[2])) *
+                         to_relative;
+            const double cos_view = std::abs(f.normal.dot(dir));
+            s.weight = std::max(cos_view, 0.1);
+        }
+    });
+
+    // Step 2: neighbours (mixed pixels at face borders) and highlights.
+    FrameObservation obs;
+    obs.samples = samples.size();
+    const auto face_at = [&](int i, int j) {
+        if (i < 0 || j < 0 || i >= samples_x_ || j >= samples_y_) return -1;
+        return samples[static_cast<std::size_t>(j) * samples_x_ + i].face;
+    };
+    // Neighbourhood statistics for the highlight test: per (face, block), median luminance and
+    // mean chromaticity of this frame's usable samples.
+    struct Block {
+        std::vector<double> luma;
+        Eigen::Vector3d chroma_sum = Eigen::Vector3d::Zero();
+        double median = 0.0;
+        Eigen::Vector3d chroma = Eigen::Vector3d::Zero();
+    };
+    std::map<std::pair<int, int>, Block> blocks;
+    std::vector<char> usable(samples.size(), 0);
+    for (int j = 0; j < samples_y_; ++j) {
+        for (int i = 0; i < samples_x_; ++i) {
+            const std::size_t k = static_cast<std::size_t>(j) * samples_x_ + i;
+            Sample& s = samples[k];
+            if (s.face == -2) {
+                ++obs.on_virtual;
+                continue;
+            }
+            if (s.face < 0) {
+                ++obs.nothing;
+                continue;
+            }
+            if (s.tag >= 0 && !s.ring) {
+                ++obs.on_tag;
+                continue;
+            }
+            if (s.excluded) {
+                if (s.tag >= 0) ++obs.on_tag;
+                if (s.reason == 1) ++obs.saturated;
+                if (s.reason == 2) ++obs.dark;
+                continue;
+            }
+            if (face_at(i - 1, j) != s.face || face_at(i + 1, j) != s.face || face_at(i, j - 1) != s.face ||
+                face_at(i, j + 1) != s.face) {
+                ++obs.border;
+                continue;
+            }
+            if (s.tag >= 0) continue;  // a ring pixel: a reference, handled below
+            usable[k] = 1;
+            Block& b = blocks[{s.face, s.block}];
+            b.luma.push_back(luma(s.radiance));
+            const double sum = s.radiance.sum();
+            if (sum > 0.0) b.chroma_sum += s.radiance / sum;
+        }
+    }
+    for (auto& [key, b] : blocks) {
+        if (b.luma.empty()) continue;
+        auto mid = b.luma.begin() + static_cast<std::ptrdiff_t>(b.luma.size() / 2);
+        std::nth_element(b.luma.begin(), mid, b.luma.end());
+        b.median = *mid;
+        b.chroma = b.chroma_sum / static_cast<double>(b.luma.size());
+    }
+    Eigen::Vector3d illum = illuminant.cwiseMax(0.0);
+    illum = illum.sum() > 0.0 ? Eigen::Vector3d(illum / illum.sum()) : Eigen::Vector3d::Constant(1.0 / 3.0);
+
+    // Step 3: accumulate.
+    for (std::size_t k = 0; k < samples.size(); ++k) {
+        Sample& s = samples[k];
+        if (s.face < 0) continue;
+        if (s.tag >= 0 && s.ring && !s.excluded) {
+            const int i = static_cast<int>(k % samples_x_), j = static_cast<int>(k / samples_x_);
+            if (face_at(i - 1, j) == s.face && face_at(i + 1, j) == s.face && face_at(i, j - 1) == s.face &&
+                face_at(i, j + 1) == s.face) {
+                TagReference& ref = tags_[static_cast<std::size_t>(s.tag)];
+                ref.white.add(s.radiance, s.weight);
+                ref.face = s.face;
+                ++obs.tag_reference;
+                ++obs.on_tag;
+            }
+            continue;
+        }
+        if (!usable[k]) continue;
+        const Block& b = blocks[{s.face, s.block}];
+        if (b.luma.size() >= 8 && luma(s.radiance) > 1.5 * b.median) {
+            // A local peak: a highlight if its chromaticity moved towards the illuminant's.
+            const double sum = s.radiance.sum();
+            const Eigen::Vector3d c = sum > 0.0 ? Eigen::Vector3d(s.radiance / sum) : b.chroma;
+            const Eigen::Vector3d towards = illum - b.chroma;
+            const double reach = towards.squaredNorm();
+            // Hard case: a surface the illuminant's own colour: chromaticity cannot tell; keep it.
+            if (reach > 4e-4 && (c - b.chroma).dot(towards) / reach > 0.3) {
+                ++obs.highlight;
+                continue;
+            }
+        }
+        grids_[static_cast<std::size_t>(s.face)].cells[static_cast<std::size_t>(s.cell)].add(s.radiance, s.weight);
+        ++obs.used;
+    }
+    ++frames_;
+    totals_.samples += obs.samples;
+    totals_.used += obs.used;
+    totals_.saturated += obs.saturated;
+    totals_.dark += obs.dark;
+    totals_.on_virtual += obs.on_virtual;
+    totals_.on_tag += obs.on_tag;
+    totals_.tag_reference += obs.tag_reference;
+    totals_.border += obs.border;
+    totals_.highlight += obs.highlight;
+    totals_.nothing += obs.nothing;
+    return obs;
+}
+
+namespace {
+
+// Calls f(cell) for the cells of a face grid whose centres lie inside the element.
+template <typename Grid, typename F>
+int forCellsInside(const Grid& g, const Element& element, F f) {
+    const Eigen::Vector2d corners[4] = {element.st, element.st + element.ds, element.st + element.dt,
+                                        element.st + element.ds + element.dt};
+    Eigen::Vector2d lo = corners[0], hi = corners[0];
+    for (const auto& c : corners) {
+        lo = lo.cwiseMin(c);
+        hi = hi.cwiseMax(c);
+    }
+    const int i0 = std::max(0, static_cast<int>(std::floor(lo.x() * g.ns)));
+    const int i1 = std::min(g.ns - 1, static_cast<int>(std::ceil(hi.x() * g.ns)));
+    const int j0 = std::max(0, static_cast<int>(std::floor(lo.y() * g.nt)));
+    const int j1 = std::min(g.nt - 1, static_cast<int>(std::ceil(hi.y() * g.nt)));
+    Eigen::Matrix2d m;
+    m.col(0) = element.ds;
+    m.col(1) = element.dt;
+    const Eigen::Matrix2d inv = m.inverse();
+    int inside = 0;
+    for (int j = j0; j <= j1; ++j) {
+        for (int i = i0; i <= i1; ++i) {
+            const Eigen::Vector2d centre((i + 0.5) / g.ns, (j + 0.5) / g.nt);
+            const Eigen::Vector2d ab = inv * (centre - element.st);
+            if (!insideUnit(ab.x(), ab.y(), element.triangle, 1e-9)) continue;
+            ++inside;
+            f(g.cells[static_cast<std::size_t>(j) * g.ns + i]);
+        }
+    }
+    return inside;
+}
+
+}  // namespace
+
+double Observations::spread(const Element& element, int min_pixels) const {
+    const Grid& g = grids_[static_cast<std::size_t>(element.face)];
+    std::vector<double> values;
+    forCellsInside(g, element, [&](const RadianceStats& c) {
+        if (c.pixels >= static_cast<std::uint32_t>(min_pixels)) values.push_back(luma(c.mean()));
+    });
+    if (values.size() < 4) return 0.0;
+    std::sort(values.begin(), values.end());
+    const double p10 = values[values.size() / 10], p90 = values[values.size() * 9 / 10];
+    double mean = 0.0;
+    for (double v : values) mean += v;
+    mean /= static_cast<double>(values.size());
+    return mean > 0.0 ? (p90 - p10) / mean : 0.0;
+}
+
+RadianceStats Observations::aggregate(const Element& element) const {
+    const Grid& g = grids_[static_cast<std::size_t>(element.face)];
+    RadianceStats out;
+    const int inside = forCellsInside(g, element, [&](const RadianceStats& c) { out.merge(c); });
+    if (inside == 0) {
+        // Hard case: an element smaller than a cell: the cell under its centre, weighted by the
+        // fraction of the cell it covers.
+        const Eigen::Vector2d centre = element.st + (element.triangle ? 1.0 / 3.0 : 0.5) * (element.ds + element.dt);
+        const int i = std::clamp(static_cast<int>(centre.x() * g.ns), 0, g.ns - 1);
+        const int j = std::clamp(static_cast<int>(centre.y() * g.nt), 0, g.nt - 1);
+        const RadianceStats& c = g.cells[static_cast<std::size_t>(j) * g.ns + i];
+        const double fraction = g.cell_area > 0.0 ? std::min(1.0, element.area / g.cell_area) : 1.0;
+        out.weight = c.weight * fraction;
+        out.sum = c.sum * fraction;
+        out.sum_sq = c.sum_sq * fraction;
+        out.pixels = c.pixels;
+    }
+    return out;
+}
+
+}  // namespace commonlight::lighting
