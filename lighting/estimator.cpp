@@ -9,8 +9,11 @@
 #include <map>
 #include <numbers>
 #include <variant>
+#include <cstdio>
+#include <cstdlib>
 
 #include "core/log.h"
+#include "lighting/distant.h"
 #include "lighting/form_factor.h"
 #include "lighting/sampling.h"
 #include "lighting/snapshot_builder.h"
@@ -73,6 +76,7 @@ struct Estimator::Impl {
     std::map<int, std::uint64_t> dominant_frames;
     Eigen::Vector3d illuminant = Eigen::Vector3d::Ones();
     bool links_from_fit = false;  // the links were rebuilt with the first fit's lights
+    std::vector<Eigen::Vector3d> last_emission;  // per source, the last update's (relative units)
     std::vector<std::string> setup_warnings;
 };
 
@@ -258,6 +262,46 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         for (int e : todo) d.column_valid[static_cast<std::size_t>(e)] = 1;
     };
 
+    // Splits observed leaves where a light's direct irradiance varies: a shadow boundary across
+    // the leaf (visible fraction between 5% and 95%) or a light close enough that its unoccluded
+    // irradiance changes by 2x over the leaf. `dominant_only`: only the refined directions of
+    // distant lights (their shadows appear once the direction is known).
+    const auto refine_light = [&](bool dominant_only) {
+        int total = 0;
+        for (int round = 0; round < 4; ++round) {
+            int split = 0;
+            for (int e : rad.leaves(Mode::kReal)) {
+                if (h.leafCount() + 4 >= ro.max_elements) break;
+                if (!h.canSubdivide(e, options_.light_refinement_size)) continue;
+                // Model only what the scene needs: where the camera has looked.
+                if (!options_.refine_unobserved && observations_->aggregate(h[e]).pixels == 0) continue;
+                const ElementGeometry g = rad.geometry(e);
+                bool vary = false;
+                for (const Source& s : d.sources) {
+                    if (s.direct.kind == DirectSource::Kind::kCell || (dominant_only && !s.dominant)) continue;
+                    const double open = unoccluded(s.direct, g.centroid, g.normal);
+                    if (!(open > 0.0)) continue;
+                    const double v = s.column.real[static_cast<std::size_t>(e)] / open;
+                    if (v > 0.05 && v < 0.95) vary = true;
+                    double lo = open, hi = open;
+                    for (const Eigen::Vector3d& c : g.polygon()) {
+                        const double f = unoccluded(s.direct, c + 0.02 * (g.centroid - c), g.normal);
+                        lo = std::min(lo, f);
+                        hi = std::max(hi, f);
+                    }
+                    if (hi > 2.0 * std::max(lo, 1e-12)) vary = true;
+                    if (vary) break;
+                }
+                if (vary && h.subdivide(e, options_.light_refinement_size)) ++split;
+            }
+            rad.markBuried();
+            refresh_columns(false);
+            total += split;
+            if (split == 0) break;
+        }
+        return total;
+    };
+
     // The real scene's links, with the source oracle fed by an estimate of each leaf's radiance:
     // the fitted lights when there are some, else every light at unit emission (reflectance 0.5).
     const auto build_links = [&](const std::optional<std::vector<Eigen::Vector3d>>& emission) {
@@ -298,44 +342,16 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         rad.markBuried();
         stats_.leaves_initial = h.leafCount();
         refresh_columns(true);
-        if (options_.refine_by_light) {
-            for (int round = 0; round < 4; ++round) {
-                int split = 0;
-                for (int e : rad.leaves(Mode::kReal)) {
-                    if (h.leafCount() + 4 >= ro.max_elements) break;
-                    if (!h.canSubdivide(e, options_.light_refinement_size)) continue;
-                    // Model only what the scene needs: where the camera has looked.
-                    if (!options_.refine_unobserved && observations_->aggregate(h[e]).pixels == 0) continue;
-                    const ElementGeometry g = rad.geometry(e);
-                    bool vary = false;
-                    for (const Source& s : d.sources) {
-                        if (s.direct.kind == DirectSource::Kind::kCell) continue;
-                        const double open = unoccluded(s.direct, g.centroid, g.normal);
-                        if (!(open > 0.0)) continue;
-                        const double v = s.column.real[static_cast<std::size_t>(e)] / open;
-                        // A shadow boundary across the leaf, or a light close enough that its
-                        // irradiance changes a lot over the leaf.
-                        if (v > 0.05 && v < 0.95) vary = true;
-                        double lo = open, hi = open;
-                        for (const Eigen::Vector3d& c : g.polygon()) {
-                            const double f = unoccluded(s.direct, c + 0.02 * (g.centroid - c), g.normal);
-                            lo = std::min(lo, f);
-                            hi = std::max(hi, f);
-                        }
-                        if (hi > 2.0 * std::max(lo, 1e-12)) vary = true;
-                        if (vary) break;
-                    }
-                    if (vary && h.subdivide(e, options_.light_refinement_size)) ++split;
-                }
-                rad.markBuried();
-                refresh_columns(false);
-                if (split == 0) break;
-            }
-        }
+        if (options_.refine_by_light) refine_light(false);
         stats_.leaves_light = h.leafCount();
         build_links(std::nullopt);
         stats_.leaves_links = h.leafCount();
         d.mesh_built = true;
+    }
+    if (options_.refine_by_light && std::any_of(d.sources.begin(), d.sources.end(), [](const Source& src) { return src.dominant; })) {
+        // A distant light's refined direction casts shadows the first mesh did not know of; once
+        // they are resolved, the direction is searched again on the finer elements.
+        if (refine_light(true) > 0) d.dominant_frames.clear();
     }
     if (options_.refine_by_observation && observations_->frames() >= std::max<std::uint64_t>(1, d.frames_at_refinement * 2)) {
         int split = 0;
@@ -366,17 +382,20 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                 for (int e : rad.leaves(Mode::kReal)) {
                     if (h.leafCount() + 4 >= ro.max_elements) break;
                     if (!h.canSubdivide(e, ro.min_element_size)) continue;
-                    bool shadowed = false;
-                    for (const Source& s : d.sources) {
-                        const auto i = static_cast<std::size_t>(e);
-                        const double r = s.column.real[i], a = s.column.all[i];
-                        if (r > 0.0 && a < 0.98 * r && a > 0.0) shadowed = true;   // a partial virtual shadow
-                        if (r > 0.0 && a <= 0.0 && h[e].level < 12) {
-                            // Fully in a virtual shadow: split only at its border (a neighbour lit).
-                            shadowed = shadowed || std::min(h[e].size_s, h[e].size_t_) > 4.0 * ro.min_element_size;
-                        }
-                        if (shadowed) break;
+                    // The light the leaf gets with and without the virtual objects, each source
+                    // weighted by its last estimate (unit emission before the first fit).
+                    const auto i = static_cast<std::size_t>(e);
+                    double total_real = 0.0, total_all = 0.0;
+                    for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                        const Source& src = d.sources[k];
+                        const double w = k < d.last_emission.size() ? luma(d.last_emission[k]) : (src.estimate ? 1.0 : luma(src.known));
+                        total_real += w * src.column.real[i];
+                        total_all += w * src.column.all[i];
                     }
+                    // A virtual shadow's penumbra, or the border of a full one (deep inside it the
+                    // light is uniformly zero and needs no elements).
+                    bool shadowed = total_real > 0.0 && total_all < 0.98 * total_real &&
+                                    (total_all > 0.02 * total_real || std::min(h[e].size_s, h[e].size_t_) > 4.0 * ro.min_element_size);
                     if (shadowed && h.subdivide(e, ro.min_element_size)) ++split;
                 }
                 rad.markBuried();
@@ -588,6 +607,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                             indirect += gathered[static_cast<std::size_t>(h.leafAt(tags[t].face, st))][channel];
                         }
                         o.constant = indirect / static_cast<double>(std::max<std::size_t>(1, tags[t].ring_points.size()));
+                        if (std::getenv("CL_FIT_DEBUG") && channel == 1) std::fprintf(stderr, "tag %zu indirect (relative) %.4f (scene units %.4f)\n", t, o.constant, o.constant / radiance_scale_);
                         for (std::size_t k = 0; k < d.sources.size(); ++k) {
                             if (!d.sources[k].estimate) o.constant += d.sources[k].known[channel] * d.tag_columns[t][k];
                         }
@@ -636,6 +656,105 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                 rho_[i] = it != object_rho.end() && it->second.second > 0.0 ? Eigen::Vector3d(it->second.first / it->second.second)
                                                                              : d.group_albedo[static_cast<std::size_t>(group)];
             }
+            // Case 2: the dominant direction of each unknown distant light, refined continuously
+            // once the cells are fitted; it joins the model as one more column for the next pass.
+            if (pass == 0 && options_.refine_distant) {
+                for (std::size_t li = 0; li < d.scene.lights.size(); ++li) {
+                    if (!std::holds_alternative<DistantLightShape>(d.scene.lights[li].shape)) continue;
+                    if (!d.scene.lights[li].emission.isEstimate()) continue;
+                    const auto done = d.dominant_frames.find(static_cast<int>(li));
+                    if (done != d.dominant_frames.end() && observations_->frames() < 2 * done->second) continue;
+                    // The dominant cell.
+                    int peak = -1;
+                    double peak_power = 0.0, total_power = 0.0;
+                    for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                        const Source& src = d.sources[k];
+                        if (src.light != static_cast<int>(li) || src.direct.kind != DirectSource::Kind::kCell) continue;
+                        const double power = luma(source_emission[k]) * src.direct.solidAngle() * src.direct.cellCentre().z();
+                        total_power += power;
+                        if (power > peak_power) {
+                            peak_power = power;
+                            peak = static_cast<int>(k);
+                        }
+                    }
+                    // Hard case: a sky without a dominant direction (overcast): nothing to refine.
+                    if (peak < 0 || peak_power < 0.1 * total_power) continue;
+                    int existing = -1;
+                    for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                        if (d.sources[k].dominant && d.sources[k].light == static_cast<int>(li)) existing = static_cast<int>(k);
+                    }
+                    // What the other columns leave to explain, per row (luminance).
+                    const auto model_without = [&](const std::vector<float>* col_real_of, std::size_t i_elem, bool tag, std::size_t t) {
+                        Eigen::Vector3d irradiance = tag ? Eigen::Vector3d::Zero() : gathered[i_elem];
+                        for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                            if (static_cast<int>(k) == peak || static_cast<int>(k) == existing) continue;
+                            const double col = tag ? d.tag_columns[t][k] : d.sources[k].column.real[i_elem];
+                            irradiance += source_emission[k] * col;
+                        }
+                        (void)col_real_of;
+                        return irradiance;
+                    };
+                    DirectionRows rows;
+                    for (int e : observed_leaves) {
+                        const auto i = static_cast<std::size_t>(e);
+                        std::vector<Eigen::Vector3d> pts;
+                        for (int k = 0; k < 16; ++k) {
+                            const Eigen::Vector2d u = stratified2d(hashCombine(0xd15ull, i), k, 16);
+                            pts.push_back(rad.surfacePoint(e, u.x(), u.y()));
+                        }
+                        rows.points.push_back(std::move(pts));
+                        rows.normals.push_back(rad.geometry(e).normal);
+                        rows.scale.push_back(luma(rho_[i]) / kPi);
+                        rows.target.push_back(luma(observed[i]) - luma(rho_[i].cwiseProduct(model_without(nullptr, i, false, 0))) / kPi);
+                        rows.weight.push_back(weight[i]);
+                    }
+                    for (std::size_t t = 0; t < tags.size(); ++t) {
+                        if (tags[t].face < 0 || tags[t].white.pixels < 10 || d.tag_columns[t].size() != d.sources.size()) continue;
+                        rows.points.push_back(tags[t].ring_points);
+                        rows.normals.push_back(tags[t].normal);
+                        rows.scale.push_back(tags[t].albedo_white / kPi);
+                        rows.target.push_back(luma(tags[t].white.mean()) -
+                                              tags[t].albedo_white / kPi * luma(model_without(nullptr, 0, true, t)));
+                        rows.weight.push_back(tags[t].white.weight);
+                    }
+                    const DirectSource& cell = d.sources[static_cast<std::size_t>(peak)].direct;
+                    const Eigen::Vector3d start = existing >= 0 ? Eigen::Vector3d(-d.sources[static_cast<std::size_t>(existing)].direct.direction)
+                                                                : cell.cellCentre();
+                    const double cell_size = std::sqrt(cell.solidAngle());
+                    const DirectionFit fit = refineDirection(*rays_, rows, start, existing >= 0 ? 0.25 * cell_size : 0.5 * cell_size);
+                    Source dom;
+                    dom.light = static_cast<int>(li);
+                    dom.estimate = true;
+                    dom.dominant = true;
+                    dom.direct.kind = DirectSource::Kind::kDirection;
+                    dom.direct.light = static_cast<int>(li);
+                    dom.direct.direction = -fit.direction;
+                    {
+                        ScopedMs timer(stats_.ms_columns);
+                        computeDirect(rad, dom.direct, rad.leaves(Mode::kAll), DirectOptions{}, dom.column);
+                    }
+                    if (existing >= 0) {
+                        d.sources[static_cast<std::size_t>(existing)] = std::move(dom);
+                    } else {
+                        d.sources.push_back(std::move(dom));
+                        source_emission.emplace_back(Eigen::Vector3d::Zero());
+                        estimate_index.push_back(static_cast<int>(d.sources.size()) - 1);
+                    }
+                    // The tags' columns gain the new source.
+                    for (std::size_t t = 0; t < tags.size(); ++t) {
+                        if (d.tag_columns[t].empty()) continue;
+                        d.tag_columns[t].resize(d.sources.size(), 0.0);
+                        const std::size_t k = existing >= 0 ? static_cast<std::size_t>(existing) : d.sources.size() - 1;
+                        double sum = 0.0;
+                        for (std::size_t p = 0; p < tags[t].ring_points.size(); ++p) {
+                            sum += directAtPoint(*rays_, d.sources[k].direct, tags[t].ring_points[p], tags[t].normal, 1, p);
+                        }
+                        d.tag_columns[t][k] = sum / static_cast<double>(std::max<std::size_t>(1, tags[t].ring_points.size()));
+                    }
+                    d.dominant[static_cast<int>(li)] = fit.direction;
+                    d.dominant_frames[static_cast<int>(li)] = std::max<std::uint64_t>(1, observations_->frames());
+                }
+            }
             std::vector<Eigen::Vector3d> dr(n, Eigen::Vector3d::Zero());
             for (int e : rad.leaves(Mode::kReal)) dr[static_cast<std::size_t>(e)] = direct_real(e);
             ScopedMs timer(stats_.ms_solve);
@@ -677,7 +796,13 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
             const auto pos = std::find(estimate_index.begin(), estimate_index.end(), static_cast<int>(k));
             if (s.direct.kind == DirectSource::Kind::kCell) {
                 est.cells.push_back(source_emission[k]);
-                est.emission += source_emission[k] * s.direct.solidAngle();  // irradiance on an upward surface, unoccluded, is sum L w cos; here sum L w
+                // A distant light's `emission`: the irradiance its cells give an unoccluded surface
+                // facing up (sum of L w cos theta).
+                est.emission += source_emission[k] * s.direct.solidAngle() * s.direct.cellCentre().z();
+            } else if (s.dominant) {
+                est.dominant_direction = -s.direct.direction;
+                est.dominant_irradiance = source_emission[k];
+                est.emission += source_emission[k] * std::max(0.0, -s.direct.direction.z());
             } else {
                 est.emission = source_emission[k];
             }
@@ -710,6 +835,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         warnings_.push_back("no surface of known albedo observed (a tag's white border, or an albedo in the scene): the "
                             "emissions' scale assumes a mean reflectance of " + std::to_string(options_.mean_albedo_prior));
     }
+    d.last_emission = source_emission;
     // The illuminant's colour for the next frames' highlight test.
     {
         Eigen::Vector3d sum = Eigen::Vector3d::Zero();
@@ -750,7 +876,12 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
             out.kind = LightKind::kDirectional;
             out.direction = dir->direction.normalized();
         } else {
-            continue;  // distant: its dominant direction (below) and the probes
+            // Distant: its dominant direction as a directional light (the rest is in the probes).
+            if (!est.dominant_direction) continue;
+            out.name = light.name + "#1";
+            out.kind = LightKind::kDirectional;
+            out.direction = -*est.dominant_direction;
+            out.emission = est.dominant_irradiance / radiance_scale_;
         }
         snapshot.lights.push_back(out);
     }

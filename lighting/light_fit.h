@@ -11,10 +11,14 @@
 // interreflection is removed before the fit). Reflectances are one per group (a proxy object, per
 // channel: a uniform material) or known (tags, albedos the scene gives).
 //
-// The problem is bilinear (rho x E); it is solved jointly by Ceres with bounds (E >= 0, rho in
-// [0.005, 0.98]) and a small Tikhonov term on E, after a linear NNLS start at rho = 0.5. Known
-// albedos fix the overall scale that rho and E otherwise share; without any, a weak prior holds
-// the area-weighted mean reflectance at `prior_albedo` and the result says so.
+// The problem is bilinear (rho x E). It is solved by alternating exact steps, each lowering the
+// weighted squared residual: for fixed reflectances the emissions are a non-negative least
+// squares problem with a small Tikhonov term (Ceres with lower bounds, on the n x n normal
+// equations: the rows only enter through per-group sums, so thousands of observations cost no more
+// than a handful); for fixed emissions each group's reflectance is a one-dimensional least squares
+// problem, clamped to [0.005, 0.98]. Known albedos (tags) fix the overall scale that rho and E
+// otherwise share; without any, the area-weighted mean of the groups' reflectances is held at
+// `prior_albedo` and the result says so.
 #pragma once
 
 #include <string>
@@ -45,7 +49,7 @@ struct FitProblem {
     double tikhonov = 1e-4;
     double prior_albedo = 0.5;
     std::vector<double> initial_group_albedo;  // optional start (size groups), else 0.5
-    int max_iterations = 100;
+    int max_iterations = 30;   // alternating steps (each exact); stops earlier when the residual settles
 };
 
 struct FitResult {
@@ -68,6 +72,11 @@ Result<FitResult> fitChannel(const FitProblem& problem);
 // x >= 0, by Ceres with lower bounds (Eigen 3.4 has no NNLS). Errors: sizes, non-finite input.
 Result<Eigen::VectorXd> nnls(const Eigen::MatrixXd& a, const Eigen::VectorXd& b, const Eigen::VectorXd& weights,
                              double lambda);
+// The same from the normal equations: min x^T (N + lambda I) x - 2 x^T v, x >= 0, with N = A^T W A
+// (symmetric positive semi-definite) and v = A^T W b.
+// `start` (optional, non-negative) warm-starts the solver.
+Result<Eigen::VectorXd> nnlsNormal(const Eigen::MatrixXd& normal, const Eigen::VectorXd& v, double lambda,
+                                   const Eigen::VectorXd* start = nullptr);
 
 // sigma_max / sigma_min of a matrix (infinity when singular).
 double conditionNumber(const Eigen::MatrixXd& a);

@@ -167,8 +167,12 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
                 const double m = std::max(std::abs(q.x()), std::abs(q.y()));
                 if (m > tf.half_total) continue;
                 s.tag = static_cast<int>(t);
-                // The middle half of the white ring only: its edges blur into black and background.
-                s.ring = tf.white_ring && m > tf.half_black + 0.25 * tf.cell && m < tf.half_black + 0.75 * tf.cell;
+                // The white ring, away from its edges by the pixel's footprint on the tag: a pixel
+                // that also covers the black square or the background reads darker than white.
+                const double cos_view = std::max(0.2, std::abs(f.normal.dot(dir)));
+                const double footprint = hit.distance / (std::min(camera_.fx, camera_.fy) * cos_view);
+                const double margin = std::max(0.2 * tf.cell, 0.75 * footprint);
+                s.ring = tf.white_ring && m > tf.half_black + margin && m < tf.half_black + tf.cell - margin;
                 break;
             }
             if (c[0] >= 250 || c[1] >= 250 || c[2] >= 250) {
