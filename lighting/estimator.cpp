@@ -617,6 +617,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                     ScopedMs timer(stats_.ms_fit);
                     CL_TRY(fits[static_cast<std::size_t>(channel)], fitChannel(problem));
                 }
+                fit_residual_ = std::max({fits[0].relative_residual, fits[1].relative_residual, fits[2].relative_residual});
                 for (std::size_t j = 0; j < estimate_index.size(); ++j) {
                     for (int c = 0; c < 3; ++c) {
                         source_emission[static_cast<std::size_t>(estimate_index[j])][c] = fits[static_cast<std::size_t>(c)].emission[j];
@@ -704,8 +705,14 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                         }
                         rows.points.push_back(std::move(pts));
                         rows.normals.push_back(rad.geometry(e).normal);
-                        rows.scale.push_back(luma(rho_[i]) / kPi);
-                        rows.target.push_back(luma(observed[i]) - luma(rho_[i].cwiseProduct(model_without(nullptr, i, false, 0))) / kPi);
+                        // The object's reflectance, not the element's: an element's rho = pi L / H
+                        // has the current model's light (the cells' smooth shape) baked in, and the
+                        // shadows the direction must explain would be divided out.
+                        const Face& face = rad.face(h[e].face);
+                        const int group = d.group_of_object[static_cast<std::size_t>(face.object_index)];
+                        const Eigen::Vector3d r = face.albedo_known || group < 0 ? face.albedo : d.group_albedo[static_cast<std::size_t>(group)];
+                        rows.scale.push_back(luma(r) / kPi);
+                        rows.target.push_back(luma(observed[i]) - luma(r.cwiseProduct(model_without(nullptr, i, false, 0))) / kPi);
                         rows.weight.push_back(weight[i]);
                     }
                     for (std::size_t t = 0; t < tags.size(); ++t) {

@@ -96,6 +96,9 @@ public:
     const std::vector<Eigen::Vector3d>& reflectance() const noexcept { return rho_; }  // per element
     const std::vector<std::string>& warnings() const noexcept { return warnings_; }
     const EstimatorStats& stats() const noexcept { return stats_; }
+    // The last fit's relative residual (weighted RMS of observed - model over RMS of observed,
+    // largest over the channels); 0 when nothing was fitted.
+    double fitResidual() const noexcept { return fit_residual_; }
     double radianceScale() const noexcept { return radiance_scale_; }
     EstimatorOptions& options() noexcept { return options_; }
     // Solve with given emissions and reflectances (no fit): for benchmarks that isolate the solver.
@@ -121,6 +124,7 @@ private:
     std::vector<Eigen::Vector3d> rho_;
     std::vector<std::string> warnings_;
     EstimatorStats stats_;
+    double fit_residual_ = 0.0;
     double radiance_scale_ = 1.0;
 };
 

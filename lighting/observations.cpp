@@ -27,7 +27,6 @@ struct Sample {
     std::uint8_t reason = 0;  // 1 saturated, 2 dark
     Eigen::Vector3d radiance = Eigen::Vector3d::Zero();
     double weight = 0.0;
-    int block = -1;         // highlight neighbourhood key within the face
 };
 
 double luma(const Eigen::Vector3d& rgb) { return 0.2126 * rgb.x() + 0.7152 * rgb.y() + 0.0722 * rgb.z(); }
@@ -158,7 +157,6 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
             const int ci = std::min(static_cast<int>(st_s * g.ns), g.ns - 1);
             const int cj = std::min(static_cast<int>(st_t * g.nt), g.nt - 1);
             s.cell = cj * g.ns + ci;
-            s.block = (cj / 8) * ((g.ns + 7) / 8) + ci / 8;
             // Tags lie on surfaces as decals: a hit inside a tag's printed square is the tag.
             for (std::size_t t = 0; t < tag_frames_.size(); ++t) {
                 const TagFrame& tf = tag_frames_[t];
@@ -200,15 +198,6 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
         if (i < 0 || j < 0 || i >= samples_x_ || j >= samples_y_) return -1;
         return samples[static_cast<std::size_t>(j) * samples_x_ + i].face;
     };
-    // Neighbourhood statistics for the highlight test: per (face, block), median luminance and
-    // mean chromaticity of this frame's usable samples.
-    struct Block {
-        std::vector<double> luma;
-        Eigen::Vector3d chroma_sum = Eigen::Vector3d::Zero();
-        double median = 0.0;
-        Eigen::Vector3d chroma = Eigen::Vector3d::Zero();
-    };
-    std::map<std::pair<int, int>, Block> blocks;
     std::vector<char> usable(samples.size(), 0);
     for (int j = 0; j < samples_y_; ++j) {
         for (int i = 0; i < samples_x_; ++i) {
@@ -239,21 +228,49 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
             }
             if (s.tag >= 0) continue;  // a ring pixel: a reference, handled below
             usable[k] = 1;
-            Block& b = blocks[{s.face, s.block}];
-            b.luma.push_back(luma(s.radiance));
-            const double sum = s.radiance.sum();
-            if (sum > 0.0) b.chroma_sum += s.radiance / sum;
         }
-    }
-    for (auto& [key, b] : blocks) {
-        if (b.luma.empty()) continue;
-        auto mid = b.luma.begin() + static_cast<std::ptrdiff_t>(b.luma.size() / 2);
-        std::nth_element(b.luma.begin(), mid, b.luma.end());
-        b.median = *mid;
-        b.chroma = b.chroma_sum / static_cast<double>(b.luma.size());
     }
     Eigen::Vector3d illum = illuminant.cwiseMax(0.0);
     illum = illum.sum() > 0.0 ? Eigen::Vector3d(illum / illum.sum()) : Eigen::Vector3d::Constant(1.0 / 3.0);
+    // The highlight test (seed 002 sec. 4): a sample brighter than 1.5x the median of its
+    // neighbourhood (15 x 15 samples of the same face) whose chromaticity moved at least 30% of
+    // the way from the neighbourhood's mean chromaticity towards the illuminant's.
+    std::vector<char> highlight(samples.size(), 0);
+    {
+        constexpr int kRadius = 7;
+        std::vector<double> window;
+        for (int j = 0; j < samples_y_; ++j) {
+            for (int i = 0; i < samples_x_; ++i) {
+                const std::size_t k = static_cast<std::size_t>(j) * samples_x_ + i;
+                if (!usable[k]) continue;
+                const Sample& s = samples[k];
+                window.clear();
+                Eigen::Vector3d chroma_sum = Eigen::Vector3d::Zero();
+                for (int dj = -kRadius; dj <= kRadius; ++dj) {
+                    for (int di = -kRadius; di <= kRadius; ++di) {
+                        const int x = i + di, y = j + dj;
+                        if (x < 0 || y < 0 || x >= samples_x_ || y >= samples_y_) continue;
+                        const std::size_t q = static_cast<std::size_t>(y) * samples_x_ + x;
+                        if (!usable[q] || samples[q].face != s.face) continue;
+                        window.push_back(luma(samples[q].radiance));
+                        const double sum = samples[q].radiance.sum();
+                        if (sum > 0.0) chroma_sum += samples[q].radiance / sum;
+                    }
+                }
+                if (window.size() < 16) continue;
+                auto mid = window.begin() + static_cast<std::ptrdiff_t>(window.size() / 2);
+                std::nth_element(window.begin(), mid, window.end());
+                if (!(luma(s.radiance) > 1.5 * *mid)) continue;
+                const Eigen::Vector3d mean_chroma = chroma_sum / static_cast<double>(window.size());
+                const double sum = s.radiance.sum();
+                const Eigen::Vector3d c = sum > 0.0 ? Eigen::Vector3d(s.radiance / sum) : mean_chroma;
+                const Eigen::Vector3d towards = illum - mean_chroma;
+                const double reach = towards.squaredNorm();
+                // Hard case: a surface of the illuminant's own colour: chromaticity cannot tell; keep it.
+                if (reach > 4e-4 && (c - mean_chroma).dot(towards) / reach > 0.3) highlight[k] = 1;
+            }
+        }
+    }
 
     // Step 3: accumulate.
     for (std::size_t k = 0; k < samples.size(); ++k) {
@@ -272,18 +289,9 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
             continue;
         }
         if (!usable[k]) continue;
-        const Block& b = blocks[{s.face, s.block}];
-        if (b.luma.size() >= 8 && luma(s.radiance) > 1.5 * b.median) {
-            // A local peak: a highlight if its chromaticity moved towards the illuminant's.
-            const double sum = s.radiance.sum();
-            const Eigen::Vector3d c = sum > 0.0 ? Eigen::Vector3d(s.radiance / sum) : b.chroma;
-            const Eigen::Vector3d towards = illum - b.chroma;
-            const double reach = towards.squaredNorm();
-            // Hard case: a surface the illuminant's own colour: chromaticity cannot tell; keep it.
-            if (reach > 4e-4 && (c - b.chroma).dot(towards) / reach > 0.3) {
-                ++obs.highlight;
-                continue;
-            }
+        if (highlight[k]) {
+            ++obs.highlight;
+            continue;
         }
         grids_[static_cast<std::size_t>(s.face)].cells[static_cast<std::size_t>(s.cell)].add(s.radiance, s.weight);
         ++obs.used;

@@ -1,0 +1,226 @@
+// The estimator end to end against the simulated camera (mocks/sim: path tracing, sensor noise),
+// at test size (small images, few samples): the three light cases, reflectances, the ratio,
+// and the response assumption. Full-precision figures come from `commonlight bench lighting`.
+#include "lighting/estimator.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "bench/lighting_eval.h"
+#include "core/scene_io.h"
+
+namespace commonlight::lighting {
+namespace {
+
+Scene parse(const std::string& yaml) {
+    auto scene = parseScene(yaml, "test.yaml");
+    EXPECT_TRUE(scene) << scene.error().message;
+    return *scene;
+}
+
+CameraModel camera(int w, int h) {
+    CameraModel c;
+    c.width = w;
+    c.height = h;
+    c.fx = c.fy = 0.82 * w;
+    c.cx = (w - 1) / 2.0;
+    c.cy = (h - 1) / 2.0;
+    return c;
+}
+
+// A room corner: the back wall's albedo is known (the radiometric anchor), the floor's and the
+// box's are not; a ceiling panel and a small lamp of unknown emission.
+const char* kCorner = R"(
+real:
+  - {name: floor, plane: {size: [2.4, 2.4]}, world_from_object: {t: [0, 0.3, 0]}, albedo: [0.45, 0.4, 0.33]}
+  - {name: wall, plane: {size: [2.4, 1.8]}, world_from_object: {t: [0, 1.5, 0.9], rpy_deg: [90, 0, 0]}, albedo: [0.7, 0.7, 0.7]}
+  - {name: box, box: {size: [0.3, 0.3, 0.3]}, world_from_object: {t: [0.2, 0.6, 0.15], rpy_deg: [0, 0, 20]}, albedo: [0.6, 0.3, 0.2]}
+lights:
+  - {name: panel, area: {size: [0.6, 0.6]}, world_from_object: {t: [0, 0.5, 1.8], rpy_deg: [180, 0, 0]}, radiance: [12, 11, 10]}
+  - {name: lamp, area: {size: [0.12, 0.12]}, world_from_object: {t: [-0.5, 0.4, 0.8], rpy_deg: [180, 20, 0]}, radiance: [60, 50, 40]}
+virtual:
+  - {name: ball, sphere: {radius: 0.08}, material: {albedo: [0.8, 0.8, 0.8]}, world_from_object: {t: [-0.2, 0.2, 0.08]}}
+)";
+
+Scene estimatedCorner(const Scene& truth) {
+    Scene s = bench::asEstimated(truth, true, false);
+    s.real_objects[0].albedo = RgbOrEstimate::estimate();
+    s.real_objects[2].albedo = RgbOrEstimate::estimate();
+    return s;
+}
+
+struct EstimateRun {
+    std::unique_ptr<Estimator> estimator;
+    LightingSnapshot snapshot;
+};
+
+EstimateRun estimate(const Scene& truth, const Scene& estimated, const CameraModel& cam, const std::vector<Rigid3d>& poses,
+             const bench::RenderSettings& settings, const ResponseCurve& response, int updates = 1) {
+    auto frames = bench::renderFrames(truth, cam, poses, settings);
+    EXPECT_TRUE(frames) << frames.error().message;
+    SceneLightingOptions options;
+    options.response = response;
+    options.radiance_scale = bench::radianceScale(settings.sensor);
+    auto est = Estimator::create(estimated, cam, options);
+    EXPECT_TRUE(est) << est.error().message;
+    EstimateRun run{std::move(*est), {}};
+    const auto virtual_poses = SceneLighting::scenePoses(estimated, 0.0);
+    run.estimator->setVirtualPoses(virtual_poses);
+    for (const bench::SimFrame& f : *frames) {
+        auto ok = run.estimator->observe(f.rgb8.view(), f.cam_from_world, f.exposure_s, f.gain, 0);
+        EXPECT_TRUE(ok) << ok.error().message;
+    }
+    for (int u = 0; u < updates; ++u) {
+        auto snap = run.estimator->update(virtual_poses);
+        EXPECT_TRUE(snap) << snap.error().message;
+        if (snap) run.snapshot = std::move(*snap);
+    }
+    return run;
+}
+
+std::vector<Rigid3d> cornerPoses() { return bench::orbitPoses({0, 0.6, 0.3}, 1.6, 0.9, -25, 25, 3); }
+
+bench::RenderSettings cornerSettings() {
+    bench::RenderSettings s;
+    s.spp = 16;
+    s.max_depth = 6;
+    s.sensor.exposure_us = 20000;
+    return s;
+}
+
+// Case 1 (known geometry, unknown emission): each emission within 5% of the truth at this test
+// size (200 x 150, 16 spp, three frames; the small lamp comes out 3% low here, at 640 x 480 within
+// 1.5%: `commonlight bench lighting` measures the issue's 3% bound at full precision), the objects'
+// reflectances within 5% (median over elements), the albedo-anchored scale.
+TEST(Estimator, KnownGeometryLightsAndReflectancesFromSimulatedFrames) {
+    const Scene truth = parse(kCorner);
+    EstimateRun run = estimate(truth, estimatedCorner(truth), camera(200, 150), cornerPoses(), cornerSettings(), ResponseCurve::srgb());
+    ASSERT_EQ(run.estimator->lights().size(), 2u);
+    for (const LightEstimate& e : run.estimator->lights()) {
+        const Eigen::Vector3d t = *truth.lights[static_cast<std::size_t>(e.light)].emission.value;
+        const Eigen::Vector3d got = e.emission / run.estimator->radianceScale();
+        for (int c = 0; c < 3; ++c) {
+            RecordProperty(truth.lights[static_cast<std::size_t>(e.light)].name + "_" + std::to_string(c), std::to_string(got[c] / t[c] - 1.0));
+            EXPECT_NEAR(got[c], t[c], 0.05 * t[c]) << truth.lights[static_cast<std::size_t>(e.light)].name << " channel " << c;
+        }
+    }
+    // Reflectance per observed element against the truth of its object.
+    const Radiosity& rad = run.estimator->radiosity();
+    std::vector<double> errors;
+    for (int e : rad.leaves(Mode::kReal)) {
+        const Face& f = rad.face(rad.hierarchy()[e].face);
+        if (f.albedo_known) continue;
+        if (run.estimator->observations().aggregate(rad.hierarchy()[e]).pixels < 20) continue;
+        const Eigen::Vector3d t = *truth.real_objects[static_cast<std::size_t>(f.object_index)].albedo.value;
+        errors.push_back(((run.estimator->reflectance()[static_cast<std::size_t>(e)] - t).cwiseQuotient(t)).cwiseAbs().maxCoeff());
+    }
+    ASSERT_GT(errors.size(), 20u);
+    std::nth_element(errors.begin(), errors.begin() + static_cast<std::ptrdiff_t>(errors.size() / 2), errors.end());
+    EXPECT_LT(errors[errors.size() / 2], 0.05);
+    EXPECT_TRUE(run.snapshot.radiance_scale_known);
+    EXPECT_FALSE(run.snapshot.faces.empty());
+}
+
+// The virtual ball on the floor darkens the floor under it (B < B~) and changes nothing far away;
+// every ratio is finite and within [0, kMaxRatio].
+TEST(Estimator, VirtualObjectCastsAShadowInTheRatio) {
+    const Scene truth = parse(kCorner);
+    EstimateRun run = estimate(truth, estimatedCorner(truth), camera(160, 120), cornerPoses(), cornerSettings(), ResponseCurve::srgb());
+    const FaceModulation* floor = run.snapshot.findFace(0, 0);
+    ASSERT_NE(floor, nullptr);
+    float darkest = 1.0f, far_from_ball = 0.0f;
+    for (int j = 0; j < floor->height; ++j) {
+        for (int i = 0; i < floor->width; ++i) {
+            const Rgb r = floor->ratio[floor->texel(i, j)];
+            ASSERT_TRUE(r.allFinite());
+            EXPECT_GE(r.minCoeff(), 0.0f);
+            EXPECT_LE(r.maxCoeff(), kMaxRatio);
+            const double s = (i + 0.5) / floor->width, t = (j + 0.5) / floor->height;
+            const Eigen::Vector3d p = floor->corners[0] + s * (floor->corners[1] - floor->corners[0]) + t * (floor->corners[3] - floor->corners[0]);
+            const double d = (p - Eigen::Vector3d(-0.2, 0.2, 0.0)).norm();
+            if (d < 0.25) darkest = std::min(darkest, r.y());
+            if (d > 0.9) far_from_ball = std::max(far_from_ball, std::abs(r.y() - 1.0f));
+        }
+    }
+    EXPECT_LT(darkest, 0.9f);          // a shadow
+    EXPECT_LT(far_from_ball, 0.02f);   // nothing changes far away
+}
+
+// A camera that delivers linear values read as sRGB: the model cannot fit what it sees as well as
+// with the right response; the fit's relative residual shows it.
+TEST(Estimator, LinearResponseReadAsSrgbIsDetectableInTheResidual) {
+    const Scene truth = parse(kCorner);
+    bench::RenderSettings settings = cornerSettings();
+    settings.sensor.response = mocks::sim::SensorResponse::kLinear;
+    settings.sensor.exposure_us = 60000;
+    const auto cam = camera(160, 120);
+    EstimateRun right = estimate(truth, estimatedCorner(truth), cam, cornerPoses(), settings, ResponseCurve::linear());
+    EstimateRun wrong = estimate(truth, estimatedCorner(truth), cam, cornerPoses(), settings, ResponseCurve::srgb());
+    const double r_right = right.estimator->fitResidual();
+    const double r_wrong = wrong.estimator->fitResidual();
+    RecordProperty("relative_residual_right", std::to_string(r_right));
+    RecordProperty("relative_residual_wrong", std::to_string(r_wrong));
+    EXPECT_GT(r_wrong, 2.0 * r_right) << "right " << r_right << " wrong " << r_wrong;
+}
+
+// Case 3: no light in the scene. Every observed surface emits what interreflection does not
+// explain: the real scene alone reproduces what was observed, and the virtual ball still shadows.
+TEST(Estimator, NothingKnownEverySurfaceEmitsAndVirtualObjectsStillShadow) {
+    const Scene truth = parse(kCorner);
+    Scene estimated = bench::asEstimated(truth, true, true);
+    estimated.lights.clear();
+    EstimateRun run = estimate(truth, estimated, camera(160, 120), cornerPoses(), cornerSettings(), ResponseCurve::srgb());
+    const Radiosity& rad = run.estimator->radiosity();
+    double worst = 0.0;
+    int checked = 0;
+    for (int e : rad.leaves(Mode::kReal)) {
+        const RadianceStats s = run.estimator->observations().aggregate(rad.hierarchy()[e]);
+        if (s.pixels < 20) continue;
+        const double observed = s.mean().y();
+        worst = std::max(worst, std::abs(run.estimator->without().radiance[static_cast<std::size_t>(e)].y() - observed) / observed);
+        ++checked;
+    }
+    ASSERT_GT(checked, 20);
+    EXPECT_LT(worst, 0.02);
+    const FaceModulation* floor = run.snapshot.findFace(0, 0);
+    ASSERT_NE(floor, nullptr);
+    float darkest = 1.0f;
+    for (const Rgb& r : floor->ratio) darkest = std::min(darkest, r.y());
+    EXPECT_LT(darkest, 0.98f);
+    EXPECT_TRUE(std::any_of(run.snapshot.warnings.begin(), run.snapshot.warnings.end(),
+                            [](const std::string& w) { return w.find("names no light") != std::string::npos; }));
+}
+
+// Case 2: an unknown distant light (a sun and a sky in the truth): the dominant direction within
+// 3 degrees at this test size (32 directions, 240 x 180, two frames; the issue's 2 degrees with
+// 128 directions at full size is measured by the benchmark), and NNLS keeps every cell >= 0.
+TEST(Estimator, DistantLightDominantDirectionFound) {
+    auto truth = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/sunlit/scene.yaml");
+    auto estimated = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/sunlit/scene_estimated.yaml");
+    ASSERT_TRUE(truth && estimated);
+    std::get<DistantLightShape>(estimated->lights[0].shape).directions = 32;  // test size
+    bench::RenderSettings settings;
+    settings.spp = 16;
+    settings.max_depth = 4;
+    EstimateRun run = estimate(*truth, *estimated, camera(240, 180), bench::orbitPoses({0, 0, 0.05}, 1.0, 0.8, -30, 30, 2),
+                       settings, ResponseCurve::srgb(), 2);
+    ASSERT_EQ(run.estimator->lights().size(), 1u);
+    const LightEstimate& sky = run.estimator->lights()[0];
+    ASSERT_TRUE(sky.dominant_direction.has_value());
+    const Eigen::Vector3d sun = -Eigen::Vector3d(-0.35, 0.45, -0.82).normalized();
+    const double error_deg = std::acos(std::clamp(sky.dominant_direction->dot(sun), -1.0, 1.0)) * 180.0 / M_PI;
+    RecordProperty("direction_error_deg", std::to_string(error_deg));
+    EXPECT_LT(error_deg, 3.0);
+    for (const Eigen::Vector3d& cell : sky.cells) EXPECT_GE(cell.minCoeff(), 0.0);
+    EXPECT_GT(sky.condition_number, 1.0);
+    // The renderer gets the direction as a directional light.
+    const auto it = std::find_if(run.snapshot.lights.begin(), run.snapshot.lights.end(),
+                                 [](const EstimatedLight& l) { return l.name == "sky#1"; });
+    ASSERT_NE(it, run.snapshot.lights.end());
+    EXPECT_EQ(it->kind, LightKind::kDirectional);
+}
+
+}  // namespace
+}  // namespace commonlight::lighting
