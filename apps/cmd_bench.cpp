@@ -1,9 +1,10 @@
-// commonlight bench tracking|capture: speed against error (docs/tracking.md, docs/capture.md).
+// commonlight bench tracking|capture|lighting: speed against error (docs/tracking.md, docs/capture.md).
 #include <cstdlib>
 #include <memory>
 
 #include "apps/app.h"
 #include "apps/bench_capture.h"
+#include "apps/bench_lighting.h"
 #include "apps/bench_tracking.h"
 
 namespace commonlight::apps {
@@ -41,6 +42,31 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
         ->capture_default_str();
     capture->add_option("--json", capture_options->json, "Write the figures as JSON");
     capture->callback([capture_options, &runner] { runner = [capture_options] { return runBenchCapture(*capture_options); }; });
+
+    auto lighting_options = std::make_shared<BenchLightingOptions>();
+    if (const char* source = std::getenv("COMMONLIGHT_SOURCE_DIR")) lighting_options->source_dir = source;
+    CLI::App* lighting = bench->add_subcommand("lighting", "Light and reflectance estimation, the radiosity solve, the ratio B/B~");
+    lighting->add_option("--json", lighting_options->json, "Write the figures as JSON");
+    lighting->add_option("--plot", lighting_options->plot, "Draw the solver's time against its error (PNG)");
+    lighting->add_option("--cases", lighting_options->cases, "Cases to run (default: all)")
+        ->check(CLI::IsMember(benchLightingCaseNames()))
+        ->delimiter(',');
+    lighting->add_option("--width", lighting_options->width, "Width of the rendered frames (height keeps the camera's aspect)")
+        ->check(CLI::Range(64, 1920))
+        ->capture_default_str();
+    lighting->add_option("--spp", lighting_options->spp, "Samples per pixel of the rendered sequences")
+        ->check(CLI::Range(1, 4096))
+        ->capture_default_str();
+    lighting->add_option("--frames", lighting_options->frames, "Frames of the moving camera (estimates after 1, 10 and this many)")
+        ->check(CLI::Range(10, 600))
+        ->capture_default_str();
+    lighting->add_option("--data", lighting_options->data_dir, "Where rendered sequences are kept between runs")
+        ->capture_default_str();
+    lighting->add_option("--source", lighting_options->source_dir, "The repository (for data/); default: . or $COMMONLIGHT_SOURCE_DIR");
+    lighting->footer("Cases: solver (radiosity against the path tracer, hierarchical against uniform), known (desk: "
+                     "emissions, reflectances), distant (sunlit: direction), nothing (no light in the scene), ratio "
+                     "(B/B~ against the simulator over masks/changed). Sequences are rendered once and kept.");
+    lighting->callback([lighting_options, &runner] { runner = [lighting_options] { return runBenchLighting(*lighting_options); }; });
 }
 
 }  // namespace commonlight::apps

@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <numbers>
+#include <variant>
 
 #include "lighting/sampling.h"
 #include "mocks/sim/embree_scene.h"
@@ -51,6 +52,22 @@ Result<std::vector<SimFrame>> renderFrames(const Scene& truth, const CameraModel
     return frames;
 }
 
+namespace {
+
+// Whether a point lies inside a real box other than `own` (the truth's own geometry).
+bool insideOtherBox(const Scene& scene, int own, const Eigen::Vector3d& p) {
+    for (std::size_t o = 0; o < scene.real_objects.size(); ++o) {
+        if (static_cast<int>(o) == own) continue;
+        const auto* box = std::get_if<BoxShape>(&scene.real_objects[o].shape);
+        if (!box) continue;
+        const Eigen::Vector3d q = scene.real_objects[o].world_from_object.inverse() * p;
+        if ((q.cwiseAbs().array() < 0.5 * box->size.array()).all()) return true;
+    }
+    return false;
+}
+
+}  // namespace
+
 Result<std::vector<Eigen::Vector3d>> truthOfLeaves(const Scene& truth, const lighting::Estimator& estimator,
                                                    const std::vector<int>& leaves, bool with_virtual, int points,
                                                    int samples, std::uint64_t seed) {
@@ -66,7 +83,8 @@ Result<std::vector<Eigen::Vector3d>> truthOfLeaves(const Scene& truth, const lig
         const Eigen::Vector3d albedo =
             truth.real_objects[static_cast<std::size_t>(face.object_index)].albedo.value.value_or(Eigen::Vector3d::Constant(0.5));
         Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-        for (int p = 0; p < points; ++p) {
+        int used = 0;
+        for (int p = 0; p < points * 4 && used < points; ++p) {
             const Eigen::Vector2d u = lighting::stratified2d(lighting::hashCombine(seed, static_cast<std::uint64_t>(e)), p, points);
             double a = u.x(), b = u.y();
             if (g.triangle && a + b > 1.0) {
@@ -74,9 +92,13 @@ Result<std::vector<Eigen::Vector3d>> truthOfLeaves(const Scene& truth, const lig
                 b = 1.0 - b;
             }
             const Eigen::Vector3d x = g.corner + a * g.edge_s + b * g.edge_t;
+            // Only the visible surface: a point inside another proxy (under a box resting on the
+            // element) is no part of what a camera or the model sees.
+            if (insideOtherBox(truth, face.object_index, x + 1e-4 * g.normal)) continue;
             sum += mocks::sim::estimateIrradiance(sim, x, g.normal, samples, lighting::hashCombine(seed, k * 131 + p));
+            ++used;
         }
-        out[k] = albedo.cwiseProduct(sum) / (points * std::numbers::pi);
+        out[k] = used > 0 ? Eigen::Vector3d(albedo.cwiseProduct(sum) / (used * std::numbers::pi)) : Eigen::Vector3d::Zero();
     });
     return out;
 }

@@ -200,6 +200,55 @@ Result<void> Estimator::observe(const ImageView& rgb8, const Rigid3d& cam_from_w
     return {};
 }
 
+Result<Image> Estimator::ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride) const {
+    const Impl& d = *impl_;
+    if (!cam_from_world.isValid()) return fail(ErrorCode::kBadInput, "lighting: the camera pose is not finite");
+    stride = std::max(1, stride);
+    const CameraModel& cam = d.camera;
+    Image out(PixelFormat::kRgbF32, cam.width, cam.height);
+    const float nan = std::nanf("");
+    for (int y = 0; y < cam.height; ++y) {
+        auto* row = reinterpret_cast<float*>(out.mutableView().row(y));
+        std::fill(row, row + 3 * cam.width, nan);
+    }
+    const Rigid3d world_from_cam = cam_from_world.inverse();
+    const Eigen::Matrix3d rotation = world_from_cam.rotationMatrix();
+    tbb::parallel_for(0, (cam.height + stride - 1) / stride, [&](int jy) {
+        const int y = jy * stride;
+        auto* row = reinterpret_cast<float*>(out.mutableView().row(y));
+        for (int x = 0; x < cam.width; x += stride) {
+            const auto ray = cam.unproject(Eigen::Vector2d(x, y));
+            if (!ray) continue;
+            const Eigen::Vector3d dir = rotation * ray->normalized();
+            const RayHit hit = rays_->intersectAll(world_from_cam.translation, dir);
+            if (hit.kind != HitKind::kRealFace) continue;
+            const Face& f = d.real_faces[static_cast<std::size_t>(hit.index)];
+            const FaceModulation* m = snapshot.findFace(f.object_index, f.face_index);
+            if (!m || m->width < 1 || m->height < 1) {
+                row[3 * x] = row[3 * x + 1] = row[3 * x + 2] = 1.0f;  // nothing changed on this face
+                continue;
+            }
+            const Eigen::Vector3d p = world_from_cam.translation + hit.distance * dir;
+            Eigen::Matrix<double, 3, 2> b;
+            b.col(0) = f.edge_s;
+            b.col(1) = f.edge_t;
+            const Eigen::Vector2d st = (b.transpose() * b).inverse() * (b.transpose() * (p - f.origin));
+            // Bilinear between texel centres, clamped at the borders.
+            const double u = std::clamp(st.x() * m->width - 0.5, 0.0, m->width - 1.0);
+            const double v = std::clamp(st.y() * m->height - 0.5, 0.0, m->height - 1.0);
+            const int i0 = static_cast<int>(u), j0 = static_cast<int>(v);
+            const int i1 = std::min(i0 + 1, m->width - 1), j1 = std::min(j0 + 1, m->height - 1);
+            const float fu = static_cast<float>(u - i0), fv = static_cast<float>(v - j0);
+            const Rgb r = (1 - fu) * (1 - fv) * m->ratio[m->texel(i0, j0)] + fu * (1 - fv) * m->ratio[m->texel(i1, j0)] +
+                          (1 - fu) * fv * m->ratio[m->texel(i0, j1)] + fu * fv * m->ratio[m->texel(i1, j1)];
+            row[3 * x] = r.x();
+            row[3 * x + 1] = r.y();
+            row[3 * x + 2] = r.z();
+        }
+    });
+    return out;
+}
+
 const DirectColumn* Estimator::column(int light) const {
     for (const Source& s : impl_->sources) {
         if (s.light == light && s.direct.kind != DirectSource::Kind::kCell) return &s.column;

@@ -105,6 +105,11 @@ public:
     // `emission`: per scene light, relative units; `albedo_override`: per real object.
     Result<void> solveWith(const std::vector<Eigen::Vector3d>& emission, const std::vector<Eigen::Vector3d>& albedo,
                            const std::vector<Rigid3d>& virtual_world_from_object);
+    // What a snapshot predicts for a camera view: per pixel the ratio B/B~ (RGB) of the real surface
+    // it sees, sampled bilinearly from the snapshot's face textures (kRgbF32; NaN where the pixel
+    // sees no real proxy or sees a virtual object). Every `stride`-th pixel (the others NaN).
+    Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const;
+
     // The unit-emission direct column of a scene light (area, disc, point, directional), for tests.
     const DirectColumn* column(int light) const;
 

@@ -112,12 +112,31 @@ void Radiosity::markBuried() {
         }
         return false;
     };
-    const auto& elements = hierarchy_.elements();
-    for (std::size_t e = 0; e < elements.size(); ++e) {
-        if (!elements[e].leaf() || isVirtualFace(elements[e].face) || elements[e].buried) continue;
+    // A leaf partly inside a box (a floor element under a cabinet's edge) is split until its parts
+    // are in or out (down to 4 x min_element_size): the buried part would otherwise count as lit surface.
+    const double split_size = 4.0 * options_.min_element_size;
+    for (std::size_t e = 0; e < hierarchy_.elements().size(); ++e) {
+        const Element& el = hierarchy_.elements()[e];
+        if (!el.leaf() || isVirtualFace(el.face) || el.buried) continue;
         const ElementGeometry g = geometry(static_cast<int>(e));
-        const Face& f = faces_[static_cast<std::size_t>(elements[e].face)];
-        if (inside(g.centroid + lift * g.normal, f.object_index)) hierarchy_.setBuried(static_cast<int>(e), true);
+        const Face& f = faces_[static_cast<std::size_t>(el.face)];
+        // A 5 x 5 grid of probes: a small box resting inside the element (books on a desk) is
+        // caught, not only one across its corners.
+        int inside_count = 0, probes = 0;
+        for (int j = 0; j < 5; ++j) {
+            for (int i = 0; i < 5; ++i) {
+                double a = (i + 0.5) / 5.0, b = (j + 0.5) / 5.0;
+                if (g.triangle && a + b > 1.0) continue;
+                inside_count += inside(g.corner + a * g.edge_s + b * g.edge_t + lift * g.normal, f.object_index) ? 1 : 0;
+                ++probes;
+            }
+        }
+        const bool centre_in = inside(g.centroid + lift * g.normal, f.object_index);
+        if (inside_count > 0 && inside_count < probes && hierarchy_.leafCount() + 4 < options_.max_elements &&
+            hierarchy_.subdivide(static_cast<int>(e), split_size)) {
+            continue;  // its children come later in the loop
+        }
+        if (centre_in) hierarchy_.setBuried(static_cast<int>(e), true);
     }
 }
 
@@ -193,7 +212,7 @@ void Radiosity::refine(int r, int s, int depth) {
     }
     // Step 3: a source seen in part (a shadow boundary across the link) is split so that
     // visibility is resolved where it matters.
-    if (depth < 40 && f_centre > options_.link_epsilon * options_.partial_visibility_factor && can_descend(s)) {
+    if (depth < 40 && f_centre > options_.link_epsilon * options_.partial_visibility_factor && (can_descend(s) || can_descend(r))) {
         constexpr int kProbeRays = 8;
         const std::uint64_t seed = hashCombine(options_.seed ^ 0x5bd1e995ull,
                                                hashCombine(static_cast<std::uint64_t>(r), static_cast<std::uint64_t>(s)));
@@ -206,6 +225,15 @@ void Radiosity::refine(int r, int s, int depth) {
             }
         }
         if (visible > 0 && visible < kProbeRays) {
+            // Split the larger of the two: a receiver partly behind an occluder (a wall behind a
+            // cabinet) must not share one visibility, nor must a source partly hidden from it.
+            const bool split_receiver = can_descend(r) && (hierarchy_[r].area >= hierarchy_[s].area || !can_descend(s));
+            if (split_receiver) {
+                if (hierarchy_[r].leaf()) hierarchy_.subdivide(r, min_size);
+                const int first = hierarchy_[r].first_child, count = hierarchy_[r].child_count;
+                for (int c = 0; c < count; ++c) refine(first + c, s, depth + 1);
+                return;
+            }
             if (hierarchy_[s].leaf()) hierarchy_.subdivide(s, min_size);
             const int first = hierarchy_[s].first_child, count = hierarchy_[s].child_count;
             for (int c = 0; c < count; ++c) refine(r, first + c, depth + 1);
@@ -257,32 +285,44 @@ void Radiosity::computeLink(Link& link, bool virtual_only) const {
             f += q.weight * pointToPolygon(q.x, gr.normal, poly, gs.normal);
         }
         link.form_factor = static_cast<float>(f);
-        link.samples = static_cast<std::uint8_t>(order >= 4 ? 16 : std::clamp(options_.visibility_rays, 1, 16));
     }
-    // V: jittered pairs of points, the same pairs for both worlds.
+    // V: jittered pairs of points, the same pairs for both worlds. Four pairs first; a link seen in
+    // part gets sixteen (the largest a link keeps: its real occlusion is remembered per pair, so
+    // that the virtual objects' part can be recomputed alone when they move).
     const std::uint64_t seed =
         hashCombine(options_.seed, hashCombine(static_cast<std::uint64_t>(r), static_cast<std::uint64_t>(s)));
-    const int n = link.samples;
     const bool touches_virtual = isVirtualElement(r) || isVirtualElement(s);
+    const auto trace = [&](int n, int& unblocked_real, int& unblocked_all, std::uint16_t& blocked_mask) {
+        unblocked_real = unblocked_all = 0;
+        if (!virtual_only) blocked_mask = 0;
+        for (int k = 0; k < n; ++k) {
+            const Eigen::Vector2d ur = stratified2d(seed, k, n);
+            const Eigen::Vector2d us = stratified2d(hash64(seed), (k * 7 + 3) % n, n);
+            const Eigen::Vector3d xr = surfacePoint(r, ur.x(), ur.y());
+            const Eigen::Vector3d xs = surfacePoint(s, us.x(), us.y());
+            bool blocked_real;
+            if (virtual_only) {
+                blocked_real = (blocked_mask >> k) & 1u;
+            } else {
+                blocked_real = rays_->occludedReal(xr, gr.normal, xs, gs.normal);
+                if (blocked_real) blocked_mask = static_cast<std::uint16_t>(blocked_mask | (1u << k));
+            }
+            if (!blocked_real) {
+                ++unblocked_real;
+                if (!rays_->occludedVirtual(xr, gr.normal, xs, gs.normal)) ++unblocked_all;
+            }
+        }
+    };
     int unblocked_real = 0, unblocked_all = 0;
     std::uint16_t blocked_mask = virtual_only ? link.real_blocked : 0;
-    for (int k = 0; k < n; ++k) {
-        const Eigen::Vector2d ur = stratified2d(seed, k, n);
-        const Eigen::Vector2d us = stratified2d(hash64(seed), (k * 7 + 3) % n, n);
-        const Eigen::Vector3d xr = surfacePoint(r, ur.x(), ur.y());
-        const Eigen::Vector3d xs = surfacePoint(s, us.x(), us.y());
-        bool blocked_real;
-        if (virtual_only) {
-            blocked_real = (blocked_mask >> k) & 1u;
-        } else {
-            blocked_real = rays_->occludedReal(xr, gr.normal, xs, gs.normal);
-            if (blocked_real) blocked_mask = static_cast<std::uint16_t>(blocked_mask | (1u << k));
-        }
-        if (!blocked_real) {
-            ++unblocked_real;
-            if (!rays_->occludedVirtual(xr, gr.normal, xs, gs.normal)) ++unblocked_all;
-        }
+    int n = virtual_only ? link.samples : std::clamp(options_.visibility_rays, 1, 16);
+    trace(n, unblocked_real, unblocked_all, blocked_mask);
+    const bool partial = (unblocked_real > 0 && unblocked_real < n) || (unblocked_all > 0 && unblocked_all < n);
+    if (!virtual_only && partial && n < 16) {
+        n = 16;
+        trace(n, unblocked_real, unblocked_all, blocked_mask);
     }
+    link.samples = static_cast<std::uint8_t>(n);
     link.real_blocked = blocked_mask;
     link.vis_real = static_cast<float>(unblocked_real) / static_cast<float>(n);
     link.vis_all = static_cast<float>(unblocked_all) / static_cast<float>(n);

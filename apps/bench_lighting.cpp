@@ -1,0 +1,539 @@
+#include "apps/bench_lighting.h"
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <random>
+
+#include "apps/app.h"
+#include "apps/report.h"
+#include "bench/lighting_eval.h"
+#include "core/log.h"
+#include "core/scene_io.h"
+#include "core/sequence_io.h"
+#include "lighting/estimator.h"
+#include "mocks/sim/simulation.h"
+#include "mocks/sim/trajectory.h"
+
+namespace commonlight::apps {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+using lighting::Estimator;
+using lighting::EstimatorOptions;
+using lighting::LightingSnapshot;
+using lighting::Mode;
+
+double luma(const Eigen::Vector3d& v) { return 0.2126 * v.x() + 0.7152 * v.y() + 0.0722 * v.z(); }
+
+double percentile(std::vector<double> v, double p) {
+    if (v.empty()) return 0.0;
+    std::sort(v.begin(), v.end());
+    const auto k = static_cast<std::size_t>(std::clamp(std::ceil(p / 100.0 * v.size()), 1.0, static_cast<double>(v.size())));
+    return v[k - 1];
+}
+
+std::string fmt(double v, const char* f = "%.2f") {
+    char b[64];
+    std::snprintf(b, sizeof b, f, v);
+    return b;
+}
+
+// A rendered sequence with its truth: linear radiance with and without the virtual objects, the
+// simulator's masks, the poses.
+struct SimSequence {
+    CameraModel camera;
+    std::vector<Rigid3d> world_from_cam;
+    std::vector<cv::Mat> radiance;    // CV_32FC3, RGB, W/(m^2 sr)
+    std::vector<cv::Mat> composite;   // same, with the virtual objects
+    std::vector<cv::Mat> changed;     // CV_8U: 255 where the virtual objects change real surfaces by > 1%
+    std::vector<cv::Mat> virtual_coverage;  // CV_8U: 0..255 fraction of samples on a virtual object
+};
+
+Result<cv::Mat> readExrRgb(const fs::path& file) {
+    cv::Mat bgr = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
+    if (bgr.empty() || bgr.type() != CV_32FC3) return fail(ErrorCode::kBadInput, file.string() + ": not a float RGB EXR");
+    cv::Mat rgb;
+    cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
+    return rgb;
+}
+
+// Renders the scene along the trajectory once into data_dir (kept for later runs), then reads it.
+Result<SimSequence> renderOrLoad(const fs::path& scene_file, const fs::path& trajectory_file, const BenchLightingOptions& o,
+                                 const std::string& name, int frames) {
+    CL_TRY(Scene truth, readScene(scene_file));
+    if (!truth.camera) return fail(ErrorCode::kBadInput, scene_file.string() + ": the scene names no camera");
+    const int height = o.width * truth.camera->height / truth.camera->width;
+    const CameraModel camera = truth.camera->scaledTo(o.width, height);
+    const fs::path dir = o.data_dir / (name + "-" + std::to_string(o.width) + "-" + std::to_string(o.spp) + "spp-" +
+                                       std::to_string(frames));
+    const auto complete = [&]() {
+        auto seq = readSequence(dir);
+        return seq && static_cast<int>(seq->frames.size()) == frames && static_cast<int>(seq->groundtruth_poses.size()) == frames;
+    };
+    if (!complete()) {
+        std::error_code ec;
+        fs::remove_all(dir, ec);
+        fs::create_directories(dir.parent_path(), ec);
+        CL_TRY(mocks::sim::Trajectory trajectory, mocks::sim::Trajectory::read(trajectory_file));
+        mocks::sim::SimulationOptions sim;
+        sim.out = dir;
+        sim.frames = frames;
+        sim.spp = o.spp;
+        sim.max_depth = 8;
+        sim.camera = camera;
+        std::printf("  rendering %s: %d frames %dx%d at %d spp (kept in %s)\n", name.c_str(), frames, camera.width,
+                    camera.height, o.spp, dir.c_str());
+        std::fflush(stdout);
+        CL_TRY(mocks::sim::SimulationSummary summary, mocks::sim::simulate(truth, trajectory, sim));
+        if (summary.frames_written != frames) return fail(ErrorCode::kInternal, "bench: the render of " + name + " stopped early");
+    }
+    CL_TRY(Sequence seq, readSequence(dir));
+    SimSequence out;
+    out.camera = camera;
+    for (std::size_t i = 0; i < seq.frames.size(); ++i) {
+        const std::string stem = fs::path(seq.frames[i].filename).stem().string();
+        out.world_from_cam.push_back(seq.groundtruth_poses[i].world_from_cam);
+        CL_TRY(cv::Mat r, readExrRgb(dir / "groundtruth/radiance" / (stem + ".exr")));
+        CL_TRY(cv::Mat c, readExrRgb(dir / "groundtruth/radiance_composite" / (stem + ".exr")));
+        out.radiance.push_back(r);
+        out.composite.push_back(c);
+        out.changed.push_back(cv::imread((dir / "groundtruth/masks/changed" / (stem + ".png")).string(), cv::IMREAD_GRAYSCALE));
+        out.virtual_coverage.push_back(cv::imread((dir / "groundtruth/masks/virtual" / (stem + ".png")).string(), cv::IMREAD_GRAYSCALE));
+    }
+    return out;
+}
+
+// The camera the estimator sees: linear radiance x scale, multiplicative Gaussian noise of
+// `noise` (relative, per pixel and channel), clipped, sRGB-encoded to 8 bits. Relative radiance
+// is then exactly scale x radiance (exposure 1 s, gain 1).
+Image encodeFrame(const cv::Mat& radiance, double scale, double noise, std::uint64_t seed) {
+    Image out(PixelFormat::kRgb8, radiance.cols, radiance.rows);
+    std::mt19937_64 rng(seed);
+    std::normal_distribution<double> n01(0.0, 1.0);
+    for (int y = 0; y < radiance.rows; ++y) {
+        const auto* in = radiance.ptr<float>(y);
+        std::uint8_t* px = out.mutableView().row(y);
+        for (int x = 0; x < 3 * radiance.cols; ++x) {
+            double v = scale * in[x];
+            if (noise > 0.0) v *= 1.0 + noise * n01(rng);
+            px[x] = static_cast<std::uint8_t>(std::lround(255.0 * linearToSrgb(static_cast<float>(std::clamp(v, 0.0, 1.0)))));
+        }
+    }
+    return out;
+}
+
+// A scale that puts the 99.5th percentile of the first frame's luminance at 0.85 of full scale.
+double exposureFor(const cv::Mat& radiance) {
+    std::vector<double> l;
+    for (int y = 0; y < radiance.rows; y += 2) {
+        const auto* in = radiance.ptr<float>(y);
+        for (int x = 0; x < radiance.cols; x += 2) l.push_back(0.2126 * in[3 * x] + 0.7152 * in[3 * x + 1] + 0.0722 * in[3 * x + 2]);
+    }
+    const double p = percentile(l, 99.5);
+    return p > 0.0 ? 0.85 / p : 1.0;
+}
+
+// Ratio error over masks/changed, pixels not on a virtual object: the predicted B/B~ (luminance)
+// against the truth's composite / plain radiance.
+struct RatioError {
+    std::vector<double> errors;  // predicted - true, per pixel
+    void add(const Image& predicted, const cv::Mat& plain, const cv::Mat& composite, const cv::Mat& changed,
+             const cv::Mat& coverage) {
+        for (int y = 0; y < plain.rows; ++y) {
+            const auto* p = reinterpret_cast<const float*>(predicted.view().row(y));
+            const auto* a = plain.ptr<float>(y);
+            const auto* b = composite.ptr<float>(y);
+            for (int x = 0; x < plain.cols; ++x) {
+                if (changed.empty() || changed.at<std::uint8_t>(y, x) < 128) continue;
+                if (!coverage.empty() && coverage.at<std::uint8_t>(y, x) > 0) continue;
+                if (!std::isfinite(p[3 * x + 1])) continue;
+                const double la = 0.2126 * a[3 * x] + 0.7152 * a[3 * x + 1] + 0.0722 * a[3 * x + 2];
+                const double lb = 0.2126 * b[3 * x] + 0.7152 * b[3 * x + 1] + 0.0722 * b[3 * x + 2];
+                if (!(la > 1e-6)) continue;
+                const double lp = 0.2126 * p[3 * x] + 0.7152 * p[3 * x + 1] + 0.0722 * p[3 * x + 2];
+                errors.push_back(lp - lb / la);
+            }
+        }
+    }
+    double rms() const {
+        double s = 0.0;
+        for (double e : errors) s += e * e;
+        return errors.empty() ? 0.0 : std::sqrt(s / errors.size());
+    }
+    double mean() const {
+        double s = 0.0;
+        for (double e : errors) s += e;
+        return errors.empty() ? 0.0 : s / errors.size();
+    }
+};
+
+struct EstimateRun {
+    std::unique_ptr<Estimator> estimator;
+    LightingSnapshot snapshot;
+    double update_ms = 0.0;
+};
+
+// Feeds frames [0, count) of the sequence at one noise level and updates after each checkpoint.
+Result<std::vector<EstimateRun>> estimateAlong(const Scene& estimated, const SimSequence& seq, double noise,
+                                               const std::vector<int>& checkpoints) {
+    const double scale = exposureFor(seq.radiance.front());
+    std::vector<EstimateRun> runs;
+    lighting::SceneLightingOptions options;
+    options.radiance_scale = scale;
+    CL_TRY(std::unique_ptr<Estimator> estimator, Estimator::create(estimated, seq.camera, options));
+    const auto poses = lighting::SceneLighting::scenePoses(estimated, 0.0);
+    estimator->setVirtualPoses(poses);
+    int fed = 0;
+    for (int checkpoint : checkpoints) {
+        for (; fed < checkpoint && fed < static_cast<int>(seq.radiance.size()); ++fed) {
+            const Image frame = encodeFrame(seq.radiance[static_cast<std::size_t>(fed)], scale, noise, 1000 + fed);
+            CL_TRY_VOID(estimator->observe(frame.view(), seq.world_from_cam[static_cast<std::size_t>(fed)].inverse(), 1.0, 1.0, fed));
+        }
+        const auto t0 = std::chrono::steady_clock::now();
+        CL_TRY(LightingSnapshot snapshot, estimator->update(poses));
+        EstimateRun run;
+        run.update_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+        run.snapshot = std::move(snapshot);
+        runs.push_back(std::move(run));
+    }
+    runs.back().estimator = std::move(estimator);
+    return runs;
+}
+
+// Reflectance errors (relative, max over channels) of the observed elements against their object's truth.
+std::pair<double, double> reflectanceError(const Estimator& est, const Scene& truth) {
+    std::vector<double> errors;
+    const auto& rad = est.radiosity();
+    for (int e : rad.leaves(Mode::kReal)) {
+        const lighting::Face& f = rad.face(rad.hierarchy()[e].face);
+        if (est.observations().aggregate(rad.hierarchy()[e]).pixels < 10) continue;
+        const auto& albedo = truth.real_objects[static_cast<std::size_t>(f.object_index)].albedo.value;
+        if (!albedo) continue;
+        errors.push_back(((est.reflectance()[static_cast<std::size_t>(e)] - *albedo).cwiseQuotient(*albedo)).cwiseAbs().maxCoeff());
+    }
+    return {100.0 * percentile(errors, 50), 100.0 * percentile(errors, 95)};
+}
+
+const std::vector<double> kNoise{0.0, 0.01, 0.03};
+
+// Case `known`: the desk with both lights' emission unknown.
+Result<nlohmann::json> caseKnown(const BenchLightingOptions& o) {
+    const fs::path scenes = o.source_dir / "data/scenes";
+    CL_TRY(Scene truth, readScene(scenes / "desk/scene.yaml"));
+    CL_TRY(SimSequence seq, renderOrLoad(scenes / "desk/scene.yaml", scenes / "desk/trajectory.yaml", o, "desk", o.frames));
+    const Scene estimated = bench::asEstimated(truth, true, true);
+    nlohmann::json rows = nlohmann::json::array();
+    std::printf("\nknown light geometry, unknown emission (desk, %dx%d): emission error per light, reflectance error\n",
+                seq.camera.width, seq.camera.height);
+    std::printf("  %-6s %-7s %-34s %-22s %s\n", "noise", "frames", "emission error % (max over RGB)", "reflectance % p50/p95", "update ms");
+    const std::vector<int> checkpoints{1, 10, o.frames};
+    for (double noise : kNoise) {
+        CL_TRY(std::vector<EstimateRun> runs, estimateAlong(estimated, seq, noise, checkpoints));
+        for (std::size_t c = 0; c < runs.size(); ++c) {
+            nlohmann::json lights = nlohmann::json::object();
+            std::string text;
+            for (const auto& light : runs[c].snapshot.lights) {
+                const Light* t = nullptr;
+                for (const Light& l : truth.lights) {
+                    if (l.name == light.name) t = &l;
+                }
+                if (!t) continue;
+                const double err = 100.0 * ((light.emission - *t->emission.value).cwiseQuotient(*t->emission.value)).cwiseAbs().maxCoeff();
+                lights[light.name] = err;
+                text += light.name + " " + fmt(err) + "  ";
+            }
+            std::pair<double, double> refl{0, 0};
+            if (c + 1 == runs.size()) refl = reflectanceError(*runs.back().estimator, truth);
+            std::printf("  %-6s %-7d %-34s %-22s %.0f\n", (fmt(100 * noise, "%.0f") + "%").c_str(), checkpoints[c], text.c_str(),
+                        c + 1 == runs.size() ? (fmt(refl.first) + " / " + fmt(refl.second)).c_str() : "",
+                        runs[c].update_ms);
+            nlohmann::json row{{"noise", noise}, {"frames", checkpoints[c]}, {"emission_error_pct", lights}, {"update_ms", runs[c].update_ms}};
+            if (c + 1 == runs.size()) row["reflectance_error_pct"] = {{"p50", refl.first}, {"p95", refl.second}};
+            rows.push_back(row);
+        }
+    }
+    return nlohmann::json{{"scene", "desk"}, {"rows", rows}};
+}
+
+// Case `distant`: the sunlit scene, one unknown distant light (128 directions).
+Result<nlohmann::json> caseDistant(const BenchLightingOptions& o) {
+    const fs::path scenes = o.source_dir / "data/scenes";
+    CL_TRY(Scene truth, readScene(scenes / "sunlit/scene.yaml"));
+    CL_TRY(Scene estimated, readScene(scenes / "sunlit/scene_estimated.yaml"));
+    CL_TRY(SimSequence seq, renderOrLoad(scenes / "sunlit/scene.yaml", scenes / "sunlit/trajectory.yaml", o, "sunlit", o.frames));
+    const Eigen::Vector3d sun_travel = std::get<DirectionalLightShape>(truth.lights[0].shape).direction.normalized();
+    const Eigen::Vector3d sun_irradiance = *truth.lights[0].emission.value;
+    nlohmann::json rows = nlohmann::json::array();
+    std::printf("\nunknown distant light (sunlit, %d directions): dominant direction and the sun's irradiance\n",
+                std::get<DistantLightShape>(estimated.lights[0].shape).directions);
+    std::printf("  %-6s %-7s %-12s %-16s %-14s %-16s %s\n", "noise", "frames", "direction", "irradiance err %",
+                "condition", "plain-LS < 0", "update ms");
+    const std::vector<int> checkpoints{1, 10, o.frames};
+    for (double noise : kNoise) {
+        CL_TRY(std::vector<EstimateRun> runs, estimateAlong(estimated, seq, noise, checkpoints));
+        for (std::size_t c = 0; c < runs.size(); ++c) {
+            double direction_err = -1.0, irradiance_err = -1.0;
+            for (const auto& light : runs[c].snapshot.lights) {
+                if (light.kind != lighting::LightKind::kDirectional) continue;
+                direction_err = std::acos(std::clamp(light.direction.dot(sun_travel), -1.0, 1.0)) * 180.0 / M_PI;
+                irradiance_err = 100.0 * ((light.emission - sun_irradiance).cwiseQuotient(sun_irradiance)).cwiseAbs().maxCoeff();
+            }
+            double condition = 0.0;
+            int negative = 0;
+            if (c + 1 == runs.size() && !runs.back().estimator->lights().empty()) {
+                condition = runs.back().estimator->lights()[0].condition_number;
+                negative = runs.back().estimator->lights()[0].negative_in_plain_least_squares;
+            }
+            std::printf("  %-6s %-7d %-12s %-16s %-14s %-16s %.0f\n", (fmt(100 * noise, "%.0f") + "%").c_str(), checkpoints[c],
+                        (fmt(direction_err, "%.2f") + " deg").c_str(), fmt(irradiance_err, "%.1f").c_str(),
+                        c + 1 == runs.size() ? fmt(condition, "%.0f").c_str() : "", c + 1 == runs.size() ? std::to_string(negative).c_str() : "",
+                        runs[c].update_ms);
+            nlohmann::json row{{"noise", noise}, {"frames", checkpoints[c]}, {"direction_error_deg", direction_err},
+                               {"irradiance_error_pct", irradiance_err}, {"update_ms", runs[c].update_ms}};
+            if (c + 1 == runs.size()) {
+                row["condition_number"] = condition;
+                row["negative_in_plain_least_squares"] = negative;
+            }
+            rows.push_back(row);
+        }
+    }
+    return nlohmann::json{{"scene", "sunlit"}, {"rows", rows}};
+}
+
+// The ratio against the truth on every 5th frame of a sequence.
+RatioError ratioErrorOf(const Estimator& est, const LightingSnapshot& snapshot, const SimSequence& seq) {
+    RatioError err;
+    for (std::size_t i = 0; i < seq.radiance.size(); i += 5) {
+        auto predicted = est.ratioImage(snapshot, seq.world_from_cam[i].inverse());
+        if (!predicted) continue;
+        err.add(*predicted, seq.radiance[i], seq.composite[i], seq.changed[i], seq.virtual_coverage[i]);
+    }
+    return err;
+}
+
+// Case `ratio` (and `nothing`): the predicted ratio against the simulator's with/without frames.
+Result<nlohmann::json> caseRatio(const BenchLightingOptions& o, bool nothing_known) {
+    const fs::path scenes = o.source_dir / "data/scenes";
+    nlohmann::json out = nlohmann::json::array();
+    std::printf(nothing_known ? "\nno light in the scene (every surface emits): ratio B/B~ over masks/changed\n"
+                              : "\nratio B/B~ against the simulator's frames with and without the virtual objects, over masks/changed\n");
+    std::printf("  %-6s %-10s %-10s %-12s %-10s %s\n", "scene", "RMS", "mean", "pixels", "leaves", "update ms");
+    for (const std::string name : {"desk", "room"}) {
+        if (nothing_known && name == "room") continue;
+        CL_TRY(Scene truth, readScene(scenes / name / "scene.yaml"));
+        CL_TRY(SimSequence seq, renderOrLoad(scenes / name / "scene.yaml", scenes / name / "trajectory.yaml", o, name, o.frames));
+        Scene estimated = bench::asEstimated(truth, true, true);
+        if (nothing_known) estimated.lights.clear();
+        CL_TRY(std::vector<EstimateRun> runs, estimateAlong(estimated, seq, 0.01, {o.frames}));
+        const RatioError err = ratioErrorOf(*runs.back().estimator, runs.back().snapshot, seq);
+        std::printf("  %-6s %-10s %-10s %-12zu %-10d %.0f\n", name.c_str(), fmt(err.rms(), "%.4f").c_str(), fmt(err.mean(), "%+.4f").c_str(),
+                    err.errors.size(), runs.back().snapshot.solve.elements, runs.back().update_ms);
+        out.push_back({{"scene", name}, {"rms", err.rms()}, {"mean_signed", err.mean()}, {"pixels", err.errors.size()},
+                       {"elements", runs.back().snapshot.solve.elements}, {"update_ms", runs.back().update_ms}});
+    }
+    return out;
+}
+
+// One configuration of the solver case.
+struct SolverPoint {
+    std::string scene;
+    bool hierarchical = true;
+    double element_size = 0.0;
+    double link_epsilon = 0.0;
+    int leaves = 0;
+    int links = 0;
+    double ms = 0.0;        // links + columns + solve
+    double solve_ms = 0.0;  // the iterations alone (links built)
+    double rms_pct = 0.0;   // element radiance against the path tracer
+    double max_pct = 0.0;
+};
+
+Result<SolverPoint> solverPoint(const Scene& truth, const CameraModel& camera, const std::string& name, bool hierarchical,
+                                double size, double epsilon) {
+    EstimatorOptions eo;
+    eo.refine_unobserved = true;
+    eo.refine_by_light = false;  // element averages are what is compared: no texture detail needed
+    eo.refine_by_virtual = false;
+    eo.initial_element_size = size;
+    eo.radiosity.hierarchical = hierarchical;
+    eo.radiosity.link_epsilon = epsilon;
+    eo.radiosity.min_link_size = hierarchical ? std::max(0.5 * size, 0.05) : size;
+    CL_TRY(std::unique_ptr<Estimator> est, Estimator::create(truth, camera, {}, eo));
+    std::vector<Eigen::Vector3d> emission, albedo;
+    for (const Light& l : truth.lights) emission.push_back(*l.emission.value);
+    for (const RealObject& r : truth.real_objects) albedo.push_back(*r.albedo.value);
+    CL_TRY_VOID(est->solveWith(emission, albedo, lighting::SceneLighting::scenePoses(truth, 0.0)));
+    SolverPoint p;
+    p.scene = name;
+    p.hierarchical = hierarchical;
+    p.element_size = size;
+    p.link_epsilon = epsilon;
+    const auto& rad = est->radiosity();
+    const std::vector<int> leaves = rad.leaves(Mode::kReal);
+    p.leaves = static_cast<int>(leaves.size());
+    p.links = rad.linkCount(Mode::kReal);
+    p.ms = est->stats().ms_links + est->stats().ms_columns + est->stats().ms_solve;
+    {
+        // The iterations alone: one more solve of the same system.
+        const auto n = rad.hierarchy().elements().size();
+        std::vector<Eigen::Vector3d> rho(n, Eigen::Vector3d::Zero()), le(n, Eigen::Vector3d::Zero());
+        std::vector<Eigen::Vector3d> direct = est->without().irradiance;
+        for (std::size_t e = 0; e < n; ++e) {
+            rho[e] = est->reflectance().size() == n ? est->reflectance()[e] : Eigen::Vector3d::Constant(0.5);
+            direct[e] -= est->without().indirect[e];
+        }
+        const auto t0 = std::chrono::steady_clock::now();
+        const lighting::Solution again = rad.solve(Mode::kReal, rho, le, direct);
+        p.solve_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+        (void)again;
+    }
+    // The truth on a deterministic subset of leaves (every k-th, about 300), area-weighted: 64
+    // stratified points per element, 128 paths each (the truth's own noise is 0.5% RMS).
+    std::vector<int> pick;
+    const std::size_t step = std::max<std::size_t>(1, leaves.size() / 300);
+    for (std::size_t i = 0; i < leaves.size(); i += step) pick.push_back(leaves[i]);
+    CL_TRY(std::vector<Eigen::Vector3d> truth_l, bench::truthOfLeaves(truth, *est, pick, false, 64, 128, 11));
+    // RMS of the difference over RMS of the truth (area-weighted): the relative error of the
+    // solution as a whole, not dominated by nearly black elements; the max relative error over
+    // elements brighter than a tenth of the mean.
+    double se = 0.0, st = 0.0, area = 0.0, mean = 0.0;
+    for (std::size_t k = 0; k < pick.size(); ++k) {
+        const double a = rad.hierarchy()[pick[k]].area;
+        mean += a * luma(truth_l[k]);
+        area += a;
+    }
+    mean = area > 0.0 ? mean / area : 0.0;
+    for (std::size_t k = 0; k < pick.size(); ++k) {
+        const double t = luma(truth_l[k]);
+        const double d = luma(est->without().radiance[static_cast<std::size_t>(pick[k])]) - t;
+        const double a = rad.hierarchy()[pick[k]].area;
+        se += a * d * d;
+        st += a * t * t;
+        if (t > 0.1 * mean) p.max_pct = std::max(p.max_pct, 100.0 * std::abs(d) / t);
+    }
+    p.rms_pct = st > 0.0 ? 100.0 * std::sqrt(se / st) : 0.0;
+    return p;
+}
+
+void drawSolverPlot(const std::vector<SolverPoint>& points, const fs::path& file) {
+    const int w = 900, h = 560, left = 80, right = 30, top = 40, bottom = 60;
+    cv::Mat img(h, w, CV_8UC3, cv::Scalar(255, 255, 255));
+    double max_ms = 1.0, max_err = 1.0;
+    for (const auto& p : points) {
+        max_ms = std::max(max_ms, p.ms);
+        max_err = std::max(max_err, p.rms_pct);
+    }
+    max_ms *= 1.1;
+    max_err *= 1.15;
+    // Log scale in time: the baseline is orders of magnitude slower.
+    const double lmin = std::log10(1.0), lmax = std::log10(max_ms);
+    const auto X = [&](double ms) { return left + static_cast<int>((w - left - right) * (std::log10(std::max(ms, 1.0)) - lmin) / (lmax - lmin)); };
+    const auto Y = [&](double e) { return h - bottom - static_cast<int>((h - top - bottom) * e / max_err); };
+    const cv::Scalar black(0, 0, 0), grey(210, 210, 210);
+    for (double ms = 1.0; ms <= max_ms; ms *= 10.0) {
+        cv::line(img, {X(ms), top}, {X(ms), h - bottom}, grey);
+        cv::putText(img, fmt(ms, "%.0f"), {X(ms) - 10, h - bottom + 20}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black);
+    }
+    for (int k = 0; k <= 5; ++k) {
+        const double e = max_err * k / 5;
+        cv::line(img, {left, Y(e)}, {w - right, Y(e)}, grey);
+        cv::putText(img, fmt(e, "%.1f"), {10, Y(e) + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black);
+    }
+    cv::rectangle(img, {left, top}, {w - right, h - bottom}, black);
+    cv::putText(img, "links + direct + solve, ms (log scale)", {left + 230, h - 15}, cv::FONT_HERSHEY_SIMPLEX, 0.55, black);
+    cv::putText(img, "element radiance vs path tracer, RMS %   (circle: hierarchical, square: uniform gather)", {left, 25},
+                cv::FONT_HERSHEY_SIMPLEX, 0.5, black);
+    const cv::Scalar colours[] = {{200, 60, 20}, {20, 120, 220}};
+    std::map<std::string, int> scene_colour;
+    for (const auto& p : points) {
+        const int ci = scene_colour.emplace(p.scene, static_cast<int>(scene_colour.size())).first->second % 2;
+        const cv::Point at(X(p.ms), Y(p.rms_pct));
+        if (p.hierarchical) {
+            cv::circle(img, at, 6, colours[ci], cv::FILLED);
+        } else {
+            cv::rectangle(img, at - cv::Point(5, 5), at + cv::Point(5, 5), colours[ci], cv::FILLED);
+        }
+        cv::putText(img, p.scene + " " + std::to_string(p.leaves), at + cv::Point(8, -6), cv::FONT_HERSHEY_SIMPLEX, 0.4, colours[ci]);
+    }
+    cv::imwrite(file.string(), img);
+}
+
+Result<nlohmann::json> caseSolver(const BenchLightingOptions& o, std::vector<SolverPoint>& points) {
+    const fs::path scenes = o.source_dir / "data/scenes";
+    std::printf("\nradiosity solve with the true lights and albedos: element radiance against the path tracer\n  (RMS %%: area-weighted RMS of the difference over RMS of the truth; max %%: over elements brighter than a tenth of the mean)\n");
+    std::printf("  %-6s %-13s %-8s %-8s %-9s %-10s %-10s %-9s %s\n", "scene", "method", "size m", "eps", "elements", "links", "setup+solve", "solve ms", "RMS % / max %");
+    nlohmann::json rows = nlohmann::json::array();
+    struct Config {
+        const char* scene;
+        bool hierarchical;
+        double size;
+        double epsilon;
+    };
+    const std::vector<Config> configs{
+        {"room", true, 0.6, 0.05}, {"room", true, 0.4, 0.03}, {"room", true, 0.3, 0.02},  {"room", true, 0.2, 0.01},
+        {"room", false, 0.6, 0.0}, {"room", false, 0.4, 0.0}, {"room", false, 0.3, 0.0},
+        {"desk", true, 0.5, 0.05}, {"desk", true, 0.3, 0.02}, {"desk", true, 0.2, 0.01},
+    };
+    for (const Config& c : configs) {
+        CL_TRY(Scene truth, readScene(scenes / c.scene / "scene.yaml"));
+        const CameraModel camera = truth.camera->scaledTo(160, 120);
+        CL_TRY(SolverPoint p, solverPoint(truth, camera, c.scene, c.hierarchical, c.size, c.epsilon));
+        std::printf("  %-6s %-13s %-8s %-8s %-9d %-10d %-10s %-9s %s / %s\n", c.scene, c.hierarchical ? "hierarchical" : "uniform",
+                    fmt(c.size).c_str(), c.hierarchical ? fmt(c.epsilon, "%.3f").c_str() : "-", p.leaves, p.links,
+                    fmt(p.ms, "%.1f").c_str(), fmt(p.solve_ms, "%.1f").c_str(), fmt(p.rms_pct).c_str(), fmt(p.max_pct, "%.1f").c_str());
+        std::fflush(stdout);
+        rows.push_back({{"scene", p.scene}, {"method", p.hierarchical ? "hierarchical" : "uniform"}, {"element_size", c.size},
+                        {"link_epsilon", c.epsilon}, {"elements", p.leaves}, {"links", p.links}, {"ms", p.ms}, {"solve_ms", p.solve_ms},
+                        {"rms_pct", p.rms_pct}, {"max_pct", p.max_pct}});
+        points.push_back(p);
+    }
+    return rows;
+}
+
+}  // namespace
+
+std::vector<std::string> benchLightingCaseNames() { return {"solver", "known", "distant", "nothing", "ratio"}; }
+
+int runBenchLighting(const BenchLightingOptions& options) {
+    const std::vector<std::string> cases = options.cases.empty() ? benchLightingCaseNames() : options.cases;
+    nlohmann::json report;
+    report["frames"] = options.frames;
+    report["width"] = options.width;
+    report["spp"] = options.spp;
+    std::vector<SolverPoint> points;
+    for (const std::string& name : cases) {
+        Result<nlohmann::json> result = fail(ErrorCode::kUsage, "unknown case " + name);
+        if (name == "solver") result = caseSolver(options, points);
+        if (name == "known") result = caseKnown(options);
+        if (name == "distant") result = caseDistant(options);
+        if (name == "nothing") result = caseRatio(options, true);
+        if (name == "ratio") result = caseRatio(options, false);
+        if (!result) return reportError(result.error());
+        report[name] = *result;
+        std::fflush(stdout);
+    }
+    if (!options.plot.empty()) {
+        if (points.empty()) {
+            log::warning("--plot: the solver case did not run; no plot written");
+        } else {
+            drawSolverPlot(points, options.plot);
+            std::printf("\nplot: %s\n", options.plot.c_str());
+        }
+    }
+    if (!options.json.empty()) {
+        if (auto ok = writeJson(options.json, report); !ok) return reportError(ok.error());
+        std::printf("json: %s\n", options.json.c_str());
+    }
+    return kExitOk;
+}
+
+}  // namespace commonlight::apps

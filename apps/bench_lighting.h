@@ -1,0 +1,44 @@
+// `commonlight bench lighting`: the lighting module's speed against its error, on sequences the
+// benchmark renders with the simulated camera (mocks/sim, path tracing) and keeps between runs
+// (docs/lighting.md, "Benchmark").
+//
+// Cases:
+//   solver    the radiosity solve alone (true lights and albedos) on the room and the desk: element
+//             radiance against the path tracer's on the same element, for several element counts,
+//             hierarchical against the uniform-grid gather (time against RMS error, table and plot)
+//   known     known light geometry, unknown emission (the desk): emission error per light and
+//             reflectance error, at sensor noise 0, 1, 3% and after 1, 10, 60 frames
+//   distant   an unknown distant light (the sunlit scene): dominant direction error and the sun's
+//             irradiance error, same noise levels and frame counts
+//   nothing   no light in the scene (the desk): how well the real scene alone reproduces what was
+//             observed, and the ratio
+//   ratio     the predicted ratio B/B~ against the simulator's frames with and without the virtual
+//             objects, over masks/changed (RMS and mean signed error), desk and room
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "core/result.h"
+
+namespace commonlight::apps {
+
+struct BenchLightingOptions {
+    std::filesystem::path source_dir = ".";                      // the repository (data/)
+    std::filesystem::path data_dir = "out/bench/lighting-data";  // rendered sequences, kept between runs
+    std::vector<std::string> cases;                              // empty: all
+    int width = 320;   // rendered frames (the estimator works on these)
+    int spp = 32;      // samples per pixel of the rendered sequences
+    int frames = 60;   // frames of the moving camera (the estimate is reported after 1, 10 and this many)
+    std::string json;
+    std::string plot;
+};
+
+std::vector<std::string> benchLightingCaseNames();
+
+int runBenchLighting(const BenchLightingOptions& options);
+
+}  // namespace commonlight::apps
