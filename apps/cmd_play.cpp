@@ -3,13 +3,15 @@
 // The sequence is replayed as a camera through a capture session (frame pool, mailbox,
 // statistics); every frame is converted and tracked (apps/pipeline.h) when the scene places tags
 // and the sequence has intrinsics, and the pose error is measured when it has ground truth.
-// Lighting and rendering join it in later issues.
+// Every tracked frame goes to the lighting thread (apps/lighting_stage.h) unless --no-lighting;
+// the metrics JSON then has a `lighting` section. Rendering joins it in a later issue.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/lighting_stage.h"
 #include "apps/pipeline.h"
 #include "apps/progress.h"
 #include "apps/report.h"
@@ -30,6 +32,8 @@ struct PlayOptions {
     std::string metrics;
     bool sync = false;
     bool no_track = false;
+    bool no_lighting = false;
+    std::string response;  // --response: overrides sensor.yaml's
     std::size_t slots = 4;
 };
 
@@ -75,6 +79,9 @@ int runPlay(const PlayOptions& options) {
         if (!t) return reportError(t.error());
         truth = std::move(*t);
     }
+    // The camera's response (how codes became linear light): --response, else sensor.yaml's.
+    auto response = sequenceResponse(camera->sequence(), options.response);
+    if (!response) return reportError(response.error());
     const std::size_t recorded = camera->sequence().frames.size();
     const auto timeout = frameTimeout(camera->sequence(), options.sync);
     if (auto configured = camera->configure({}); !configured) return reportError(configured.error());
@@ -91,7 +98,7 @@ int runPlay(const PlayOptions& options) {
     if (auto started = (*session)->start(); !started) return reportError(started.error());
 
     // Step 3: the per-frame pipeline.
-    capture::StageTimings timings({"convert", "track", "pipeline"});
+    capture::StageTimings timings({"convert", "track", "lighting", "pipeline"});
     std::optional<FramePipeline> pipeline;
     if (!options.no_track && scene && !scene->tags.items.empty() && intrinsics) {
         PipelineOptions pipeline_options;
@@ -103,8 +110,22 @@ int runPlay(const PlayOptions& options) {
         log::info(std::string("tracking off: ") + (!scene ? "no scene" : !intrinsics ? "no intrinsics in sensor.yaml or the scene"
                                                                                       : "the scene places no tags"));
     }
+    // Step 3b: the lighting thread, fed with every tracked frame (needs proxies to light).
+    std::unique_ptr<LightingStage> lighting;
+    if (pipeline && !options.no_lighting && scene && !scene->real_objects.empty()) {
+        auto created = LightingStage::create(*scene, *intrinsics, *response, camera->sequence().sensor.radiance_scale,
+                                             options.sync, &camera->sequence());
+        if (!created) return reportError(created.error());
+        lighting = std::move(*created);
+        std::printf("lighting: %s, response %s%s\n", options.sync ? "every frame" : "real time (newest wins)",
+                    response->name().c_str(),
+                    camera->sequence().sensor.radiance_scale ? "" : ", no radiance_scale: emissions in relative units");
+    }
+    Image lighting_rgb;
+    std::optional<std::int64_t> first_timestamp;
     const auto convert_stage = timings.id("convert");
     const auto pipeline_stage = timings.id("pipeline");
+    const auto lighting_stage = timings.id("lighting");
     capture::PixelConverter converter;
     Image rgb;
     std::uint64_t undecodable = 0;
@@ -132,6 +153,17 @@ int runPlay(const PlayOptions& options) {
                 failure = tracked.error();
                 break;
             }
+            if (lighting && tracked) {
+                if (!first_timestamp) first_timestamp = frame->meta.timestamp_ns;
+                capture::StageTimer lighting_timer(timings, lighting_stage);
+                if (auto converted = converter.convert(frame->image, PixelFormat::kRgb8, lighting_rgb); converted) {
+                    const double t_s = static_cast<double>(frame->meta.timestamp_ns - *first_timestamp) / 1e9;
+                    if (auto lit = lighting->process(lighting_rgb.view(), frame->meta, tracked->cam_from_world, t_s); !lit) {
+                        failure = lit.error();
+                        break;
+                    }
+                }
+            }
             continue;
         }
         capture::StageTimer convert_timer(timings, convert_stage);
@@ -143,6 +175,7 @@ int runPlay(const PlayOptions& options) {
     const double seconds = static_cast<double>(monotonicNowNs() - start_ns) / 1e9;
     progress.finish();
     (*session)->stop();
+    if (lighting) lighting->stop();
     const capture::CaptureStats stats = (*session)->stats();
     const std::uint64_t corrupt = stats.drops.corrupt + undecodable;
 
@@ -158,6 +191,7 @@ int runPlay(const PlayOptions& options) {
                     static_cast<unsigned long long>(stats.frames_delivered));
         if (pipeline->poseErrors().count() > 0) std::printf("%s\n", pipeline->poseErrors().summary().c_str());
     }
+    if (lighting) std::printf("%s\n", lighting->summary().c_str());
     if (!options.metrics.empty()) {
         nlohmann::json metrics = captureJson(stats);
         metrics["sequence"] = options.sequence;
@@ -169,6 +203,7 @@ int runPlay(const PlayOptions& options) {
             metrics["frames_with_pose"] = pipeline->framesWithPose();
             if (truth) metrics["pose_error"] = pipeline->poseErrors().json();
         }
+        if (lighting) metrics["lighting"] = lighting->metricsJson();
         if (auto written = writeJson(options.metrics, metrics); !written) return reportError(written.error());
         std::printf("metrics written to %s\n", options.metrics.c_str());
     }
@@ -191,7 +226,10 @@ void addPlayCommand(CLI::App& app, Runner& runner) {
     sub->add_option("--metrics", options->metrics, "Write the metrics JSON here (docs/cli.md)");
     sub->add_flag("--sync", options->sync,
                   "Process every frame in order as fast as possible (deterministic), instead of at the recorded rate");
-    sub->add_flag("--no-track", options->no_track, "Capture and convert only; no tracking");
+    sub->add_flag("--no-track", options->no_track, "Capture and convert only; no tracking (and so no lighting)");
+    sub->add_flag("--no-lighting", options->no_lighting, "Track only; no lighting thread");
+    sub->add_option("--response", options->response,
+                    "The camera's response: srgb, linear, gamma:G or a response file (default: sensor.yaml's)");
     sub->add_option("--slots", options->slots, "Frame pool slots")->check(CLI::Range(3, 64))->capture_default_str();
     sub->footer("Exit codes: 0 ok, 2 usage, 3 bad input (corrupt frames are reported and counted), 4 device error");
     sub->callback([options, &runner] { runner = [options] { return runPlay(*options); }; });

@@ -119,6 +119,13 @@ Result<SensorInfo> readSensorYaml(const fs::path& file) {
     if (root["response"]) {
         CL_TRY(info.response, yaml::getString(name, root, "response"));
     }
+    if (root["radiance_scale"]) {
+        CL_TRY(const double scale, yaml::getDouble(name, root, "radiance_scale"));
+        if (!(std::isfinite(scale) && scale > 0.0)) {
+            return fail(yaml::keyError(name, root["radiance_scale"], "radiance_scale", "must be a positive number"));
+        }
+        info.radiance_scale = scale;
+    }
     if (root["pixel_format"]) {
         CL_TRY(const std::string format, yaml::getString(name, root, "pixel_format"));
         const auto parsed = parsePixelFormat(format);
@@ -156,6 +163,7 @@ Result<void> writeSensorYaml(const fs::path& file, const SensorInfo& sensor) {
         out << "]\n";
     }
     out << "response: " << sensor.response << "\n";
+    if (sensor.radiance_scale) out << "radiance_scale: " << formatDouble(*sensor.radiance_scale) << "\n";
     if (sensor.pixel_format != PixelFormat::kInvalid) out << "pixel_format: " << pixelFormatName(sensor.pixel_format) << "\n";
     return writeTextFileAtomic(file, out.str());
 }

@@ -30,7 +30,10 @@ struct SensorInfo {
     int height = 0;
     double rate_hz = 0.0;                // nominal frame rate, 0 when unknown
     std::optional<CameraModel> camera;   // present when "intrinsics" is given
-    std::string response = "srgb";       // srgb | linear | <response file>
+    std::string response = "srgb";       // srgb | linear | gamma:G | <response file> (core/response.h)
+    // Relative radiance (linear value of full scale / (exposure_s x analog gain)) per W/(m^2 sr):
+    // the camera's radiometric calibration, when known (docs/formats-sequence.md).
+    std::optional<double> radiance_scale;
     // How to interpret the frame files. kInvalid: by the file's contents (PNG gray/colour,
     // JPEG delivered as MJPEG). yuyv / nv12 files are GRAY8 PNGs holding the raw bytes
     // (2*width x height, width x 3*height/2), so every recorded format is stored losslessly.

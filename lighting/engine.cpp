@@ -56,6 +56,7 @@ struct LightingEngine::Impl {
     std::int64_t last_update_ns = 0;
     std::uint64_t version = 0;
 
+    mutable std::mutex model_mutex;     // held by the thread during an update, and by ratioImage()
     mutable std::mutex snapshot_mutex;  // held only to copy the pointer
     SnapshotPtr snapshot;
 
@@ -202,6 +203,11 @@ EngineStats LightingEngine::stats() const {
     return s;
 }
 
+Result<Image> LightingEngine::ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride) const {
+    std::lock_guard lock(impl_->model_mutex);
+    return impl_->model->ratioImage(snapshot, cam_from_world, stride);
+}
+
 std::optional<Error> LightingEngine::lastError() const {
     std::lock_guard lock(impl_->mutex);
     return impl_->last_error;
@@ -219,7 +225,10 @@ void LightingEngine::Impl::run() {
             has_pending = false;
             poses = virtual_poses;
         }
-        Result<void> result = process(working, poses);
+        Result<void> result = [&] {
+            std::lock_guard model_lock(model_mutex);
+            return process(working, poses);
+        }();
         std::lock_guard lock(mutex);
         done_ticket = working.ticket;
         if (!result) {

@@ -95,6 +95,10 @@ public:
     // The newest snapshot; never null (version 0 before the first update: every ratio 1).
     SnapshotPtr latest() const noexcept;
     EngineStats stats() const;
+    // The ratio B/B~ a snapshot predicts per pixel for a camera pose (kRgbF32, NaN where no real
+    // proxy is seen): for metrics against ground truth. Waits while an update is under way.
+    Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const;
+
     // The first error the thread met in real-time mode (the thread keeps running and retries on
     // the next observation); nullopt when none.
     std::optional<Error> lastError() const;

@@ -76,6 +76,7 @@ struct Estimator::Impl {
     std::map<int, std::uint64_t> dominant_frames;
     Eigen::Vector3d illuminant = Eigen::Vector3d::Ones();
     bool links_from_fit = false;  // the links were rebuilt with the first fit's lights
+    int update_depth = 0;         // update() calls itself once after rebuilding the links
     std::vector<Eigen::Vector3d> last_emission;  // per source, the last update's (relative units)
     std::vector<std::string> setup_warnings;
 };
@@ -195,8 +196,10 @@ Result<void> Estimator::observe(const ImageView& rgb8, const Rigid3d& cam_from_w
         for (std::size_t v = 0; v < d.poses.size(); ++v) rays_->setVirtualPose(static_cast<int>(v), d.poses[v]);
         CL_TRY_VOID(rays_->commitVirtual());
     }
+    const auto t0 = std::chrono::steady_clock::now();
     CL_TRY(FrameObservation frame, observations_->add(rgb8, cam_from_world, exposure_s, analog_gain, *rays_, d.illuminant));
     (void)frame;
+    last_observe_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     return {};
 }
 
@@ -283,7 +286,12 @@ double unoccluded(const DirectSource& s, const Eigen::Vector3d& x, const Eigen::
 Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_world_from_object) {
     Impl& d = *impl_;
     warnings_ = d.setup_warnings;
-    if (!d.links_from_fit || d.sources.empty()) stats_ = {};
+    if (d.update_depth == 0) stats_ = {};
+    ++d.update_depth;
+    struct DepthGuard {
+        int& depth;
+        ~DepthGuard() { --depth; }
+    } depth_guard{d.update_depth};
     setVirtualPoses(virtual_world_from_object);
     Radiosity& rad = *radiosity_;
     Hierarchy& h = rad.hierarchy();
@@ -945,6 +953,12 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     snapshot.solve.elements = static_cast<int>(rad.leaves(Mode::kAll).size());
     snapshot.solve.links = rad.linkCount(Mode::kAll);
     snapshot.warnings = warnings_;
+    stats_.ms_observe = last_observe_ms_;
+    if (std::getenv("CL_LIGHTING_DEBUG") && d.update_depth == 1) {
+        std::fprintf(stderr, "lighting update: observe %.1f columns %.1f links %.1f fit %.1f solve %.1f snapshot %.1f ms; leaves %d\n",
+                     stats_.ms_observe, stats_.ms_columns, stats_.ms_links, stats_.ms_fit, stats_.ms_solve, stats_.ms_snapshot,
+                     h.leafCount());
+    }
     return snapshot;
 }
 

@@ -73,6 +73,7 @@ struct EstimatorStats {
     double ms_fit = 0.0;          // light and reflectance fit (all passes)
     double ms_solve = 0.0;        // the radiosity solves
     double ms_snapshot = 0.0;     // textures and probes
+    double ms_observe = 0.0;      // the last frame's observation (ray cast and accumulation)
 };
 
 class Estimator final : public SceneLighting {
@@ -108,7 +109,7 @@ public:
     // What a snapshot predicts for a camera view: per pixel the ratio B/B~ (RGB) of the real surface
     // it sees, sampled bilinearly from the snapshot's face textures (kRgbF32; NaN where the pixel
     // sees no real proxy or sees a virtual object). Every `stride`-th pixel (the others NaN).
-    Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const;
+    Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const override;
 
     // The unit-emission direct column of a scene light (area, disc, point, directional), for tests.
     const DirectColumn* column(int light) const;
@@ -130,6 +131,7 @@ private:
     std::vector<std::string> warnings_;
     EstimatorStats stats_;
     double fit_residual_ = 0.0;
+    double last_observe_ms_ = 0.0;
     double radiance_scale_ = 1.0;
 };
 

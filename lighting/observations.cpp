@@ -233,35 +233,44 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
     Eigen::Vector3d illum = illuminant.cwiseMax(0.0);
     illum = illum.sum() > 0.0 ? Eigen::Vector3d(illum / illum.sum()) : Eigen::Vector3d::Constant(1.0 / 3.0);
     // The highlight test (seed 002 sec. 4): a sample brighter than 1.5x the median of its
-    // neighbourhood (15 x 15 samples of the same face) whose chromaticity moved at least 30% of
-    // the way from the neighbourhood's mean chromaticity towards the illuminant's.
+    // neighbourhood on the same face (its 8 x 8 block of samples) whose chromaticity moved at least
+    // 30% of the way from the neighbourhood's mean chromaticity towards the illuminant's.
     std::vector<char> highlight(samples.size(), 0);
     {
-        constexpr int kRadius = 7;
-        std::vector<double> window;
+        constexpr int kBlock = 8;
+        struct Neighbourhood {
+            std::vector<double> luma;
+            Eigen::Vector3d chroma_sum = Eigen::Vector3d::Zero();
+            double median = 0.0;
+        };
+        const int bx = (samples_x_ + kBlock - 1) / kBlock, by = (samples_y_ + kBlock - 1) / kBlock;
+        std::vector<std::map<int, Neighbourhood>> blocks(static_cast<std::size_t>(bx) * static_cast<std::size_t>(by));
+        for (int j = 0; j < samples_y_; ++j) {
+            for (int i = 0; i < samples_x_; ++i) {
+                const std::size_t k = static_cast<std::size_t>(j) * samples_x_ + i;
+                if (!usable[k]) continue;
+                Neighbourhood& n = blocks[static_cast<std::size_t>(j / kBlock) * bx + i / kBlock][samples[k].face];
+                n.luma.push_back(luma(samples[k].radiance));
+                const double sum = samples[k].radiance.sum();
+                if (sum > 0.0) n.chroma_sum += samples[k].radiance / sum;
+            }
+        }
+        for (auto& block : blocks) {
+            for (auto& [face, n] : block) {
+                std::vector<double> sorted = n.luma;
+                auto mid = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2);
+                std::nth_element(sorted.begin(), mid, sorted.end());
+                n.median = *mid;
+            }
+        }
         for (int j = 0; j < samples_y_; ++j) {
             for (int i = 0; i < samples_x_; ++i) {
                 const std::size_t k = static_cast<std::size_t>(j) * samples_x_ + i;
                 if (!usable[k]) continue;
                 const Sample& s = samples[k];
-                window.clear();
-                Eigen::Vector3d chroma_sum = Eigen::Vector3d::Zero();
-                for (int dj = -kRadius; dj <= kRadius; ++dj) {
-                    for (int di = -kRadius; di <= kRadius; ++di) {
-                        const int x = i + di, y = j + dj;
-                        if (x < 0 || y < 0 || x >= samples_x_ || y >= samples_y_) continue;
-                        const std::size_t q = static_cast<std::size_t>(y) * samples_x_ + x;
-                        if (!usable[q] || samples[q].face != s.face) continue;
-                        window.push_back(luma(samples[q].radiance));
-                        const double sum = samples[q].radiance.sum();
-                        if (sum > 0.0) chroma_sum += samples[q].radiance / sum;
-                    }
-                }
-                if (window.size() < 16) continue;
-                auto mid = window.begin() + static_cast<std::ptrdiff_t>(window.size() / 2);
-                std::nth_element(window.begin(), mid, window.end());
-                if (!(luma(s.radiance) > 1.5 * *mid)) continue;
-                const Eigen::Vector3d mean_chroma = chroma_sum / static_cast<double>(window.size());
+                const Neighbourhood& n = blocks[static_cast<std::size_t>(j / kBlock) * bx + i / kBlock].at(s.face);
+                if (n.luma.size() < 16 || !(luma(s.radiance) > 1.5 * n.median)) continue;
+                const Eigen::Vector3d mean_chroma = n.chroma_sum / static_cast<double>(n.luma.size());
                 const double sum = s.radiance.sum();
                 const Eigen::Vector3d c = sum > 0.0 ? Eigen::Vector3d(s.radiance / sum) : mean_chroma;
                 const Eigen::Vector3d towards = illum - mean_chroma;

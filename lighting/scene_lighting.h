@@ -44,6 +44,9 @@ public:
     // The snapshot's version, timestamps and timing are left for the caller to fill in.
     virtual Result<LightingSnapshot> update(const std::vector<Rigid3d>& virtual_world_from_object) = 0;
 
+    // The ratio B/B~ a snapshot predicts for a view (lighting/estimator.h ratioImage()).
+    virtual Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride) const = 0;
+
     // The virtual objects' poses in the scene file at time t (keyframes, tags at their world
     // placement); identity for a tag-attached object whose tag is unknown.
     static std::vector<Rigid3d> scenePoses(const Scene& scene, double t_s);

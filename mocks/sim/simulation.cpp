@@ -213,6 +213,10 @@ Result<SimulationSummary> simulate(const Scene& scene, const Trajectory& traject
     sensor_info.rate_hz = trajectory.rateHz();
     sensor_info.camera = camera;
     sensor_info.response = options.sensor.response == SensorResponse::kSrgb ? "srgb" : "linear";
+    // The camera's radiometric calibration: relative radiance (linear value of full scale per
+    // second per unit gain) per W/(m^2 sr), from the sensor's own parameters (dark current aside).
+    sensor_info.radiance_scale = options.sensor.electrons_per_radiance_second * options.sensor.systemGainDnPerE() /
+                                 (options.sensor.maxDn() - options.sensor.blackLevelDn());
     sensor_info.comment = "simulated by commonlight sim (mocks/sim): " + std::to_string(options.spp) + " spp, seed " +
                           std::to_string(options.seed);
     CL_TRY(SequenceWriter writer, SequenceWriter::create(options.out, sensor_info, {.sync = false}));

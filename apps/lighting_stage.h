@@ -1,0 +1,80 @@
+// The lighting stage of `play` and `live`: frames with their camera pose go to the lighting
+// thread (lighting/engine.h); the metrics JSON gains its `lighting` section (docs/cli.md),
+// including the error of the predicted ratio B/B~ in the region the virtual objects change,
+// against the sequence's ground truth when it has it (groundtruth/composite/ and
+// groundtruth/masks/changed/).
+#pragma once
+
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "core/camera_model.h"
+#include "core/frame.h"
+#include "core/response.h"
+#include "core/scene.h"
+#include "core/sequence_io.h"
+#include "lighting/engine.h"
+
+namespace commonlight::apps {
+
+// The response of a sequence's camera: `override_spec` (--response) when given, else sensor.yaml's
+// `response` (relative files against the cam0 folder). Errors name the spec or file.
+Result<ResponseCurve> sequenceResponse(const Sequence& sequence, const std::string& override_spec);
+
+// Shadow-region ratio errors: the predicted B/B~ against the truth's composite / frame (both
+// linearised with the camera's response), over masks/changed pixels not covered by a virtual
+// object (masks/virtual when present).
+class RatioErrors {
+public:
+    void add(const Image& predicted, const ImageView& frame_rgb8, const ImageView& composite_rgb8, const ImageView& changed,
+             const ImageView* virtual_coverage, const ResponseCurve& response);
+    std::size_t count() const noexcept { return errors_.size(); }
+    // {"rms", "mean_signed", "pixels", "frames"}
+    nlohmann::json json() const;
+
+private:
+    std::vector<double> errors_;
+    std::size_t frames_ = 0;
+};
+
+class LightingStage {
+public:
+    // A lighting thread for the scene and camera (sync: every frame processed before the next).
+    // Ground truth is looked for in `sequence` when given.
+    static Result<std::unique_ptr<LightingStage>> create(const Scene& scene, const CameraModel& camera,
+                                                         const ResponseCurve& response, std::optional<double> radiance_scale,
+                                                         bool sync, const Sequence* sequence);
+    ~LightingStage();
+
+    // One frame: `rgb8` at the camera's size, its pose (nullopt: counted, contributes nothing), the
+    // time since the sequence start (virtual objects on keyframes). In sync mode it returns once the
+    // snapshot for this frame is published, and measures the ratio error on every 5th frame.
+    Result<void> process(const ImageView& rgb8, const FrameMetadata& meta, const std::optional<Rigid3d>& cam_from_world,
+                         double t_s);
+    void stop();
+
+    lighting::SnapshotPtr latest() const { return engine_->latest(); }
+    nlohmann::json metricsJson() const;
+    // Two lines for the summary.
+    std::string summary() const;
+
+private:
+    LightingStage() = default;
+    Result<void> measure(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world);
+
+    std::unique_ptr<lighting::LightingEngine> engine_;
+    Scene scene_;
+    ResponseCurve response_;
+    bool sync_ = false;
+    const Sequence* sequence_ = nullptr;
+    bool have_truth_ = false;
+    RatioErrors ratio_errors_;
+    std::uint64_t frames_ = 0;
+};
+
+}  // namespace commonlight::apps
