@@ -31,6 +31,7 @@ void addCalibrateCommand(CLI::App& app, Runner& runner);
 void addTrackCommand(CLI::App& app, Runner& runner);
 void addBenchCommand(CLI::App& app, Runner& runner);
 void addServeGigeCommand(CLI::App& app, Runner& runner);
+void addCalibrateResponseCommand(CLI::App& app, Runner& runner);
 
 // Prints "commonlight: error: <message>" and returns the exit code for the error.
 int reportError(const Error& error);

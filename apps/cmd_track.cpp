@@ -12,6 +12,8 @@
 #include <memory>
 
 #include "apps/app.h"
+#include "core/response.h"
+#include "tracking/edge_profile.h"
 #include "apps/progress.h"
 #include "apps/report.h"
 #include "apps/track_input.h"
@@ -36,6 +38,7 @@ struct TrackCommandOptions {
     bool tracking_mode = false;
     bool no_filter = false;
     bool edges = false;
+    std::string response;  // --response: overrides sensor.yaml's
     tracking::TrackerOptions tracker;
 };
 
@@ -88,6 +91,28 @@ int runTrack(TrackCommandOptions& options) {
         options.tracker.detector.family = options.family;
     } else if (scene) {
         options.tracker.detector.family = scene->tags.family;
+    }
+    // The response the edges are linearised with: --response, else the sequence's sensor.yaml,
+    // else sRGB (webcams).
+    {
+        Result<ResponseCurve> response = ResponseCurve::srgb();
+        if (!options.response.empty()) {
+            response = ResponseCurve::parse(options.response, fs::current_path());
+            if (!response) return reportError(Error{response.error().code, "--response: " + response.error().message});
+        } else if (input->sequence) {
+            response = ResponseCurve::parse(input->sequence->sensor.response, input->sequence->cam_dir);
+            if (!response) {
+                return reportError(Error{response.error().code, (input->sequence->cam_dir / "sensor.yaml").string() +
+                                                                     ": key 'response': " + response.error().message});
+            }
+        }
+        const bool srgb = response->kind() == ResponseCurve::Kind::kSrgb;
+        options.tracker.refine.srgb = options.tracker.align.srgb = srgb;
+        if (response->kind() != ResponseCurve::Kind::kSrgb && response->kind() != ResponseCurve::Kind::kLinear) {
+            // Tracking works on grey values: the green channel's curve stands for all three.
+            auto lin = std::make_shared<const tracking::Linearizer>(response->table()[1]);
+            options.tracker.refine.linearizer = options.tracker.align.linearizer = lin;
+        }
     }
     options.tracker.default_tag_size = options.tag_size;
     options.tracker.tracking_mode = options.tracking_mode && !input->independentFrames();
@@ -222,6 +247,8 @@ void addTrackCommand(CLI::App& app, Runner& runner) {
         ->capture_default_str();
     sub->add_flag("--no-filter", options->no_filter, "No temporal filter (the bundle's pose per frame)");
     sub->add_flag("--edges", options->edges, "Refine with the edges of the scene's proxy geometry");
+    sub->add_option("--response", options->response,
+                    "The camera's response: srgb, linear, gamma:G or a response file (default: the sequence's sensor.yaml, else srgb)");
     sub->footer(
         "CSV columns: image,timestamp_ns,tag_id,c0x..c3y (pixels, libapriltag's corner order and pixel convention),"
         "tx,ty,tz,qw,qx,qy,qz,status. Tag rows hold cam_from_tag; the frame row (tag_id -1) holds cam_from_world. "

@@ -26,6 +26,7 @@ int main(int argc, char** argv) {
     apps::addLiveCommand(app, runner);
     apps::addSimCommand(app, runner);
     apps::addCalibrateCommand(app, runner);
+    apps::addCalibrateResponseCommand(app, runner);
     apps::addTrackCommand(app, runner);
     apps::addBenchCommand(app, runner);
     apps::addServeGigeCommand(app, runner);

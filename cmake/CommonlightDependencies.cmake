@@ -13,7 +13,7 @@ macro(commonlight_require package debian)
 endmacro()
 
 commonlight_require(Eigen3 libeigen3-dev)
-commonlight_require(OpenCV libopencv-dev COMPONENTS core imgproc imgcodecs videoio calib3d)
+commonlight_require(OpenCV libopencv-dev COMPONENTS core imgproc imgcodecs videoio calib3d photo)
 commonlight_require(yaml-cpp libyaml-cpp-dev)
 commonlight_require(TinyGLTF libtinygltf-dev)
 commonlight_require(tinyobjloader libtinyobjloader-dev)

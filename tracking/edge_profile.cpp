@@ -12,6 +12,10 @@ Linearizer::Linearizer(bool srgb) {
     }
 }
 
+Linearizer::Linearizer(const std::array<float, 256>& linear_of_code) {
+    for (int v = 0; v < 256; ++v) lut[v] = 255.0 * linear_of_code[static_cast<std::size_t>(v)];
+}
+
 const Linearizer& Linearizer::get(bool srgb) {
     static const Linearizer kSrgb(true), kLinear(false);
     return srgb ? kSrgb : kLinear;

@@ -2,6 +2,8 @@
 // corner refinement and the tag alignment).
 #pragma once
 
+#include <array>
+#include <memory>
 #include <optional>
 
 #include <Eigen/Core>
@@ -17,6 +19,8 @@ namespace commonlight::tracking {
 struct Linearizer {
     double lut[256];
     explicit Linearizer(bool srgb);
+    // Any response: the linear value (in [0, 1]) of each code, scaled to 0..255.
+    explicit Linearizer(const std::array<float, 256>& linear_of_code);
     // The two tables, built once (256 pow() calls each) instead of per tag and frame.
     static const Linearizer& get(bool srgb);
 };

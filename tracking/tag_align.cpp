@@ -87,7 +87,7 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
         return out;
     }
     const double range = std::max(options.search_px, 0.35 * cell_px);
-    const Linearizer& lin = Linearizer::get(options.srgb);
+    const Linearizer& lin = options.linearizer ? *options.linearizer : Linearizer::get(options.srgb);
     Rigid3d pose = cam_from_tag;
     Matrix6d info = Matrix6d::Zero();
     double sum2 = 0.0;

@@ -8,6 +8,7 @@
 // on the signed distances over the pose's 6 degrees of freedom; repeated a few times. Tags whose
 // cells are under `min_cell_px` pixels keep their corner pose (there is nothing to resolve).
 #pragma once
+#include "tracking/edge_profile.h"
 
 #include <map>
 #include <memory>
@@ -59,6 +60,8 @@ struct TagAlignOptions {
     double huber_px = 0.5;
     double max_rms_px = 0.6;    // a final RMS above this: the alignment is refused
     bool srgb = true;           // pixels are sRGB-encoded: find edges in linear light
+    // The camera\'s response when it is neither sRGB nor linear (--response): replaces `srgb`.
+    std::shared_ptr<const Linearizer> linearizer;
 };
 
 struct TagAlignResult {

@@ -48,7 +48,7 @@ bool refineTagCorners(const ImageView& gray8, const CameraModel& camera, std::ar
     Eigen::Vector2d centre = Eigen::Vector2d::Zero();
     for (const auto& c : corners) centre += c;
     centre /= 4.0;
-    const Linearizer& lin = Linearizer::get(options.srgb);
+    const Linearizer& lin = options.linearizer ? *options.linearizer : Linearizer::get(options.srgb);
     std::array<Line, 4> lines;
     for (int side = 0; side < 4; ++side) {
         // Step 1: edge points along the side from corner `side` to corner `side + 1`.

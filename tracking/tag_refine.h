@@ -12,6 +12,9 @@
 // A side with too few edge points, or a result that moves a corner by more than `max_shift_px`,
 // leaves the tag's corners unchanged (reported, not an error).
 #pragma once
+#include "tracking/edge_profile.h"
+
+#include <memory>
 
 #include <array>
 
@@ -27,6 +30,8 @@ struct TagRefineOptions {
     double max_shift_px = 2.0;  // a refined corner further than this from the detected one: refinement refused
     int min_points = 6;         // per side
     bool srgb = true;           // pixels are sRGB-encoded (webcams, our sequences): find edges in linear light
+    // The camera\'s response when it is neither sRGB nor linear (--response): replaces `srgb`.
+    std::shared_ptr<const Linearizer> linearizer;
 };
 
 // Refines `corners` (distorted pixels, OpenCV convention, libapriltag's order) in place from the
