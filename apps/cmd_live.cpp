@@ -19,6 +19,8 @@
 #include <thread>
 
 #include "apps/app.h"
+#include "apps/lighting_stage.h"
+#include "core/response.h"
 #include "apps/pipeline.h"
 #include "apps/progress.h"
 #include "apps/report.h"
@@ -53,6 +55,8 @@ struct LiveOptions {
     double reconnect_max_s = 60.0;
     double timeout_s = 5.0;
     bool edges = false;
+    bool no_lighting = false;
+    std::string response;  // --response: overrides what the camera reports
 };
 
 // Sleeps up to `seconds`, waking early on Ctrl-C. False when stopped.
@@ -154,7 +158,7 @@ int runLive(const LiveOptions& options) {
         if (!r) return reportError(r.error());
         recorder = std::move(*r);
     }
-    capture::StageTimings timings({"convert", "track", "pipeline"});
+    capture::StageTimings timings({"convert", "track", "lighting", "pipeline"});
     PipelineOptions pipeline_options;
     pipeline_options.tracker.edges = options.edges;
     pipeline_options.ground_truth = truth ? &*truth : nullptr;
@@ -162,6 +166,26 @@ int runLive(const LiveOptions& options) {
     if (!pipeline) return reportError(pipeline.error());
     std::printf("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
                 options.scene.c_str(), options.record.empty() ? "" : (", recording to " + options.record).c_str());
+
+    // Step 2b: the lighting thread (real time: newest wins, it never holds the frames back). The
+    // response: --response, else what the camera reports (Aravis: its Gamma feature; replay: the
+    // recording's sensor.yaml).
+    std::unique_ptr<LightingStage> lighting;
+    if (!options.no_lighting && !scene->real_objects.empty()) {
+        const std::string spec = options.response.empty() ? (*session)->camera().responseSpec() : options.response;
+        auto response = ResponseCurve::parse(spec, fs::current_path());
+        if (!response) return reportError(Error{response.error().code, "response '" + spec + "': " + response.error().message});
+        std::optional<double> radiance_scale;
+        if (truth_sequence) radiance_scale = truth_sequence->sensor.radiance_scale;
+        auto created = LightingStage::create(*scene, *intrinsics, *response, radiance_scale, false, nullptr);
+        if (!created) return reportError(created.error());
+        lighting = std::move(*created);
+        std::printf("lighting: real time, response %s\n", response->name().c_str());
+    }
+    capture::PixelConverter lighting_converter;
+    Image lighting_rgb;
+    std::optional<std::int64_t> first_timestamp;
+    const auto lighting_stage = timings.id("lighting");
 
     // Step 3: the frames.
     const auto pipeline_stage = timings.id("pipeline");
@@ -244,7 +268,19 @@ int runLive(const LiveOptions& options) {
             continue;
         }
         if (poses) std::fputs(poseRow(frame->meta.timestamp_ns, *tracked).c_str(), poses.get());
+        if (lighting) {
+            if (!first_timestamp) first_timestamp = frame->meta.timestamp_ns;
+            capture::StageTimer lighting_timer(timings, lighting_stage);
+            if (lighting_converter.convert(frame->image, PixelFormat::kRgb8, lighting_rgb)) {
+                const double t_s = static_cast<double>(frame->meta.timestamp_ns - *first_timestamp) / 1e9;
+                if (auto lit = lighting->process(lighting_rgb.view(), frame->meta, tracked->cam_from_world, t_s); !lit) {
+                    failure = lit.error();
+                    break;
+                }
+            }
+        }
     }
+    if (lighting) lighting->stop();
     progress.finish();
     const double seconds = static_cast<double>(monotonicNowNs() - start_ns) / 1e9;
     capture::CaptureStats last;
@@ -270,6 +306,7 @@ int runLive(const LiveOptions& options) {
     printStages(timings);
     std::printf("tracked: %llu of %llu frames with a camera pose\n",
                 static_cast<unsigned long long>(pipeline->framesWithPose()), static_cast<unsigned long long>(taken));
+    if (lighting) std::printf("%s\n", lighting->summary().c_str());
     if (truth) {
         if (pipeline->poseErrors().count() > 0) std::printf("%s\n", pipeline->poseErrors().summary().c_str());
         if (pipeline->framesWithoutTruth() > 0) {
@@ -295,6 +332,7 @@ int runLive(const LiveOptions& options) {
         metrics["duration_s"] = seconds;
         metrics["stages_ms"] = stagesJson(timings);
         metrics["frames_with_pose"] = pipeline->framesWithPose();
+        if (lighting) metrics["lighting"] = lighting->metricsJson();
         if (truth) {
             metrics["pose_error"] = pipeline->poseErrors().json();
             metrics["frames_without_truth"] = pipeline->framesWithoutTruth();
@@ -338,6 +376,9 @@ void addLiveCommand(CLI::App& app, Runner& runner) {
         ->check(CLI::PositiveNumber)
         ->capture_default_str();
     sub->add_flag("--edges", options->edges, "Refine the pose with the edges of the scene's proxy geometry");
+    sub->add_flag("--no-lighting", options->no_lighting, "Track only; no lighting thread");
+    sub->add_option("--response", options->response,
+                    "The camera's response: srgb, linear, gamma:G or a response file (default: what the camera reports)");
     sub->footer("Exit codes: 0 ok, 2 usage, 3 bad input, 4 device error (after the reconnection attempts), 130 Ctrl-C");
     sub->callback([options, &runner] { runner = [options] { return runLive(*options); }; });
 }

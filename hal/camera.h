@@ -124,6 +124,13 @@ public:
     // Emits one frame in software-trigger mode (replay:?rate=step). kUnsupported otherwise.
     Result<void> trigger();
 
+    // The response the camera applies to its values, as core/response.h parses it ("srgb",
+    // "linear", "gamma:G", or a response file): what lighting and tracking linearise with unless
+    // the user says otherwise (--response). Backends report what the device tells (Aravis: the
+    // GenICam GammaEnable/Gamma features; replay: sensor.yaml); the default is "srgb", what a
+    // webcam's ISP applies.
+    std::string responseSpec() const { return doResponseSpec(); }
+
     // Frames the backend had to discard because no pool slot was free (lost in our pipeline,
     // not at the device).
     std::uint64_t framesWithoutSlot() const noexcept { return frames_without_slot_.load(std::memory_order_relaxed); }
@@ -144,6 +151,7 @@ private:
     virtual Result<void> doSetControl(Control control, double value);
     virtual Result<double> doGetControl(Control control) const;
     virtual Result<void> doTrigger();
+    virtual std::string doResponseSpec() const { return "srgb"; }
 
     std::string id_;
     State state_ = State::kOpened;

@@ -183,4 +183,9 @@ void FaultInjectingCamera::stopInnerWhenDisconnected(std::stop_token stop) {
     inner_->stop();
 }
 
+std::string FaultInjectingCamera::doResponseSpec() const {
+    const std::lock_guard lock(inner_mutex_);
+    return inner_->responseSpec();
+}
+
 }  // namespace commonlight::mocks

@@ -70,6 +70,7 @@ private:
     Result<void> doSetControl(hal::Control control, double value) override;
     Result<double> doGetControl(hal::Control control) const override;
     Result<void> doTrigger() override;
+    std::string doResponseSpec() const override;
 
     // FrameAllocator for the wrapped camera: our own allocator's slots (counted by our
     // framesWithoutSlot()), none at all once disconnected. Wrapped camera's thread.

@@ -143,4 +143,11 @@ void ReplayCamera::emitOne(std::size_t index, std::int64_t timestamp_ns, std::ui
     emitFrame(std::move(frame));
 }
 
+std::string ReplayCamera::doResponseSpec() const {
+    const std::string& r = sequence_.sensor.response;
+    if (r == "srgb" || r == "linear" || r.starts_with("gamma:")) return r;
+    const std::filesystem::path file(r);
+    return file.is_relative() ? (sequence_.cam_dir / file).string() : r;
+}
+
 }  // namespace commonlight::mocks

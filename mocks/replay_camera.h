@@ -53,6 +53,8 @@ private:
     ReplayCamera(std::string id, Sequence sequence, hal::StreamFormat format, PlaybackOptions options, Clock& clock);
 
     std::vector<hal::StreamFormat> doFormats() const override { return {format_}; }
+    // The recording's sensor.yaml `response`: relative files are made absolute (against cam0/).
+    std::string doResponseSpec() const override;
     Result<hal::StreamFormat> doConfigure(const hal::StreamConfig& config) override;
     Result<void> doSetControl(hal::Control control, double value) override;
 

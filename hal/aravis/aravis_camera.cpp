@@ -503,6 +503,26 @@ Result<double> AravisCamera::readControl(Control control) const {
     return unsupported();
 }
 
+std::string AravisCamera::doResponseSpec() const {
+    ArvCamera* camera = impl_->camera;
+    if (!featureAvailable(camera, "Gamma")) return "linear";  // machine-vision cameras without it are linear
+    GError* error = nullptr;
+    if (featureAvailable(camera, "GammaEnable")) {
+        const gboolean enabled = arv_camera_get_boolean(camera, "GammaEnable", &error);
+        if (error != nullptr) {
+            g_clear_error(&error);
+            return "linear";
+        }
+        if (!enabled) return "linear";
+    }
+    const double gamma = arv_camera_get_float(camera, "Gamma", &error);
+    if (error != nullptr || !(gamma > 0.0) || !std::isfinite(gamma)) {
+        g_clear_error(&error);
+        return "linear";
+    }
+    return gammaResponseSpec(gamma);
+}
+
 Result<double> AravisCamera::doGetControl(Control control) const {
     std::lock_guard lock(mutex_);
     return readControl(control);

@@ -40,6 +40,9 @@ private:
     std::vector<ControlInfo> doControls() const override;
     Result<void> doSetControl(Control control, double value) override;
     Result<double> doGetControl(Control control) const override;
+    // GenICam SFNC: GammaEnable false (or absent with no Gamma) -> "linear"; Gamma G enabled ->
+    // the camera encodes out = in^G, so the response is "gamma:<1/G>" (decode: in = out^(1/G)).
+    std::string doResponseSpec() const override;
 
     void run(std::stop_token stop);
     void deliver(void* buffer);  // ArvBuffer*

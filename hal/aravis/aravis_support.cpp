@@ -1,5 +1,7 @@
 #include "hal/aravis/aravis_support.h"
 
+#include <cstdio>
+#include <cmath>
 #include <algorithm>
 #include <cstring>
 #include <limits>
@@ -151,6 +153,13 @@ DeviceClockMapper::Mapped DeviceClockMapper::toHost(std::int64_t device_ns, std:
     for (std::size_t i = 0; i < count_; ++i) best = std::min(best, samples_[i]);
     offset_ = best;
     return {std::min(device_ns + offset_, arrival_ns), false};
+}
+
+std::string gammaResponseSpec(double gamma) {
+    if (!(gamma > 0.0) || !std::isfinite(gamma) || std::abs(gamma - 1.0) < 1e-3) return "linear";
+    char spec[32];
+    std::snprintf(spec, sizeof spec, "gamma:%.4g", std::clamp(1.0 / gamma, 0.2, 5.0));
+    return spec;
 }
 
 }  // namespace commonlight::hal::aravis

@@ -104,4 +104,9 @@ private:
     std::uint64_t rebases_ = 0;
 };
 
+// The response spec (core/response.h) of a camera whose GenICam Gamma feature is `gamma`: SFNC's
+// Gamma encodes out = in^Gamma (values in [0, 1]), so decoding is in = out^(1/Gamma): "gamma:<1/Gamma>"
+// (clamped to [0.2, 5]); 1 (or within 1e-3 of it) is "linear".
+std::string gammaResponseSpec(double gamma);
+
 }  // namespace commonlight::hal::aravis

@@ -51,6 +51,7 @@ private:
     // Exposure and gain change the sensor model for the next frame (any thread but the camera's).
     Result<void> doSetControl(hal::Control control, double value) override;
     Result<double> doGetControl(hal::Control control) const override;
+    std::string doResponseSpec() const override;
     std::shared_ptr<const SensorModel> currentSensor() const;
     void run(std::stop_token stop) override;  // the camera thread
 

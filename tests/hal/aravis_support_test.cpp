@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <cmath>
 #include <random>
 
 #include "hal/registry.h"
@@ -184,6 +185,24 @@ TEST(DeviceClockMapper, AForwardJumpIsTakenAtOnceAndASingleLateFrameIsNot) {
         EXPECT_EQ(m.host_ns, i * 10'000'000LL + 500'000) << i;
     }
     EXPECT_EQ(mapper.rebases(), 1u);
+}
+
+}  // namespace
+}  // namespace commonlight::hal::aravis
+
+namespace commonlight::hal::aravis {
+namespace {
+
+// SFNC's Gamma encodes out = in^Gamma: a camera at Gamma 0.45 (a typical encoding) decodes with
+// 1/0.45; Gamma 1 is linear; nonsense values fall back to linear (machine-vision default).
+TEST(AravisSupport, GammaFeatureMapsToAResponseSpec) {
+    EXPECT_EQ(gammaResponseSpec(1.0), "linear");
+    EXPECT_EQ(gammaResponseSpec(1.0004), "linear");
+    EXPECT_EQ(gammaResponseSpec(0.5), "gamma:2");
+    EXPECT_EQ(gammaResponseSpec(0.45), "gamma:2.222");
+    EXPECT_EQ(gammaResponseSpec(0.0), "linear");
+    EXPECT_EQ(gammaResponseSpec(std::nan("")), "linear");
+    EXPECT_EQ(gammaResponseSpec(0.1), "gamma:5");  // clamped to the range core/response.h accepts
 }
 
 }  // namespace

@@ -205,3 +205,27 @@ TEST(ReplayRegistry, BadOptionValuesAreUsageErrors) {
 
 }  // namespace
 }  // namespace commonlight::mocks
+
+namespace commonlight::mocks {
+namespace {
+
+// The recording's sensor.yaml says which response its camera applied; a response file is named
+// relative to cam0/ and comes back as a path that opens from anywhere.
+TEST(ReplayResponse, ReportsTheSequencesResponse) {
+    testing::TempDir dir;
+    writeTestSequence(dir.path(), PixelFormat::kGray8, 2, kInterval, 30.0, 32, 24, 50);
+    ManualClock clock;
+    for (const auto& [written, expected] : std::vector<std::pair<std::string, std::string>>{
+             {"linear", "linear"}, {"gamma:2.2", "gamma:2.2"}, {"curve.yaml", (dir.path() / "cam0" / "curve.yaml").string()}}) {
+        std::string yaml = testing::readText(dir.path() / "cam0" / "sensor.yaml");
+        const auto at = yaml.find("response:");
+        if (at != std::string::npos) yaml.erase(at, yaml.find('\n', at) - at + 1);
+        testing::writeText(dir.path() / "cam0" / "sensor.yaml", yaml + "response: " + written + "\n");
+        auto camera = openReplay(dir.path(), rate(PlaybackRate::kMax), clock);
+        ASSERT_TRUE(camera);
+        EXPECT_EQ(camera->responseSpec(), expected);
+    }
+}
+
+}  // namespace
+}  // namespace commonlight::mocks
