@@ -373,7 +373,31 @@ void Radiosity::updateVirtualLinks() {
     // Step 1: drop the links touching virtual elements; recompute the real links' virtual part.
     std::erase_if(links_, [](const Link& l) { return l.touches_virtual; });
     tbb::parallel_for(std::size_t{0}, links_.size(), [&](std::size_t i) { computeLink(links_[i], true); });
-    // Step 2: links between virtual elements and everything else, by the same oracle, both ways.
+    // Step 2 (against the spread shadow, seed 000 sec. 6.2): a real link that a virtual object
+    // blocks in part would darken its whole receiver, however coarse. Such links are replaced by
+    // links from each leaf under the receiver, each with its own visibility.
+    pending_pairs_.clear();
+    {
+        std::vector<Link> kept;
+        kept.reserve(links_.size());
+        std::vector<int> leaves_under;
+        for (const Link& l : links_) {
+            const bool shadowed = l.vis_all < l.vis_real - 1e-6f;
+            if (!shadowed || hierarchy_[l.receiver].leaf()) {
+                kept.push_back(l);
+                continue;
+            }
+            leaves_under.clear();
+            hierarchy_.leavesUnder(l.receiver, leaves_under);
+            for (int leaf : leaves_under) {
+                if (!hierarchy_[leaf].buried) pending_pairs_.emplace_back(leaf, l.source);
+            }
+        }
+        links_ = std::move(kept);
+        std::vector<Link> pushed = takePendingLinks();
+        links_.insert(links_.end(), pushed.begin(), pushed.end());
+    }
+    // Step 3: links between virtual elements and everything else, by the same oracle, both ways.
     pending_pairs_.clear();
     for (std::size_t fv = real_count_; fv < faces_.size(); ++fv) {
         for (std::size_t f = 0; f < faces_.size(); ++f) {
