@@ -224,3 +224,41 @@ TEST(Estimator, DistantLightDominantDirectionFound) {
 
 }  // namespace
 }  // namespace commonlight::lighting
+
+namespace commonlight::lighting {
+namespace {
+
+// Bad input for the light fit: a light that lights nothing the camera sees (behind a wall) and two
+// lights that light everything the same way (an ill-conditioned pair) get regularised,
+// non-negative, finite answers and warnings naming them; never NaN.
+TEST(Estimator, UnobservableLightsGetRegularisedAnswersAndWarnings) {
+    const Scene truth = parse(R"(
+real:
+  - {name: floor, plane: {size: [2.4, 2.4]}, world_from_object: {t: [0, 0.3, 0]}, albedo: [0.45, 0.4, 0.33]}
+  - {name: wall, plane: {size: [2.4, 1.8]}, world_from_object: {t: [0, 1.5, 0.9], rpy_deg: [90, 0, 0]}, albedo: [0.7, 0.7, 0.7]}
+lights:
+  - {name: panel, area: {size: [0.6, 0.6]}, world_from_object: {t: [0, 0.5, 1.8], rpy_deg: [180, 0, 0]}, radiance: [12, 11, 10]}
+  - {name: twin, area: {size: [0.6, 0.6]}, world_from_object: {t: [0.001, 0.5, 1.8], rpy_deg: [180, 0, 0]}, radiance: [12, 11, 10]}
+  - {name: hidden, area: {size: [0.3, 0.3]}, world_from_object: {t: [0, 2.5, 0.9], rpy_deg: [-90, 0, 0]}, radiance: [50, 50, 50]}
+)");
+    Scene estimated = bench::asEstimated(truth, true, false);
+    estimated.real_objects[0].albedo = RgbOrEstimate::estimate();
+    EstimateRun run = estimate(truth, estimated, camera(160, 120), cornerPoses(), cornerSettings(), ResponseCurve::srgb());
+    ASSERT_EQ(run.estimator->lights().size(), 3u);
+    for (const LightEstimate& e : run.estimator->lights()) {
+        EXPECT_TRUE(e.emission.allFinite());
+        EXPECT_GE(e.emission.minCoeff(), 0.0);
+    }
+    const auto warned = [&](const std::string& name) {
+        return std::any_of(run.snapshot.warnings.begin(), run.snapshot.warnings.end(),
+                           [&](const std::string& w) { return w.find("'" + name + "'") != std::string::npos; });
+    };
+    EXPECT_TRUE(warned("hidden"));
+    EXPECT_TRUE(warned("panel") || warned("twin"));
+    // The pair together still carries the right total light (what is seen is explained).
+    const Eigen::Vector3d pair = (run.estimator->lights()[0].emission + run.estimator->lights()[1].emission) / run.estimator->radianceScale();
+    EXPECT_NEAR(pair.y(), 22.0, 0.1 * 22.0);
+}
+
+}  // namespace
+}  // namespace commonlight::lighting
