@@ -127,7 +127,15 @@ Result<void> LightingStage::measure(const ImageView& rgb8, const FrameMetadata& 
     const ImageView coverage_view{PixelFormat::kGray8, coverage.cols, coverage.rows, coverage.step, coverage.data,
                                   coverage.step * static_cast<std::size_t>(coverage.rows)};
     const lighting::SnapshotPtr snapshot = engine_->latest();
-    CL_TRY(Image predicted, engine_->ratioImage(*snapshot, cam_from_world, 1));
+    // In real time the pipeline does not wait for an update in progress: that frame goes unmeasured.
+    Image predicted;
+    if (sync_) {
+        CL_TRY(predicted, engine_->ratioImage(*snapshot, cam_from_world, 1));
+    } else {
+        CL_TRY(std::optional<Image> got, engine_->tryRatioImage(*snapshot, cam_from_world, 1));
+        if (!got) return {};
+        predicted = std::move(*got);
+    }
     ratio_errors_.add(predicted, rgb8, composite, mask, coverage.empty() ? nullptr : &coverage_view, response_);
     return {};
 }

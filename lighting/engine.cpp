@@ -208,6 +208,14 @@ Result<Image> LightingEngine::ratioImage(const LightingSnapshot& snapshot, const
     return impl_->model->ratioImage(snapshot, cam_from_world, stride);
 }
 
+Result<std::optional<Image>> LightingEngine::tryRatioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world,
+                                                            int stride) const {
+    std::unique_lock lock(impl_->model_mutex, std::try_to_lock);
+    if (!lock.owns_lock()) return std::optional<Image>();
+    CL_TRY(Image image, impl_->model->ratioImage(snapshot, cam_from_world, stride));
+    return std::optional<Image>(std::move(image));
+}
+
 std::optional<Error> LightingEngine::lastError() const {
     std::lock_guard lock(impl_->mutex);
     return impl_->last_error;

@@ -98,6 +98,10 @@ public:
     // The ratio B/B~ a snapshot predicts per pixel for a camera pose (kRgbF32, NaN where no real
     // proxy is seen): for metrics against ground truth. Waits while an update is under way.
     Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const;
+    // The same without waiting: nullopt when the thread is in the middle of an update (a real-time
+    // caller must not stall behind it).
+    Result<std::optional<Image>> tryRatioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world,
+                                               int stride = 1) const;
 
     // The first error the thread met in real-time mode (the thread keeps running and retries on
     // the next observation); nullopt when none.

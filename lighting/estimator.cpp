@@ -850,6 +850,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         est.light = static_cast<int>(i);
         est.estimated = d.scene.lights[i].emission.isEstimate();
         const std::string& name = d.scene.lights[i].name;
+        std::string twin;  // another light the observations cannot tell from this one
         double column_weight = 0.0, max_column_weight = 0.0;
         for (std::size_t j = 0; j < estimate_index.size(); ++j) {
             for (int c = 0; c < 3; ++c) max_column_weight = std::max(max_column_weight, fits[static_cast<std::size_t>(c)].column_weight.empty() ? 0.0 : fits[static_cast<std::size_t>(c)].column_weight[j]);
@@ -876,6 +877,11 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                     est.relative_error[c] = std::max(est.relative_error[c], fits[static_cast<std::size_t>(c)].relative_error[j]);
                     column_weight = std::max(column_weight, fits[static_cast<std::size_t>(c)].column_weight[j]);
                 }
+                const std::vector<int>& partner = fits[1].indistinguishable_from;
+                if (j < partner.size() && partner[j] >= 0) {
+                    const Source& other = d.sources[static_cast<std::size_t>(estimate_index[static_cast<std::size_t>(partner[j])])];
+                    if (other.light >= 0 && other.light != static_cast<int>(i)) twin = d.scene.lights[static_cast<std::size_t>(other.light)].name;
+                }
                 est.condition_number = fits[1].condition_number;
                 est.negative_in_plain_least_squares = fits[1].negative_in_plain_least_squares;
             }
@@ -883,6 +889,9 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         if (est.estimated && std::get_if<DistantLightShape>(&d.scene.lights[i].shape) == nullptr) {
             if (max_column_weight > 0.0 && column_weight < 1e-3 * max_column_weight) {
                 est.warning = "light '" + name + "' contributes almost nothing to what was observed: its emission is regularised towards 0";
+            } else if (!twin.empty()) {
+                est.warning = "light '" + name + "' lights what was observed almost exactly as light '" + twin +
+                              "' does: only their sum is determined, its share is regularised";
             } else if (!(est.relative_error.maxCoeff() < 0.5)) {
                 est.warning = "light '" + name + "' is poorly determined by what was observed (relative error " +
                               std::to_string(est.relative_error.maxCoeff()) + "): its emission is regularised";

@@ -423,7 +423,20 @@ Result<FitResult> fitChannel(const FitProblem& p) {
     result.relative_residual = lsum > 0.0 ? std::sqrt(r2 / lsum) : 0.0;
     result.relative_error.assign(static_cast<std::size_t>(n), std::numeric_limits<double>::infinity());
     result.column_weight.assign(static_cast<std::size_t>(n), 0.0);
+    result.indistinguishable_from.assign(static_cast<std::size_t>(n), -1);
     if (n > 0) {
+        // Nearly parallel columns: cos = N_ij / sqrt(N_ii N_jj) of the weighted normal matrix.
+        for (int a = 0; a < n; ++a) {
+            double best = kIndistinguishableCosine;
+            for (int b = 0; b < n; ++b) {
+                if (a == b || !(m(a, a) > 0.0) || !(m(b, b) > 0.0)) continue;
+                const double cosine = m(a, b) / std::sqrt(m(a, a) * m(b, b));
+                if (cosine > best) {
+                    best = cosine;
+                    result.indistinguishable_from[static_cast<std::size_t>(a)] = b;
+                }
+            }
+        }
         // cond(sqrt(W) A) = sqrt(cond(A^T W A)).
         const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(m);
         const double lmin = eig.eigenvalues().minCoeff(), lmax = eig.eigenvalues().maxCoeff();

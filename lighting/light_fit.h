@@ -52,11 +52,17 @@ struct FitProblem {
     int max_iterations = 30;   // alternating steps (each exact); stops earlier when the residual settles
 };
 
+// Two light columns whose weighted cosine exceeds this are reported as indistinguishable.
+inline constexpr double kIndistinguishableCosine = 0.999;
+
 struct FitResult {
     std::vector<double> emission;        // per source, >= 0
     std::vector<double> group_albedo;    // per group, in [0.005, 0.98]
     std::vector<double> relative_error;  // per source: standard error / emission (from the residual; inf when 0)
     std::vector<double> column_weight;   // per source: sqrt of its column's weighted energy (how much it is seen)
+    // Per source: another source whose weighted column is nearly parallel to its own (cosine above
+    // kIndistinguishableCosine), so that what was observed fixes only their sum; -1 when none.
+    std::vector<int> indistinguishable_from;
     double condition_number = 0.0;       // of the weighted design matrix at the solution's albedos
     double residual_rms = 0.0;           // weighted RMS of L - model, relative radiance
     double relative_residual = 0.0;      // residual_rms / weighted RMS of L

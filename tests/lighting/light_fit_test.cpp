@@ -148,6 +148,24 @@ TEST(FitChannel, WithoutAnchorTheScaleComesFromThePriorAndSaysSo) {
     EXPECT_NEAR(r->group_albedo[1] * r->emission[1], 0.7 * 170.0, 0.02 * 0.7 * 170.0);
 }
 
+// Independent columns are not flagged; a third source whose column is the first one's (two lights
+// a millimetre apart) is flagged as indistinguishable from it, both ways, and the two still share
+// the right total.
+TEST(FitChannel, NearlyParallelColumnsAreReportedAsIndistinguishable) {
+    auto independent = fitChannel(syntheticProblem(true, 0.0));
+    ASSERT_TRUE(independent);
+    EXPECT_EQ(independent->indistinguishable_from, (std::vector<int>{-1, -1}));
+    FitProblem p = syntheticProblem(true, 0.0);
+    p.sources = 3;
+    for (FitObservation& o : p.observations) o.columns.push_back(o.columns[0] * 1.0001);
+    auto r = fitChannel(p);
+    ASSERT_TRUE(r) << r.error().message;
+    EXPECT_EQ(r->indistinguishable_from[0], 2);
+    EXPECT_EQ(r->indistinguishable_from[2], 0);
+    EXPECT_EQ(r->indistinguishable_from[1], -1);
+    EXPECT_NEAR(r->emission[0] + 1.0001 * r->emission[2], 40.0, 0.01 * 40.0);
+}
+
 TEST(FitChannel, MismatchedOrNonFiniteInputIsAnError) {
     FitProblem p = syntheticProblem(true, 0.0);
     p.observations[3].columns.pop_back();
