@@ -19,9 +19,8 @@
 #include <thread>
 
 #include "apps/app.h"
-#include "apps/lighting_stage.h"
 #include "core/response.h"
-#include "apps/pipeline.h"
+#include "pipeline/runner.h"
 #include "apps/progress.h"
 #include "apps/report.h"
 #include "capture/capture_session.h"
@@ -105,12 +104,12 @@ int runLive(const LiveOptions& options) {
     auto scene = readScene(options.scene);
     if (!scene) return reportError(scene.error());
     std::optional<Sequence> truth_sequence;
-    std::optional<GroundTruth> truth;
+    std::optional<pipeline::GroundTruth> truth;
     if (!options.ground_truth.empty()) {
         auto seq = readSequence(options.ground_truth);
         if (!seq) return reportError(seq.error());
         truth_sequence = std::move(*seq);
-        auto t = GroundTruth::fromSequence(*truth_sequence, /*by_content=*/true);
+        auto t = pipeline::GroundTruth::fromSequence(*truth_sequence, /*by_content=*/true);
         if (!t) return reportError(t.error());
         truth = std::move(*t);
     }
@@ -158,37 +157,28 @@ int runLive(const LiveOptions& options) {
         if (!r) return reportError(r.error());
         recorder = std::move(*r);
     }
-    capture::StageTimings timings({"convert", "track", "lighting", "pipeline"});
-    PipelineOptions pipeline_options;
-    pipeline_options.tracker.edges = options.edges;
-    pipeline_options.ground_truth = truth ? &*truth : nullptr;
-    auto pipeline = FramePipeline::create(*intrinsics, *scene, pipeline_options, timings);
-    if (!pipeline) return reportError(pipeline.error());
-    std::printf("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
-                options.scene.c_str(), options.record.empty() ? "" : (", recording to " + options.record).c_str());
-
-    // Step 2b: the lighting thread (real time: newest wins, it never holds the frames back). The
-    // response: --response, else what the camera reports (Aravis: its Gamma feature; replay: the
-    // recording's sensor.yaml).
-    std::unique_ptr<LightingStage> lighting;
-    if (!options.no_lighting && !scene->real_objects.empty()) {
+    // Step 2b: the per-frame pipeline (pipeline/runner.h) with the lighting thread in real time
+    // (newest wins, it never holds the frames back). The response: --response, else what the
+    // camera reports (Aravis: its Gamma feature; replay: the recording's sensor.yaml).
+    pipeline::RunnerOptions runner_options;
+    runner_options.tracker.edges = options.edges;
+    runner_options.ground_truth = truth ? &*truth : nullptr;
+    runner_options.lighting = !options.no_lighting;
+    {
         const std::string spec = options.response.empty() ? (*session)->camera().responseSpec() : options.response;
         auto response = ResponseCurve::parse(spec, fs::current_path());
         if (!response) return reportError(Error{response.error().code, "response '" + spec + "': " + response.error().message});
-        std::optional<double> radiance_scale;
-        if (truth_sequence) radiance_scale = truth_sequence->sensor.radiance_scale;
-        auto created = LightingStage::create(*scene, *intrinsics, *response, radiance_scale, false, nullptr);
-        if (!created) return reportError(created.error());
-        lighting = std::move(*created);
-        std::printf("lighting: real time, response %s\n", response->name().c_str());
+        runner_options.response = *response;
     }
-    capture::PixelConverter lighting_converter;
-    Image lighting_rgb;
-    std::optional<std::int64_t> first_timestamp;
-    const auto lighting_stage = timings.id("lighting");
+    if (truth_sequence) runner_options.radiance_scale = truth_sequence->sensor.radiance_scale;
+    auto runner = pipeline::FrameRunner::create(*scene, *intrinsics, runner_options);
+    if (!runner) return reportError(runner.error());
+    capture::StageTimings& timings = (*runner)->timings();
+    std::printf("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
+                options.scene.c_str(), options.record.empty() ? "" : (", recording to " + options.record).c_str());
+    if ((*runner)->lighting()) std::printf("lighting: real time, response %s\n", runner_options.response.name().c_str());
 
     // Step 3: the frames.
-    const auto pipeline_stage = timings.id("pipeline");
     capture::PhotometryLock photometry(static_cast<std::int64_t>(options.settle_s * 1e9));
     const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(options.timeout_s));
     Totals totals;
@@ -238,14 +228,13 @@ int runLive(const LiveOptions& options) {
             }
             ++reconnects;
             photometry.reset();
-            if (auto restarted = pipeline->restart(); !restarted) return reportError(restarted.error());
+            if (auto restarted = (*runner)->restart(); !restarted) return reportError(restarted.error());
             log::info("reconnected to " + options.camera);
             continue;
         }
         FrameHandle frame = std::move(**next);
         ++taken;
         progress.update(taken);
-        capture::StageTimer pipeline_timer(timings, pipeline_stage);
         if (recorder) recorder->push(*frame);
         if (!options.no_lock) {
             auto locked = photometry.onFrame((*session)->camera(), frame->meta.arrival_ns);
@@ -258,7 +247,7 @@ int runLive(const LiveOptions& options) {
             }
         }
         if (frame->meta.status != FrameStatus::kOk) continue;  // counted by the session
-        auto tracked = pipeline->process(*frame);
+        auto tracked = (*runner)->process(*frame);
         if (!tracked) {
             if (tracked.error().code != ErrorCode::kBadInput) {
                 failure = tracked.error();
@@ -268,19 +257,8 @@ int runLive(const LiveOptions& options) {
             continue;
         }
         if (poses) std::fputs(poseRow(frame->meta.timestamp_ns, *tracked).c_str(), poses.get());
-        if (lighting) {
-            if (!first_timestamp) first_timestamp = frame->meta.timestamp_ns;
-            capture::StageTimer lighting_timer(timings, lighting_stage);
-            if (lighting_converter.convert(frame->image, PixelFormat::kRgb8, lighting_rgb)) {
-                const double t_s = static_cast<double>(frame->meta.timestamp_ns - *first_timestamp) / 1e9;
-                if (auto lit = lighting->process(lighting_rgb.view(), frame->meta, tracked->cam_from_world, t_s); !lit) {
-                    failure = lit.error();
-                    break;
-                }
-            }
-        }
     }
-    if (lighting) lighting->stop();
+    (*runner)->stop();
     progress.finish();
     const double seconds = static_cast<double>(monotonicNowNs() - start_ns) / 1e9;
     capture::CaptureStats last;
@@ -305,12 +283,11 @@ int runLive(const LiveOptions& options) {
                 last.latency_ms.p95);
     printStages(timings);
     std::printf("tracked: %llu of %llu frames with a camera pose\n",
-                static_cast<unsigned long long>(pipeline->framesWithPose()), static_cast<unsigned long long>(taken));
-    if (lighting) std::printf("%s\n", lighting->summary().c_str());
+                static_cast<unsigned long long>((*runner)->tracking().framesWithPose()), static_cast<unsigned long long>(taken));
+    std::printf("%s", (*runner)->summary().c_str());
     if (truth) {
-        if (pipeline->poseErrors().count() > 0) std::printf("%s\n", pipeline->poseErrors().summary().c_str());
-        if (pipeline->framesWithoutTruth() > 0) {
-            log::warning(std::to_string(pipeline->framesWithoutTruth()) + " frames matched no frame of " +
+        if ((*runner)->tracking().framesWithoutTruth() > 0) {
+            log::warning(std::to_string((*runner)->tracking().framesWithoutTruth()) + " frames matched no frame of " +
                          options.ground_truth + " (not bit-identical to the recording)");
         }
     }
@@ -331,12 +308,7 @@ int runLive(const LiveOptions& options) {
         metrics["camera"] = options.camera;
         metrics["duration_s"] = seconds;
         metrics["stages_ms"] = stagesJson(timings);
-        metrics["frames_with_pose"] = pipeline->framesWithPose();
-        if (lighting) metrics["lighting"] = lighting->metricsJson();
-        if (truth) {
-            metrics["pose_error"] = pipeline->poseErrors().json();
-            metrics["frames_without_truth"] = pipeline->framesWithoutTruth();
-        }
+        metrics.update((*runner)->metricsJson());
         const fs::path file = fs::path(options.out) / "metrics.json";
         if (auto written = writeJson(file, metrics); !written) return reportError(written.error());
         std::printf("metrics written to %s\n", file.c_str());

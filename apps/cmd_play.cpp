@@ -11,8 +11,8 @@
 #include <memory>
 
 #include "apps/app.h"
-#include "apps/lighting_stage.h"
-#include "apps/pipeline.h"
+#include "pipeline/lighting_stage.h"
+#include "pipeline/runner.h"
 #include "apps/progress.h"
 #include "apps/report.h"
 #include "capture/capture_session.h"
@@ -73,14 +73,14 @@ int runPlay(const PlayOptions& options) {
     // Tracking needs the scene's tags and the camera's intrinsics (sensor.yaml, else the scene's).
     std::optional<CameraModel> intrinsics = camera->sequence().sensor.camera;
     if (!intrinsics && scene) intrinsics = scene->camera;
-    std::optional<GroundTruth> truth;
+    std::optional<pipeline::GroundTruth> truth;
     if (!camera->sequence().groundtruth_poses.empty()) {
-        auto t = GroundTruth::fromSequence(camera->sequence(), false);
+        auto t = pipeline::GroundTruth::fromSequence(camera->sequence(), false);
         if (!t) return reportError(t.error());
         truth = std::move(*t);
     }
     // The camera's response (how codes became linear light): --response, else sensor.yaml's.
-    auto response = sequenceResponse(camera->sequence(), options.response);
+    auto response = pipeline::sequenceResponse(camera->sequence(), options.response);
     if (!response) return reportError(response.error());
     const std::size_t recorded = camera->sequence().frames.size();
     const auto timeout = frameTimeout(camera->sequence(), options.sync);
@@ -97,35 +97,30 @@ int runPlay(const PlayOptions& options) {
                 options.sync ? "every frame (--sync)" : "at the recorded rate");
     if (auto started = (*session)->start(); !started) return reportError(started.error());
 
-    // Step 3: the per-frame pipeline.
-    capture::StageTimings timings({"convert", "track", "lighting", "pipeline"});
-    std::optional<FramePipeline> pipeline;
+    // Step 3: the per-frame pipeline (pipeline/runner.h): tracking, lighting thread.
+    std::unique_ptr<pipeline::FrameRunner> runner;
     if (!options.no_track && scene && !scene->tags.items.empty() && intrinsics) {
-        PipelineOptions pipeline_options;
-        pipeline_options.ground_truth = truth ? &*truth : nullptr;
-        auto created = FramePipeline::create(*intrinsics, *scene, pipeline_options, timings);
+        pipeline::RunnerOptions runner_options;
+        runner_options.sync = options.sync;
+        runner_options.lighting = !options.no_lighting;
+        runner_options.ground_truth = truth ? &*truth : nullptr;
+        runner_options.sequence = &camera->sequence();
+        runner_options.response = *response;
+        runner_options.radiance_scale = camera->sequence().sensor.radiance_scale;
+        auto created = pipeline::FrameRunner::create(*scene, *intrinsics, runner_options);
         if (!created) return reportError(created.error());
-        pipeline.emplace(std::move(*created));
+        runner = std::move(*created);
+        if (runner->lighting()) {
+            std::printf("lighting: %s, response %s%s\n", options.sync ? "every frame" : "real time (newest wins)",
+                        response->name().c_str(),
+                        camera->sequence().sensor.radiance_scale ? "" : ", no radiance_scale: emissions in relative units");
+        }
     } else if (!options.no_track) {
         log::info(std::string("tracking off: ") + (!scene ? "no scene" : !intrinsics ? "no intrinsics in sensor.yaml or the scene"
                                                                                       : "the scene places no tags"));
     }
-    // Step 3b: the lighting thread, fed with every tracked frame (needs proxies to light).
-    std::unique_ptr<LightingStage> lighting;
-    if (pipeline && !options.no_lighting && scene && !scene->real_objects.empty()) {
-        auto created = LightingStage::create(*scene, *intrinsics, *response, camera->sequence().sensor.radiance_scale,
-                                             options.sync, &camera->sequence());
-        if (!created) return reportError(created.error());
-        lighting = std::move(*created);
-        std::printf("lighting: %s, response %s%s\n", options.sync ? "every frame" : "real time (newest wins)",
-                    response->name().c_str(),
-                    camera->sequence().sensor.radiance_scale ? "" : ", no radiance_scale: emissions in relative units");
-    }
-    Image lighting_rgb;
-    std::optional<std::int64_t> first_timestamp;
-    const auto convert_stage = timings.id("convert");
-    const auto pipeline_stage = timings.id("pipeline");
-    const auto lighting_stage = timings.id("lighting");
+    capture::StageTimings convert_only({"convert"});
+    capture::StageTimings& timings = runner ? runner->timings() : convert_only;
     capture::PixelConverter converter;
     Image rgb;
     std::uint64_t undecodable = 0;
@@ -142,10 +137,9 @@ int runPlay(const PlayOptions& options) {
         if (!next->has_value()) break;  // end of the recording
         FrameHandle frame = std::move(**next);
         progress.update(++handled);
-        capture::StageTimer pipeline_timer(timings, pipeline_stage);
         if (frame->meta.status != FrameStatus::kOk) continue;  // counted by the session's stats
-        if (pipeline) {
-            auto tracked = pipeline->process(*frame);
+        if (runner) {
+            auto tracked = runner->process(*frame);
             if (!tracked && tracked.error().code == ErrorCode::kBadInput) {
                 ++undecodable;
                 log::warning("frame " + std::to_string(frame->meta.timestamp_ns) + ": " + tracked.error().message);
@@ -153,20 +147,9 @@ int runPlay(const PlayOptions& options) {
                 failure = tracked.error();
                 break;
             }
-            if (lighting && tracked) {
-                if (!first_timestamp) first_timestamp = frame->meta.timestamp_ns;
-                capture::StageTimer lighting_timer(timings, lighting_stage);
-                if (auto converted = converter.convert(frame->image, PixelFormat::kRgb8, lighting_rgb); converted) {
-                    const double t_s = static_cast<double>(frame->meta.timestamp_ns - *first_timestamp) / 1e9;
-                    if (auto lit = lighting->process(lighting_rgb.view(), frame->meta, tracked->cam_from_world, t_s); !lit) {
-                        failure = lit.error();
-                        break;
-                    }
-                }
-            }
             continue;
         }
-        capture::StageTimer convert_timer(timings, convert_stage);
+        capture::StageTimer convert_timer(timings, timings.id("convert"));
         if (auto converted = converter.convert(frame->image, PixelFormat::kRgb8, rgb); !converted) {
             ++undecodable;
             log::warning("frame " + std::to_string(frame->meta.timestamp_ns) + ": " + converted.error().message);
@@ -175,7 +158,7 @@ int runPlay(const PlayOptions& options) {
     const double seconds = static_cast<double>(monotonicNowNs() - start_ns) / 1e9;
     progress.finish();
     (*session)->stop();
-    if (lighting) lighting->stop();
+    if (runner) runner->stop();
     const capture::CaptureStats stats = (*session)->stats();
     const std::uint64_t corrupt = stats.drops.corrupt + undecodable;
 
@@ -185,13 +168,12 @@ int runPlay(const PlayOptions& options) {
                 static_cast<unsigned long long>(corrupt));
     printCaptureStats(stats);
     printStages(timings);
-    if (pipeline) {
+    if (runner) {
         std::printf("tracked: %llu of %llu frames with a camera pose\n",
-                    static_cast<unsigned long long>(pipeline->framesWithPose()),
+                    static_cast<unsigned long long>(runner->tracking().framesWithPose()),
                     static_cast<unsigned long long>(stats.frames_delivered));
-        if (pipeline->poseErrors().count() > 0) std::printf("%s\n", pipeline->poseErrors().summary().c_str());
+        std::printf("%s", runner->summary().c_str());
     }
-    if (lighting) std::printf("%s\n", lighting->summary().c_str());
     if (!options.metrics.empty()) {
         nlohmann::json metrics = captureJson(stats);
         metrics["sequence"] = options.sequence;
@@ -199,11 +181,7 @@ int runPlay(const PlayOptions& options) {
         metrics["duration_s"] = seconds;
         metrics["corrupt_frames"] = corrupt;
         metrics["stages_ms"] = stagesJson(timings);
-        if (pipeline) {
-            metrics["frames_with_pose"] = pipeline->framesWithPose();
-            if (truth) metrics["pose_error"] = pipeline->poseErrors().json();
-        }
-        if (lighting) metrics["lighting"] = lighting->metricsJson();
+        if (runner) metrics.update(runner->metricsJson());
         if (auto written = writeJson(options.metrics, metrics); !written) return reportError(written.error());
         std::printf("metrics written to %s\n", options.metrics.c_str());
     }

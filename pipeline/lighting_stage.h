@@ -20,7 +20,7 @@
 #include "core/sequence_io.h"
 #include "lighting/engine.h"
 
-namespace commonlight::apps {
+namespace commonlight::pipeline {
 
 // The response of a sequence's camera: `override_spec` (--response) when given, else sensor.yaml's
 // `response` (relative files against the cam0 folder). Errors name the spec or file.
@@ -77,4 +77,4 @@ private:
     std::uint64_t frames_ = 0;
 };
 
-}  // namespace commonlight::apps
+}  // namespace commonlight::pipeline

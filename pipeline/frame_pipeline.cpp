@@ -1,4 +1,4 @@
-#include "apps/pipeline.h"
+#include "pipeline/frame_pipeline.h"
 
 #include <algorithm>
 #include <cstdio>
@@ -6,7 +6,7 @@
 #include "capture/percentiles.h"
 #include "core/frame_file.h"
 
-namespace commonlight::apps {
+namespace commonlight::pipeline {
 
 std::uint64_t pixelHash(const ImageView& view) noexcept {
     constexpr std::uint64_t kPrime = 0x100000001b3ull;
@@ -163,4 +163,4 @@ Result<tracking::FrameTrack> FramePipeline::process(const Frame& frame) {
     return track;
 }
 
-}  // namespace commonlight::apps
+}  // namespace commonlight::pipeline

@@ -25,7 +25,7 @@
 #include "core/sequence_io.h"
 #include "tracking/tracker.h"
 
-namespace commonlight::apps {
+namespace commonlight::pipeline {
 
 // 64-bit FNV-1a of a view's pixel bytes (row by row, padding excluded), with its format and size.
 std::uint64_t pixelHash(const ImageView& view) noexcept;
@@ -108,4 +108,4 @@ private:
     std::uint64_t without_truth_ = 0;
 };
 
-}  // namespace commonlight::apps
+}  // namespace commonlight::pipeline

@@ -1,4 +1,4 @@
-#include "apps/lighting_stage.h"
+#include "pipeline/lighting_stage.h"
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -10,7 +10,7 @@
 #include "core/log.h"
 #include "lighting/scene_lighting.h"
 
-namespace commonlight::apps {
+namespace commonlight::pipeline {
 
 namespace fs = std::filesystem;
 
@@ -170,4 +170,4 @@ std::string LightingStage::summary() const {
     return out;
 }
 
-}  // namespace commonlight::apps
+}  // namespace commonlight::pipeline

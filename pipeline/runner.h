@@ -1,0 +1,91 @@
+// The per-frame pipeline that `play`, `live` and `bench pipeline` share: tracking, the lighting
+// thread and the compositor, their stage timings, the metrics JSON (docs/cli.md) and the
+// comparison with ground truth.
+//
+// Threads: the capture session's camera thread delivers frames; the caller's thread (the main
+// thread, which owns GL) runs process() for each one: convert, track, hand the frame to the
+// lighting thread, composite with the newest lighting snapshot. With `sync`, the lighting update
+// of a frame finishes before that frame is composited, so the output is deterministic; without
+// it the newest snapshot is used as it is (the lighting lags as in live use, and the metrics say
+// by how much).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "capture/stage_timings.h"
+#include "core/camera_model.h"
+#include "core/frame.h"
+#include "core/response.h"
+#include "core/scene.h"
+#include "core/sequence_io.h"
+#include "pipeline/frame_pipeline.h"
+#include "pipeline/lighting_stage.h"
+#include "tracking/tracker.h"
+
+namespace commonlight::pipeline {
+
+struct RunnerOptions {
+    bool sync = false;      // every stage waits for the one before it (deterministic output)
+    bool lighting = true;   // run the lighting thread (needs real proxies in the scene)
+    tracking::TrackerOptions tracker;
+    const GroundTruth* ground_truth = nullptr;  // pose truth (by timestamp or by pixels)
+    const Sequence* sequence = nullptr;         // the recording, for the lighting's and composite's ground truth
+    ResponseCurve response;                     // the camera's response
+    std::optional<double> radiance_scale;       // sensor.yaml's, when known
+};
+
+class FrameRunner {
+public:
+    // Tracking needs the scene's tags; `scene` is copied.
+    static Result<std::unique_ptr<FrameRunner>> create(const Scene& scene, const CameraModel& camera,
+                                                       const RunnerOptions& options);
+    ~FrameRunner();
+    FrameRunner(const FrameRunner&) = delete;
+    FrameRunner& operator=(const FrameRunner&) = delete;
+
+    // One frame whose status is ok. A frame that cannot be converted is kBadInput (counted: the
+    // caller warns and goes on); any other error ends the run.
+    Result<tracking::FrameTrack> process(const Frame& frame);
+
+    // A new connection (live): forget the motion, keep the statistics.
+    Result<void> restart();
+    // Stops the lighting thread; the metrics stay readable.
+    void stop();
+
+    // Seconds since the first frame, by frame timestamps (virtual objects on keyframes).
+    double sceneTime(std::int64_t timestamp_ns);
+    const Scene& scene() const noexcept { return scene_; }
+    const CameraModel& camera() const noexcept { return camera_; }
+    const FramePipeline& tracking() const noexcept { return *tracking_; }
+    const LightingStage* lighting() const noexcept { return lighting_.get(); }
+    capture::StageTimings& timings() noexcept { return timings_; }
+    const capture::StageTimings& timings() const noexcept { return timings_; }
+    std::uint64_t badFrames() const noexcept { return bad_frames_; }
+
+    // The metrics of the stages: stages_ms, frames_with_pose, pose_error (with truth), lighting.
+    nlohmann::json metricsJson() const;
+    // Summary lines (tracking, pose error, lighting).
+    std::string summary() const;
+
+private:
+    FrameRunner(const Scene& scene, const CameraModel& camera, const RunnerOptions& options);
+
+    Scene scene_;
+    CameraModel camera_;
+    RunnerOptions options_;
+    capture::StageTimings timings_;
+    std::optional<FramePipeline> tracking_;
+    std::unique_ptr<LightingStage> lighting_;
+    capture::PixelConverter converter_;
+    Image rgb_;
+    std::optional<std::int64_t> first_timestamp_;
+    std::uint64_t bad_frames_ = 0;
+};
+
+}  // namespace commonlight::pipeline
