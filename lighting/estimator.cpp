@@ -1,6 +1,9 @@
 #include "lighting/estimator.h"
 
 #include <tbb/parallel_for.h>
+#if defined(__SANITIZE_THREAD__)
+#include <tbb/global_control.h>
+#endif
 
 #include <algorithm>
 #include <chrono>
@@ -19,6 +22,17 @@
 #include "lighting/snapshot_builder.h"
 
 namespace commonlight::lighting {
+
+#if defined(__SANITIZE_THREAD__)
+namespace {
+// ThreadSanitizer cannot see oneTBB's hand-over of tasks between its workers (libtbb is not built
+// with TSan), so every parallel_for would be reported as a race between a worker's writes and the
+// caller's reads. Under TSan the lighting module's TBB work therefore runs on the calling thread
+// alone: the checks then cover the threads that are ours (the lighting engine's thread, its
+// producers and readers), which is what the TSan suite is for.
+const tbb::global_control kTsanParallelism(tbb::global_control::max_allowed_parallelism, 1);
+}  // namespace
+#endif
 
 namespace {
 

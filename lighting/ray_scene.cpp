@@ -195,7 +195,13 @@ Result<std::unique_ptr<RayScene>> RayScene::build(const std::vector<Face>& real_
                                                   const std::vector<LightGeometry>& lights,
                                                   const std::vector<VirtualShape>& virtual_shapes) {
     auto impl = std::make_unique<Impl>();
+    // Under ThreadSanitizer, Embree's own BVH builders run on one thread (see kTsanParallelism in
+    // estimator.cpp: oneTBB's hand-overs are invisible to TSan).
+#if defined(__SANITIZE_THREAD__)
+    impl->device = rtcNewDevice("threads=1");  // owned by impl
+#else
     impl->device = rtcNewDevice(nullptr);  // owned by impl
+#endif
     if (!impl->device) {
         return fail(ErrorCode::kInternal, "lighting: rtcNewDevice failed (Embree error " +
                                               std::to_string(static_cast<int>(rtcGetDeviceError(nullptr))) + ")");
