@@ -85,8 +85,9 @@ LightingStage::~LightingStage() {
 void LightingStage::stop() { engine_->stop(); }
 
 Result<void> LightingStage::process(const ImageView& rgb8, const FrameMetadata& meta,
-                                    const std::optional<Rigid3d>& cam_from_world, double t_s) {
-    engine_->setVirtualPoses(lighting::SceneLighting::scenePoses(scene_, t_s));
+                                    const std::optional<Rigid3d>& cam_from_world,
+                                    const std::vector<Rigid3d>& virtual_poses) {
+    engine_->setVirtualPoses(virtual_poses);
     lighting::Observation obs;
     obs.rgb8 = rgb8;
     obs.timestamp_ns = meta.timestamp_ns;

@@ -52,10 +52,10 @@ public:
     ~LightingStage();
 
     // One frame: `rgb8` at the camera's size, its pose (nullopt: counted, contributes nothing), the
-    // time since the sequence start (virtual objects on keyframes). In sync mode it returns once the
+    // virtual objects' world_from_object (by Scene::virtual_objects index). In sync mode it returns once the
     // snapshot for this frame is published, and measures the ratio error on every 5th frame.
     Result<void> process(const ImageView& rgb8, const FrameMetadata& meta, const std::optional<Rigid3d>& cam_from_world,
-                         double t_s);
+                         const std::vector<Rigid3d>& virtual_poses);
     void stop();
 
     lighting::SnapshotPtr latest() const { return engine_->latest(); }

@@ -5,7 +5,11 @@
 namespace commonlight::pipeline {
 
 FrameRunner::FrameRunner(const Scene& scene, const CameraModel& camera, const RunnerOptions& options)
-    : scene_(scene), camera_(camera), options_(options), timings_({"convert", "track", "lighting", "composite", "pipeline"}) {}
+    : scene_(scene),
+      camera_(camera),
+      options_(options),
+      timings_({"convert", "track", "lighting", "composite", "pipeline"}),
+      offsets_(scene.virtual_objects.size(), Eigen::Vector3d::Zero()) {}
 
 FrameRunner::~FrameRunner() { stop(); }
 
@@ -32,6 +36,21 @@ double FrameRunner::sceneTime(std::int64_t timestamp_ns) {
     return static_cast<double>(timestamp_ns - *first_timestamp_) / 1e9;
 }
 
+std::vector<std::optional<Rigid3d>> FrameRunner::virtualPoses(double t_s) const {
+    std::vector<std::optional<Rigid3d>> poses;
+    poses.reserve(scene_.virtual_objects.size());
+    for (std::size_t i = 0; i < scene_.virtual_objects.size(); ++i) {
+        std::optional<Rigid3d> pose = worldFromObject(scene_.virtual_objects[i], scene_.tags, t_s);
+        if (pose) pose->translation += offsets_[i];
+        poses.push_back(pose);
+    }
+    return poses;
+}
+
+void FrameRunner::moveVirtualObject(std::size_t index, const Eigen::Vector3d& delta) {
+    if (index < offsets_.size() && delta.allFinite()) offsets_[index] += delta;
+}
+
 Result<tracking::FrameTrack> FrameRunner::process(const Frame& frame) {
     capture::StageTimer pipeline_timer(timings_, timings_.id("pipeline"));
     auto tracked = tracking_->process(frame);
@@ -40,10 +59,13 @@ Result<tracking::FrameTrack> FrameRunner::process(const Frame& frame) {
         return tracked;
     }
     const double t_s = sceneTime(frame.meta.timestamp_ns);
+    const std::vector<std::optional<Rigid3d>> poses = virtualPoses(t_s);
     if (lighting_) {
+        std::vector<Rigid3d> lighting_poses;
+        for (const auto& pose : poses) lighting_poses.push_back(pose.value_or(Rigid3d::identity()));
         capture::StageTimer lighting_timer(timings_, timings_.id("lighting"));
         CL_TRY_VOID(converter_.convert(frame.image, PixelFormat::kRgb8, rgb_));
-        CL_TRY_VOID(lighting_->process(rgb_.view(), frame.meta, tracked->cam_from_world, t_s));
+        CL_TRY_VOID(lighting_->process(rgb_.view(), frame.meta, tracked->cam_from_world, lighting_poses));
     }
     return tracked;
 }

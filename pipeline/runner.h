@@ -60,6 +60,12 @@ public:
 
     // Seconds since the first frame, by frame timestamps (virtual objects on keyframes).
     double sceneTime(std::int64_t timestamp_ns);
+    // The virtual objects' world_from_object at scene time t: the scene's placement, then the
+    // user's offset (live: the arrow keys move the selected object). Objects attached to a tag
+    // the scene lacks are nullopt.
+    std::vector<std::optional<Rigid3d>> virtualPoses(double t_s) const;
+    // Moves virtual object `index` by `delta` (world translation in metres).
+    void moveVirtualObject(std::size_t index, const Eigen::Vector3d& delta);
     const Scene& scene() const noexcept { return scene_; }
     const CameraModel& camera() const noexcept { return camera_; }
     const FramePipeline& tracking() const noexcept { return *tracking_; }
@@ -85,6 +91,7 @@ private:
     capture::PixelConverter converter_;
     Image rgb_;
     std::optional<std::int64_t> first_timestamp_;
+    std::vector<Eigen::Vector3d> offsets_;  // per virtual object, world metres
     std::uint64_t bad_frames_ = 0;
 };
 
