@@ -30,6 +30,12 @@ struct PlayOptions {
     std::string sequence;
     std::string scene;  // default: SEQ/scene.yaml when present
     std::string metrics;
+    std::string out;           // composited frames (PNG)
+    std::string video;         // composited MP4
+    std::string side_by_side;  // frame | composite | truth of one frame
+    std::size_t side_by_side_frame = 30;
+    bool window = false;
+    bool no_composite = false;
     bool sync = false;
     bool no_track = false;
     bool no_lighting = false;
@@ -107,6 +113,13 @@ int runPlay(const PlayOptions& options) {
         runner_options.sequence = &camera->sequence();
         runner_options.response = *response;
         runner_options.radiance_scale = camera->sequence().sensor.radiance_scale;
+        runner_options.composite = !options.no_composite;
+        runner_options.context = options.window ? render::ContextKind::kWindow : render::ContextKind::kOffscreen;
+        runner_options.frames_dir = options.out;
+        runner_options.video = options.video;
+        runner_options.fps = format.fps > 0.0 ? format.fps : 30.0;
+        runner_options.side_by_side = options.side_by_side;
+        runner_options.side_by_side_frame = std::min(options.side_by_side_frame, recorded > 0 ? recorded - 1 : 0);
         auto created = pipeline::FrameRunner::create(*scene, *intrinsics, runner_options);
         if (!created) return reportError(created.error());
         runner = std::move(*created);
@@ -146,6 +159,11 @@ int runPlay(const PlayOptions& options) {
             } else if (!tracked) {
                 failure = tracked.error();
                 break;
+            }
+            if (render::GlContext* gl = runner->glContext(); gl && gl->kind() == render::ContextKind::kWindow) {
+                gl->present();
+                gl->pollKeys();
+                if (gl->shouldClose()) break;
             }
             continue;
         }
@@ -202,6 +220,14 @@ void addPlayCommand(CLI::App& app, Runner& runner) {
     sub->add_option("sequence", options->sequence, "Sequence folder (SEQ, SEQ/cam0 or a EuRoC mav0 folder)")->required();
     sub->add_option("--scene", options->scene, "Scene file (default: SEQ/scene.yaml when present)");
     sub->add_option("--metrics", options->metrics, "Write the metrics JSON here (docs/cli.md)");
+    sub->add_option("--out", options->out, "Write the composited frames here (PNG, named like the recording's frames)");
+    sub->add_option("--video", options->video, "Write the composited frames as an MP4 (OpenCV videoio, mp4v)");
+    sub->add_option("--side-by-side", options->side_by_side,
+                    "Write frame | composite | ground truth (when the sequence has it) of one frame as a PNG");
+    sub->add_option("--side-by-side-frame", options->side_by_side_frame, "Which frame for --side-by-side (0-based)")
+        ->capture_default_str();
+    sub->add_flag("--window", options->window, "Show the composite in a window as it plays (needs a display)");
+    sub->add_flag("--no-composite", options->no_composite, "Track and light only; no compositor (no GL needed)");
     sub->add_flag("--sync", options->sync,
                   "Process every frame in order as fast as possible (deterministic), instead of at the recorded rate");
     sub->add_flag("--no-track", options->no_track, "Capture and convert only; no tracking (and so no lighting)");

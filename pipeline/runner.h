@@ -18,14 +18,18 @@
 
 #include <nlohmann/json.hpp>
 
+#include "capture/percentiles.h"
 #include "capture/stage_timings.h"
 #include "core/camera_model.h"
 #include "core/frame.h"
 #include "core/response.h"
 #include "core/scene.h"
 #include "core/sequence_io.h"
+#include "pipeline/composite_output.h"
 #include "pipeline/frame_pipeline.h"
 #include "pipeline/lighting_stage.h"
+#include "render/compositor.h"
+#include "render/gl_context.h"
 #include "tracking/tracker.h"
 
 namespace commonlight::pipeline {
@@ -38,6 +42,16 @@ struct RunnerOptions {
     const Sequence* sequence = nullptr;         // the recording, for the lighting's and composite's ground truth
     ResponseCurve response;                     // the camera's response
     std::optional<double> radiance_scale;       // sensor.yaml's, when known
+
+    // The compositor (off: tracking and lighting only, as `--headless` without outputs).
+    bool composite = false;
+    render::ContextKind context = render::ContextKind::kOffscreen;  // kWindow: a GLFW window
+    render::CompositorOptions compositor;
+    std::filesystem::path frames_dir;    // composited frames as PNG (empty: none)
+    std::filesystem::path video;         // composited MP4 (empty: none)
+    double fps = 30.0;                   // the video's rate
+    std::filesystem::path side_by_side;  // frame | composite | truth of one frame (empty: none)
+    std::size_t side_by_side_frame = 0;  // which frame (index among the frames processed)
 };
 
 class FrameRunner {
@@ -52,6 +66,14 @@ public:
     // One frame whose status is ok. A frame that cannot be converted is kBadInput (counted: the
     // caller warns and goes on); any other error ends the run.
     Result<tracking::FrameTrack> process(const Frame& frame);
+
+    // The newest composite (RGB8), when compositing; empty before the first frame.
+    const Image& composite() const noexcept { return composite_; }
+    render::Compositor* compositor() noexcept { return compositor_.get(); }
+    render::GlContext* glContext() noexcept { return context_.get(); }
+    // Lighting on or off at run time (live: key l): off draws no modulation and no lighting
+    // thread output.
+    void setLightingShown(bool shown);
 
     // A new connection (live): forget the motion, keep the statistics.
     Result<void> restart();
@@ -92,6 +114,19 @@ private:
     Image rgb_;
     std::optional<std::int64_t> first_timestamp_;
     std::vector<Eigen::Vector3d> offsets_;  // per virtual object, world metres
+    std::unique_ptr<render::GlContext> context_;
+    std::unique_ptr<render::Compositor> compositor_;
+    std::unique_ptr<CompositeWriter> writer_;
+    Image composite_;
+    CompositeErrors composite_errors_;
+    capture::SampleReservoir lag_ms_;       // frame timestamp minus the snapshot's, per composite
+    capture::SampleReservoir lag_frames_;
+    std::uint64_t processed_ = 0;
+    std::int64_t last_frame_ns_ = 0;
+    double frame_period_ns_ = 0.0;
+    bool side_by_side_done_ = false;
+    Result<void> compositeFrame(const Frame& frame, const std::optional<Rigid3d>& cam_from_world,
+                                const std::vector<std::optional<Rigid3d>>& poses);
     std::uint64_t bad_frames_ = 0;
 };
 

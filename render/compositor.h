@@ -1,0 +1,92 @@
+// The compositor: the camera frame with the virtual objects inserted, lit by the estimated light,
+// and the real surfaces darkened or brightened by the lighting ratio (seed 000 sec. 4.3,
+// Debevec's differential rendering). docs/rendering.md has the passes and their units.
+//
+// Passes, per frame:
+//   1. shadow maps of the estimated lights (real proxies and virtual objects as occluders; an area
+//      light gets one map per sample point, so its shadows are soft);
+//   2. the 3D layer, in the undistorted pinhole image (MSAA): real proxies for depth, writing the
+//      background's modulation M = w ratio + (1 - w) and D = (1 - w) (B - B~) (w: ratioWeight),
+//      then the virtual objects, depth-tested against the proxies, shaded in linear relative
+//      radiance: albedo / pi x (direct irradiance x shadow-map visibility + the snapshot's indirect
+//      SH irradiance) + their emission;
+//   3. the final pass at each camera pixel p: the frame's code at p linearised with the camera's
+//      response, the layer sampled at undistort(p) (exact lens distortion), combined as
+//      (bg M + D eg)(1 - a) + V eg with eg = exposure x gain, and encoded with the response. A pixel
+//      nothing changes keeps its code exactly.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+#include "core/pose.h"
+#include "core/response.h"
+#include "core/result.h"
+#include "core/scene.h"
+#include "lighting/snapshot.h"
+#include "render/gl_context.h"
+
+namespace commonlight::render {
+
+enum class DebugView {
+    kNone,
+    kProxyWireframe,  // the proxies' edges over the frame
+    kElements,        // real faces show the model's radiance of the real scene alone (B~), element outlines
+    kRatio,           // the modulation M as grey (0.5 = ratio 1), the frame elsewhere
+};
+const char* debugViewName(DebugView view);
+DebugView nextDebugView(DebugView view);
+
+struct CompositorOptions {
+    int msaa_samples = 4;          // 1: none
+    bool lighting = true;          // false: no background modulation; virtual objects lit by the snapshot's lights only
+    DebugView debug = DebugView::kNone;
+    int shadow_map_size = 1024;
+    int area_light_samples = 4;    // shadow maps per area or disc light (1..8)
+};
+
+struct FrameInput {
+    ImageView image;                  // the camera frame, kRgb8 at the camera's size
+    double exposure_gain = 1.0;       // exposure (s) x analog gain; <= 0 or not finite: 1
+    std::optional<Rigid3d> cam_from_world;              // nullopt (no pose): the frame unchanged
+    std::vector<std::optional<Rigid3d>> virtual_poses;  // world_from_object per Scene::virtual_objects; nullopt: not drawn
+};
+
+// Live GL objects of the render module (created minus deleted), for leak checks.
+struct GlObjectCounts {
+    long textures = 0, buffers = 0, framebuffers = 0, renderbuffers = 0, programs = 0, vertex_arrays = 0;
+    bool operator==(const GlObjectCounts&) const = default;
+};
+GlObjectCounts liveGlObjects();
+
+class Compositor {
+public:
+    // Builds the proxies' and virtual objects' meshes (MeshShape meshes must be loaded: readScene
+    // does), the shaders and the render targets. Errors: a shader or framebuffer the GL cannot
+    // make (kDevice), a camera of zero size (kBadInput).
+    static Result<std::unique_ptr<Compositor>> create(GlContext& context, const Scene& scene, const CameraModel& camera,
+                                                      const ResponseCurve& response, const CompositorOptions& options);
+    ~Compositor();
+    Compositor(const Compositor&) = delete;
+    Compositor& operator=(const Compositor&) = delete;
+
+    // Renders the composite of this frame with this snapshot (into the output framebuffer; in a
+    // window also onto the screen, call GlContext::present()). kBadInput: a frame that is not
+    // kRgb8 at the camera's size, or a pose list of the wrong length.
+    Result<void> draw(const FrameInput& frame, const lighting::LightingSnapshot& snapshot);
+    // The last composite, kRgb8, top row first.
+    Result<Image> read() const;
+
+    void setOptions(const CompositorOptions& options);
+    const CompositorOptions& options() const noexcept;
+
+private:
+    Compositor();
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace commonlight::render
