@@ -487,7 +487,13 @@ struct Compositor::Impl {
 Compositor::Compositor() : impl_(std::make_unique<Impl>()) {}
 
 Result<void> Compositor::Impl::makeTargets() {
-    const int samples = options.msaa_samples > 1 ? std::min(options.msaa_samples, 8) : 0;
+    GLint max_samples = 0;
+    glGetIntegerv(GL_MAX_SAMPLES, &max_samples);
+    GLint max_float_samples = 0;
+    glGetInternalformativ(GL_RENDERBUFFER, GL_RGBA16F, GL_SAMPLES, 1, &max_float_samples);
+    if (max_float_samples > 0) max_samples = std::min(max_samples, max_float_samples);
+    // More samples than the GL has: the most it has (llvmpipe: 4).
+    const int samples = options.msaa_samples > 1 ? std::min(options.msaa_samples, static_cast<int>(max_samples)) : 0;
     if (samples == layer_samples && layer_fbo != 0) return {};
     for (GLuint& rb : layer_rb) gl::deleteRenderbuffer(rb);
     gl::deleteRenderbuffer(layer_depth);
@@ -770,6 +776,8 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
                                               std::to_string(d.scene.virtual_objects.size()) + " virtual objects");
     }
     d.context->makeCurrent();
+    while (glGetError() != GL_NO_ERROR) {
+    }  // errors left by others (the check below is for this frame's)
     CL_TRY_VOID(d.makeTargets());
     const double eg = frame.exposure_gain > 0.0 && std::isfinite(frame.exposure_gain) ? frame.exposure_gain : 1.0;
     const bool posed = frame.cam_from_world && frame.cam_from_world->isValid();
@@ -867,9 +875,17 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
                 vp = orthographic(radius * 1.05, 0.0, back + radius) * lookAt(centre - s.axis * back, centre);
             } else {
                 const double dist = (centre - s.position).norm();
-                if (dist <= radius * 1.05) continue;  // the light is among the objects: no map
-                const double half = std::asin(std::min(0.99, radius * 1.05 / dist));
-                vp = perspective(half, std::max(0.01, 0.02 * dist), dist + 2.0 * radius) * lookAt(s.position, centre);
+                if (dist > radius * 1.05) {
+                    // The objects' bounding sphere, seen from the light.
+                    const double half = std::asin(std::min(0.99, radius * 1.05 / dist));
+                    vp = perspective(half, std::max(0.01, 0.02 * dist), dist + 2.0 * radius) * lookAt(s.position, centre);
+                } else {
+                    // The light is among the objects: a wide frustum along its axis (area, disc) or
+                    // towards the objects (point).
+                    Eigen::Vector3d axis = s.kind == 0 ? s.axis : (dist > 1e-6 ? Eigen::Vector3d(centre - s.position) : Eigen::Vector3d(-Eigen::Vector3d::UnitZ()));
+                    axis.normalize();
+                    vp = perspective(75.0 * std::numbers::pi / 180.0, 0.01, dist + 2.0 * radius) * lookAt(s.position, s.position + axis);
+                }
             }
             s.view_proj = vp.cast<float>();
             s.layer = layers++;
