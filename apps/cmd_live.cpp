@@ -32,6 +32,7 @@
 #include "core/log.h"
 #include "core/scene_io.h"
 #include "core/sequence_io.h"
+#include "render/compositor.h"
 
 namespace commonlight::apps {
 
@@ -55,6 +56,8 @@ struct LiveOptions {
     double timeout_s = 5.0;
     bool edges = false;
     bool no_lighting = false;
+    bool composite = false;    // --composite: headless runs composite offscreen too
+    std::string screenshots;   // where key s writes (default: --out, else the current folder)
     std::string response;  // --response: overrides what the camera reports
 };
 
@@ -94,12 +97,78 @@ std::string poseRow(std::int64_t timestamp_ns, const tracking::FrameTrack& track
            (track.cam_from_world ? poseColumns(*track.cam_from_world) : std::string(",,,,,,")) + "\n";
 }
 
+// The window's state between frames: selection, pause, screenshots.
+struct WindowKeys {
+    std::size_t selected = 0;
+    bool lighting_shown = true;
+    bool paused = false;
+    int screenshot_count = 0;
+    fs::path screenshots;
+};
+
+// Shows the frame's composite, handles the keys (docs/cli.md): space pause, l lighting on/off,
+// d next debug view, s screenshot, tab next virtual object, arrows and page up/down move it by
+// 1 cm. The title carries the overlay's figures. False when the window was closed.
+bool handleWindow(render::GlContext& window, pipeline::FrameRunner& runner, const tracking::FrameTrack& track,
+                  WindowKeys& keys) {
+    do {
+        for (int key : window.pollKeys()) {
+            const double step = 0.01;
+            Eigen::Vector3d move = Eigen::Vector3d::Zero();
+            switch (key) {
+                case 32: keys.paused = !keys.paused; break;                                    // space
+                case 'L': keys.lighting_shown = !keys.lighting_shown; runner.setLightingShown(keys.lighting_shown); break;
+                case 'D':
+                    if (render::Compositor* c = runner.compositor()) {
+                        render::CompositorOptions o = c->options();
+                        o.debug = render::nextDebugView(o.debug);
+                        c->setOptions(o);
+                        log::info(std::string("view: ") + render::debugViewName(o.debug));
+                    }
+                    break;
+                case 'S': {
+                    auto shot = window.readWindow();
+                    const fs::path file = keys.screenshots / ("screenshot-" + std::to_string(keys.screenshot_count++) + ".png");
+                    if (shot && pipeline::writePng(file, shot->view())) {
+                        log::info("screenshot: " + file.string());
+                    } else {
+                        log::warning("cannot write the screenshot " + file.string());
+                    }
+                    break;
+                }
+                case 258:  // tab
+                    if (!runner.scene().virtual_objects.empty()) {
+                        keys.selected = (keys.selected + 1) % runner.scene().virtual_objects.size();
+                        log::info("selected: " + runner.scene().virtual_objects[keys.selected].name);
+                    }
+                    break;
+                case 262: move.x() = step; break;   // right
+                case 263: move.x() = -step; break;  // left
+                case 265: move.y() = step; break;   // up
+                case 264: move.y() = -step; break;  // down
+                case 266: move.z() = step; break;   // page up
+                case 267: move.z() = -step; break;  // page down
+                default: break;
+            }
+            if (!move.isZero()) runner.moveVirtualObject(keys.selected, move);
+        }
+        if (window.shouldClose()) return false;
+        if (keys.paused) std::this_thread::sleep_for(std::chrono::milliseconds(30));
+    } while (keys.paused);
+    // The overlay: fps, latency, tracking state, lighting version and lag.
+    char title[256];
+    const lighting::SnapshotPtr snapshot = runner.lighting() ? runner.lighting()->latest() : nullptr;
+    const capture::Percentiles composite = runner.timings().percentiles(runner.timings().id("pipeline"));
+    std::snprintf(title, sizeof title, "commonlight | %s | pipeline p50 %.0f ms | lighting v%llu%s | %s",
+                  tracking::trackStatusName(track.status), composite.p50,
+                  static_cast<unsigned long long>(snapshot ? snapshot->version : 0), keys.lighting_shown ? "" : " (off)",
+                  render::debugViewName(runner.compositor() ? runner.compositor()->options().debug : render::DebugView::kNone));
+    window.setTitle(title);
+    window.present();
+    return true;
+}
+
 int runLive(const LiveOptions& options) {
-    if (!options.headless) {
-        return reportError(Error{ErrorCode::kUsage,
-                                 "the live window needs the GL compositor (render/), which this build does not have "
-                                 "yet: run with --headless (poses, metrics and --record work)"});
-    }
     // Step 1: scene, intrinsics, ground truth, outputs.
     auto scene = readScene(options.scene);
     if (!scene) return reportError(scene.error());
@@ -171,9 +240,18 @@ int runLive(const LiveOptions& options) {
         runner_options.response = *response;
     }
     if (truth_sequence) runner_options.radiance_scale = truth_sequence->sensor.radiance_scale;
+    runner_options.composite = !options.headless || options.composite;
+    runner_options.context = options.headless ? render::ContextKind::kOffscreen : render::ContextKind::kWindow;
+    runner_options.fps = format.fps > 0.0 ? format.fps : 30.0;
     auto runner = pipeline::FrameRunner::create(*scene, *intrinsics, runner_options);
     if (!runner) return reportError(runner.error());
     capture::StageTimings& timings = (*runner)->timings();
+    render::GlContext* window = (*runner)->glContext();
+    if (window && window->kind() != render::ContextKind::kWindow) window = nullptr;
+    WindowKeys keys;
+    keys.screenshots = !options.screenshots.empty() ? fs::path(options.screenshots)
+                       : !options.out.empty()        ? fs::path(options.out)
+                                                     : fs::current_path();
     std::printf("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
                 options.scene.c_str(), options.record.empty() ? "" : (", recording to " + options.record).c_str());
     if ((*runner)->lighting()) std::printf("lighting: real time, response %s\n", runner_options.response.name().c_str());
@@ -257,6 +335,7 @@ int runLive(const LiveOptions& options) {
             continue;
         }
         if (poses) std::fputs(poseRow(frame->meta.timestamp_ns, *tracked).c_str(), poses.get());
+        if (window && !handleWindow(*window, **runner, *tracked, keys)) break;
     }
     (*runner)->stop();
     progress.finish();
@@ -325,7 +404,7 @@ int runLive(const LiveOptions& options) {
 
 void addLiveCommand(CLI::App& app, Runner& runner) {
     auto options = std::make_shared<LiveOptions>();
-    CLI::App* sub = app.add_subcommand("live", "The live pipeline on a camera (tracking now; lighting and the AR window later)");
+    CLI::App* sub = app.add_subcommand("live", "The live pipeline on a camera: tracking, lighting and the AR window");
     sub->add_option("--camera", options->camera, "Camera URI, e.g. v4l2:/dev/video0, aravis:192.168.1.20 (docs/cli.md)")->required();
     sub->add_option("--scene", options->scene, "Scene file: tags, proxies, lights, virtual objects")->required();
     sub->add_option("--calib", options->calib, "Camera calibration (OpenCV or ROS YAML); default: the scene's camera:");
@@ -333,7 +412,9 @@ void addLiveCommand(CLI::App& app, Runner& runner) {
                     "A recorded sequence the camera serves bit-exactly (serve-gige): frames are matched by their pixels "
                     "and the pose error is reported");
     sub->add_option("--record", options->record, "Also record the camera's frames to this new sequence folder");
-    sub->add_flag("--headless", options->headless, "No window: process and report (needed until the compositor exists)");
+    sub->add_flag("--headless", options->headless, "No window: process and report (poses, metrics, --record)");
+    sub->add_flag("--composite", options->composite, "With --headless: composite offscreen too (the metrics gain the compositor's)");
+    sub->add_option("--screenshots", options->screenshots, "Folder for the window's screenshots (key s; default --out or .)");
     sub->add_option("--frames", options->frames, "Stop after N frames (default: until Ctrl-C or the stream ends)");
     sub->add_option("--out", options->out, "Folder for metrics.json and poses.csv");
     sub->add_option("--settle", options->settle_s, "Seconds of auto exposure before the photometry is locked")

@@ -161,6 +161,19 @@ void CompositeWriter::finish() {
     if (video_) video_->writer.release();
 }
 
+Result<void> writePng(const fs::path& file, const ImageView& rgb8) {
+    cv::Mat bgr;
+    cv::cvtColor(asMat(rgb8), bgr, cv::COLOR_RGB2BGR);
+    bool ok = false;
+    try {
+        ok = cv::imwrite(file.string(), bgr);
+    } catch (const cv::Exception&) {
+        ok = false;
+    }
+    if (!ok) return fail(ErrorCode::kIo, file.string() + ": cannot write the image");
+    return {};
+}
+
 Result<void> writeSideBySide(const fs::path& file, const ImageView& frame, const ImageView& composite, const ImageView* truth) {
     std::vector<std::pair<cv::Mat, std::string>> panels{{asMat(frame), "camera frame"}, {asMat(composite), "composite"}};
     if (truth) panels.emplace_back(asMat(*truth), "ground truth");

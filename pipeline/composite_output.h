@@ -72,6 +72,9 @@ private:
     std::uint64_t written_ = 0;
 };
 
+// An RGB8 image as a PNG; errors (kIo) name the file.
+Result<void> writePng(const std::filesystem::path& file, const ImageView& rgb8);
+
 // Frame | composite | ground truth (when given) side by side with a caption strip, as one PNG.
 Result<void> writeSideBySide(const std::filesystem::path& file, const ImageView& frame_rgb8, const ImageView& composite_rgb8,
                              const ImageView* truth_rgb8);

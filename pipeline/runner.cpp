@@ -99,7 +99,8 @@ void FrameRunner::setLightingShown(bool shown) {
 
 Result<void> FrameRunner::compositeFrame(const Frame& frame, const std::optional<Rigid3d>& cam_from_world,
                                          const std::vector<std::optional<Rigid3d>>& poses) {
-    capture::StageTimer timer(timings_, timings_.id("composite"));
+    std::optional<capture::StageTimer> timer;
+    timer.emplace(timings_, timings_.id("composite"));
     // The newest snapshot: in sync mode the one of this very frame; in real time whatever the
     // lighting thread has published (its lag is measured).
     static const lighting::LightingSnapshot kNothing{};
@@ -124,6 +125,7 @@ Result<void> FrameRunner::compositeFrame(const Frame& frame, const std::optional
     input.virtual_poses = poses;
     CL_TRY_VOID(compositor_->draw(input, use));
     CL_TRY(composite_, compositor_->read());
+    timer.reset();  // outputs and ground truth are not the compositor's time
 
     // Outputs and the error against ground truth.
     std::string stem = std::to_string(frame.meta.timestamp_ns);

@@ -165,6 +165,32 @@ void GlContext::windowSize(int& width, int& height) const {
     }
 }
 
+void GlContext::setTitle(const std::string& title) {
+    if (impl_->window != nullptr) glfwSetWindowTitle(impl_->window, title.c_str());
+}
+
+Result<Image> GlContext::readWindow() const {
+    if (impl_->window == nullptr) return fail(ErrorCode::kUnsupported, "render: no window to read (offscreen context)");
+    int w = 0, h = 0;
+    glfwGetFramebufferSize(impl_->window, &w, &h);
+    std::vector<std::uint8_t> rgba(static_cast<std::size_t>(w) * static_cast<std::size_t>(h) * 4);
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
+    glReadBuffer(GL_BACK);
+    glPixelStorei(GL_PACK_ALIGNMENT, 1);
+    glReadPixels(0, 0, w, h, GL_RGBA, GL_UNSIGNED_BYTE, rgba.data());
+    Image out(PixelFormat::kRgb8, w, h);
+    for (int y = 0; y < h; ++y) {
+        const std::uint8_t* src = rgba.data() + static_cast<std::size_t>(h - 1 - y) * static_cast<std::size_t>(w) * 4;
+        std::uint8_t* dst = out.mutableView().row(y);
+        for (int x = 0; x < w; ++x) {
+            dst[3 * x] = src[4 * x];
+            dst[3 * x + 1] = src[4 * x + 1];
+            dst[3 * x + 2] = src[4 * x + 2];
+        }
+    }
+    return out;
+}
+
 std::string GlContext::renderer() const {
     const auto* text = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
     return text ? text : "";

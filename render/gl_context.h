@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "core/image.h"
 #include "core/result.h"
 
 namespace commonlight::render {
@@ -35,6 +36,10 @@ public:
     std::vector<int> pollKeys();    // GLFW key codes pressed since the last call (window)
     void windowSize(int& width, int& height) const;  // framebuffer size (offscreen: the options')
     std::string renderer() const;   // GL_RENDERER
+    void setTitle(const std::string& title);  // window title (the live overlay's figures)
+    // What the window shows (its back buffer before present()), RGB8 top row first: screenshots.
+    // kUnsupported offscreen.
+    Result<Image> readWindow() const;
 
 private:
     GlContext() = default;
