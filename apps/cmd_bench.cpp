@@ -5,6 +5,7 @@
 #include "apps/app.h"
 #include "apps/bench_capture.h"
 #include "apps/bench_lighting.h"
+#include "apps/bench_pipeline.h"
 #include "apps/bench_tracking.h"
 
 namespace commonlight::apps {
@@ -67,6 +68,13 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
                      "emissions, reflectances), distant (sunlit: direction), nothing (no light in the scene), ratio "
                      "(B/B~ against the simulator over masks/changed). Sequences are rendered once and kept.");
     lighting->callback([lighting_options, &runner] { runner = [lighting_options] { return runBenchLighting(*lighting_options); }; });
+
+    auto pipeline_options = std::make_shared<BenchPipelineOptions>();
+    CLI::App* pipe = bench->add_subcommand("pipeline", "The whole pipeline: compositor time, composite error (lighting on/off), real-time fps and latency");
+    pipe->add_option("--sequence", pipeline_options->sequence, "A sequence with ground truth")->capture_default_str();
+    pipe->add_option("--json", pipeline_options->json, "Write the figures as JSON");
+    pipe->add_option("--repeats", pipeline_options->repeats, "Draws per compositor configuration")->capture_default_str();
+    pipe->callback([pipeline_options, &runner] { runner = [pipeline_options] { return runBenchPipeline(*pipeline_options); }; });
 }
 
 }  // namespace commonlight::apps

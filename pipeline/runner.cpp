@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "core/clock.h"
 #include "core/log.h"
 
 namespace commonlight::pipeline {
@@ -126,6 +127,7 @@ Result<void> FrameRunner::compositeFrame(const Frame& frame, const std::optional
     CL_TRY_VOID(compositor_->draw(input, use));
     CL_TRY(composite_, compositor_->read());
     timer.reset();  // outputs and ground truth are not the compositor's time
+    if (frame.meta.arrival_ns > 0) latency_ms_.add(static_cast<double>(monotonicNowNs() - frame.meta.arrival_ns) / 1e6);
 
     // Outputs and the error against ground truth.
     std::string stem = std::to_string(frame.meta.timestamp_ns);
@@ -172,6 +174,10 @@ nlohmann::json FrameRunner::metricsJson() const {
         if (lag_ms_.count() > 0) {
             const capture::Percentiles lag = lag_ms_.percentiles();
             c["lighting_lag_ms"] = {{"p50", lag.p50}, {"p95", lag.p95}, {"max", lag.max}};
+        }
+        if (latency_ms_.count() > 0) {
+            const capture::Percentiles latency = latency_ms_.percentiles();
+            c["latency_ms"] = {{"p50", latency.p50}, {"p95", latency.p95}, {"max", latency.max}};
         }
         if (lag_frames_.count() > 0) {
             const capture::Percentiles lag = lag_frames_.percentiles();

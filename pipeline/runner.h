@@ -121,6 +121,7 @@ private:
     CompositeErrors composite_errors_;
     capture::SampleReservoir lag_ms_;       // frame timestamp minus the snapshot's, per composite
     capture::SampleReservoir lag_frames_;
+    capture::SampleReservoir latency_ms_;   // frame arrival to composite ready
     std::uint64_t processed_ = 0;
     std::int64_t last_frame_ns_ = 0;
     double frame_period_ns_ = 0.0;

@@ -1,0 +1,30 @@
+// `commonlight bench pipeline`: the whole system's speed against its error on a recorded sequence
+// with ground truth (the bundled sample by default).
+//
+// Cases:
+//   compositor  draw + read-back time per frame at 640x480 and 1280x720, with and without MSAA,
+//               with the sample's lighting snapshot (p50, p95)
+//   system      every frame in order (--sync): composite error against groundtruth/composite
+//               (PSNR, linear RMSE over the frame and masks/changed) and the stage times, with
+//               lighting on and off, MSAA 4 and 1
+//   realtime    playback at the recorded rate: frames composited per second, frames dropped,
+//               latency from frame arrival to composite ready, how old the lighting was
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+#include "core/result.h"
+
+namespace commonlight::apps {
+
+struct BenchPipelineOptions {
+    std::filesystem::path sequence = "data/sample";
+    std::string json;
+    std::string plot;
+    int repeats = 30;  // draws per compositor configuration
+};
+
+int runBenchPipeline(const BenchPipelineOptions& options);
+
+}  // namespace commonlight::apps
