@@ -101,7 +101,6 @@ int runPlay(const PlayOptions& options) {
     if (!session) return reportError(session.error());
     std::printf("playing %s: %zu frames, %s, %s\n", options.sequence.c_str(), recorded, hal::describe(format).c_str(),
                 options.sync ? "every frame (--sync)" : "at the recorded rate");
-    if (auto started = (*session)->start(); !started) return reportError(started.error());
 
     // Step 3: the per-frame pipeline (pipeline/runner.h): tracking, lighting thread.
     std::unique_ptr<pipeline::FrameRunner> runner;
@@ -132,6 +131,9 @@ int runPlay(const PlayOptions& options) {
         log::info(std::string("tracking off: ") + (!scene ? "no scene" : !intrinsics ? "no intrinsics in sensor.yaml or the scene"
                                                                                       : "the scene places no tags"));
     }
+    // The recording starts playing once everything is ready (the lighting setup and the GL
+    // context take a moment, and in real time the replay would run on meanwhile).
+    if (auto started = (*session)->start(); !started) return reportError(started.error());
     capture::StageTimings convert_only({"convert"});
     capture::StageTimings& timings = runner ? runner->timings() : convert_only;
     capture::PixelConverter converter;

@@ -57,7 +57,8 @@ expect_exit 4 "$COMMONLIGHT" live --camera "replay:$SAMPLE?fault_disconnect_afte
 expect_text "device disconnected" "$TMP/err"
 
 # 5. Errors: a window without a display (device, naming DISPLAY and --headless), a missing scene (bad input), a bad URI option (usage).
-expect_exit 4 env -u DISPLAY -u WAYLAND_DISPLAY "$COMMONLIGHT" live --camera "replay:$SAMPLE" --scene "$SAMPLE/scene.yaml"
+expect_exit 4 env -u DISPLAY -u WAYLAND_DISPLAY "$COMMONLIGHT" live --camera "replay:$SAMPLE" --scene "$SAMPLE/scene.yaml" \
+    --ground-truth "$SAMPLE"
 expect_text "DISPLAY" "$TMP/err"
 expect_text "--headless" "$TMP/err"
 expect_exit 3 "$COMMONLIGHT" live --camera "replay:$SAMPLE" --scene "$TMP/missing.yaml" --headless
