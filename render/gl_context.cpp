@@ -29,7 +29,8 @@ std::mutex& glfwMutex() {
     static std::mutex m;
     return m;
 }
-int glfw_users = 0;  // windows alive (GLFW is initialised while > 0); guarded by glfwMutex()
+int glfw_users = 0;          // windows alive; guarded by glfwMutex()
+bool glfw_initialised = false;  // once per process; guarded by glfwMutex()
 
 void keyCallback(GLFWwindow* window, int key, int /*scancode*/, int action, int /*mods*/) {
     if (action != GLFW_PRESS && action != GLFW_REPEAT) return;
@@ -59,12 +60,13 @@ Result<std::unique_ptr<GlContext>> GlContext::create(const ContextOptions& optio
             return fail(ErrorCode::kDevice, "no display for the window (DISPLAY is not set): run with --headless, or under xvfb-run");
         }
         std::lock_guard lock(glfwMutex());
-        if (glfw_users == 0 && glfwInit() != GLFW_TRUE) {
+        if (!glfw_initialised && glfwInit() != GLFW_TRUE) {
             const char* description = nullptr;
             glfwGetError(&description);
             return fail(ErrorCode::kDevice, std::string("GLFW cannot open the display '") + (x11 ? x11 : "") +
                                                 "': " + (description ? description : "unknown error"));
         }
+        glfw_initialised = true;
         glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
         glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
         glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
@@ -73,7 +75,6 @@ Result<std::unique_ptr<GlContext>> GlContext::create(const ContextOptions& optio
         if (d.window == nullptr) {
             const char* description = nullptr;
             glfwGetError(&description);
-            if (glfw_users == 0) glfwTerminate();
             return fail(ErrorCode::kDevice, std::string("cannot open a window with OpenGL 3.3 core: ") +
                                                 (description ? description : "unknown error"));
         }
@@ -125,7 +126,10 @@ GlContext::~GlContext() {
     if (d.window != nullptr) {
         std::lock_guard lock(glfwMutex());
         glfwDestroyWindow(d.window);
-        if (--glfw_users == 0) glfwTerminate();
+        // GLFW stays initialised for the rest of the process (the next window reuses it):
+        // glfwTerminate unloads the GL driver while blocks its JIT code allocated are referenced
+        // only from there, which LeakSanitizer then reports.
+        --glfw_users;
     }
     if (d.display != EGL_NO_DISPLAY) {
         eglMakeCurrent(d.display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
