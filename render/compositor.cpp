@@ -469,6 +469,7 @@ struct Compositor::Impl {
     GLuint output_fbo = 0, output_tex = 0;
     GLuint shadow_fbo = 0, shadow_maps = 0;
     int shadow_layers = 0, shadow_size = 0, layer_samples = -1;
+    std::vector<float> shadow_key;  // what the shadow maps were rendered for (light views, object poses)
 
     // Snapshot textures, rebuilt when the snapshot (version, lighting on/off) changes.
     std::uint64_t snapshot_version = ~0ull;
@@ -905,7 +906,20 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
             glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_COMPARE_FUNC, GL_LEQUAL);
             d.shadow_layers = std::max(layers, 1);
             d.shadow_size = size;
+            d.shadow_key.clear();
         }
+        // The maps depend only on the light samples' views and the virtual objects' poses (the real
+        // proxies do not move): unchanged since the last frame, they are reused.
+        std::vector<float> key;
+        for (const LightSample& s : samples) key.insert(key.end(), s.view_proj.data(), s.view_proj.data() + 16);
+        for (const auto& m : virtual_model) {
+            if (m) key.insert(key.end(), m->data(), m->data() + 16);
+            key.push_back(m ? 1.0f : 0.0f);
+        }
+        key.push_back(static_cast<float>(d.shadow_size));
+        const bool reuse = key == d.shadow_key;
+        d.shadow_key = std::move(key);
+        if (!reuse) {
         glUseProgram(d.shadow_program);
         glBindFramebuffer(GL_FRAMEBUFFER, d.shadow_fbo);
         glDrawBuffer(GL_NONE);
@@ -929,6 +943,7 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
             }
         }
         glDisable(GL_POLYGON_OFFSET_FILL);
+        }
     }
 
     // Step 3: the 3D layer in the undistorted image.
