@@ -11,7 +11,8 @@ command -v xdotool >/dev/null || { echo "skipped: xdotool is not installed"; exi
 pid=$!
 wid=""
 for _ in $(seq 1 100); do
-    wid=$(xdotool search --name commonlight 2>/dev/null | head -1 || true)
+    # This process's window (other GL tests may have windows of their own on the same display).
+    wid=$(xdotool search --all --pid "$pid" --name '^commonlight' 2>/dev/null | head -1 || true)
     [[ -n "$wid" ]] && break
     sleep 0.2
 done

@@ -442,6 +442,7 @@ TEST(CompositorWindow, ShowsTheCompositeInAWindow) {
     if (std::getenv("DISPLAY") == nullptr) GTEST_SKIP() << "no DISPLAY (run under xvfb-run)";
     ContextOptions options;
     options.kind = ContextKind::kWindow;
+    options.title = "compositor-test";  // not "commonlight": e2e/live_window looks for that one
     options.width = 160;
     options.height = 120;
     auto window = GlContext::create(options);
