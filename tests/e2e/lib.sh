@@ -66,6 +66,9 @@ wait_for_rows() {
 # start_serve_gige ARGS...: `commonlight serve-gige ARGS` in the background (SERVER_PID), waiting
 # until it serves. Only inside a private network namespace (netns.sh).
 start_serve_gige() {
+    # Emptied first: the background shell truncates it only once it runs, and the wait below must
+    # not read an earlier server's "serving" line.
+    : >"$TMP/server.out"
     "$COMMONLIGHT" serve-gige "$@" >"$TMP/server.out" 2>"$TMP/server.err" &
     SERVER_PID=$!
     for _ in $(seq 1 200); do
