@@ -33,7 +33,75 @@ Result<std::unique_ptr<LiveWindow>> LiveWindow::create(FrameRunner& runner, Came
     if (!runner.glContext() || runner.glContext()->kind() != render::ContextKind::kWindow || !runner.compositor()) {
         return fail(ErrorCode::kInternal, "live window: the runner composites into no window");
     }
-    return std::unique_ptr<LiveWindow>(new LiveWindow(runner, camera, options));
+    auto window = std::unique_ptr<LiveWindow>(new LiveWindow(runner, camera, options));
+    CL_TRY(window->overlay_, render::Overlay::create(*runner.glContext()));
+    if (camera.recording().on) window->recording_started_ns_ = monotonicNowNs();
+    return window;
+}
+
+render::OverlayContent LiveWindow::overlayContent(const TrackedFrame* frame) const {
+    render::OverlayContent content;
+    const render::DebugView view = runner_->compositor()->options().debug;
+    // fps and latency (frame arrival to composite ready), in ms and in frames.
+    const FrameRunner::CompositeInfo& info = runner_->lastComposite();
+    const double period_ms = frame && frame->frame_period_ns > 0.0 ? frame->frame_period_ns / 1e6 : 0.0;
+    const double fps = interval_ns_ > 0.0 ? 1e9 / interval_ns_ : 0.0;
+    content.lines.push_back(period_ms > 0.0 ? format("%.1f fps, latency %.0f ms (%.1f frames)", fps, info.latency_ms, info.latency_ms / period_ms)
+                                            : format("%.1f fps, latency %.0f ms", fps, info.latency_ms));
+    // Tracking.
+    if (frame) {
+        content.lines.push_back(format("tracking: %s, %zu tag%s", tracking::trackStatusName(frame->track.status),
+                                       frame->track.tags.size(), frame->track.tags.size() == 1 ? "" : "s"));
+    } else {
+        content.lines.push_back("tracking: no frame yet");
+    }
+    // Lighting: the snapshot drawn with and how old its frame is.
+    if (!runner_->lighting()) {
+        content.lines.push_back("lighting: none (no real proxies, or --no-lighting)");
+    } else if (info.lighting_version == 0) {
+        content.lines.push_back(lighting_shown_ ? "lighting: waiting for the first update" : "lighting: off (l)");
+    } else {
+        std::string line = format("lighting: v%llu", static_cast<unsigned long long>(info.lighting_version));
+        if (info.lighting_lag_frames) {
+            line += format(", lag %.1f frames", *info.lighting_lag_frames);
+        } else if (info.lighting_lag_ms) {
+            line += format(", lag %.0f ms", *info.lighting_lag_ms);
+        }
+        if (!lighting_shown_) line += " (off: l)";
+        content.lines.push_back(line);
+    }
+    // Stage times.
+    const capture::StageTimings& timings = runner_->timings();
+    content.lines.push_back(format("pipeline %.0f ms, composite %.0f ms (p50)", timings.percentiles(timings.id("pipeline")).p50,
+                                   timings.percentiles(timings.id("composite")).p50));
+    content.lines.push_back(std::string("view: ") + render::debugViewName(view) + (paused_ ? "  [paused]" : ""));
+    // The camera.
+    const CameraState camera = camera_->state();
+    switch (camera.kind) {
+        case CameraState::Kind::kStreaming:
+            content.lines.push_back(camera.reconnects == 0 ? std::string("camera: streaming")
+                                                           : format("camera: streaming (reconnected %llu times)",
+                                                                    static_cast<unsigned long long>(camera.reconnects)));
+            break;
+        case CameraState::Kind::kReconnecting:
+            content.lines.push_back(format("camera lost: reconnecting (attempt %d)", camera.attempts + 1));
+            content.banner = "camera lost: reconnecting";
+            content.banner_detail = format("attempt %d, back-off %.2f s: ", camera.attempts + 1, camera.next_attempt_s) + camera.lost_reason;
+            break;
+        case CameraState::Kind::kGone:
+            content.lines.push_back("camera lost");
+            content.banner = "camera lost";
+            content.banner_detail = camera.lost_reason;
+            break;
+    }
+    // Recording.
+    const RecordingState recording = camera_->recording();
+    if (recording.on) {
+        content.recording = true;
+        const double seconds = recording_started_ns_ > 0 ? static_cast<double>(monotonicNowNs() - recording_started_ns_) / 1e9 : 0.0;
+        content.recording_text = format("REC %.0f s, %llu frames", seconds, static_cast<unsigned long long>(recording.frames));
+    }
+    return content;
 }
 
 bool LiveWindow::onFrame(const TrackedFrame& frame) {
@@ -70,10 +138,20 @@ bool LiveWindow::onIdle(const TrackedFrame* last) {
 }
 
 bool LiveWindow::show(const TrackedFrame* frame, bool fresh_composite) {
-    // Step 1: the keys (a screenshot reads the back buffer: the composite about to be shown).
+    // Step 1: the picture under the overlay: the composite just drawn, or the last one again (the
+    // window's back buffer is undefined after a swap).
+    if (!fresh_composite) {
+        const Image& last = runner_->compositeImage();
+        if (!last.empty()) {
+            if (auto drawn = overlay_->drawImageOnWindow(last.view()); !drawn) log::warning("overlay: " + drawn.error().message);
+        }
+    }
+    // Step 2: the overlay, window only (the composite that goes to files is the compositor's).
+    if (auto drawn = overlay_->drawOnWindow(overlayContent(frame)); !drawn) log::warning("overlay: " + drawn.error().message);
+    // Step 3: the keys (a screenshot reads the back buffer: what is about to be shown).
     for (int key : window_->pollKeys()) handleKey(key);
     if (window_->shouldClose()) return false;
-    // Step 2: the figures, in the title; a fresh composite is shown.
+    // Step 4: the title keeps the figures too.
     const FrameRunner::CompositeInfo& info = runner_->lastComposite();
     const capture::Percentiles pipeline = runner_->timings().percentiles(runner_->timings().id("pipeline"));
     std::string title = format("commonlight | %s | %.1f fps | pipeline p50 %.0f ms | lighting v%llu%s | %s",
@@ -84,7 +162,7 @@ bool LiveWindow::show(const TrackedFrame* frame, bool fresh_composite) {
     if (camera_->state().kind != CameraState::Kind::kStreaming) title += " | camera lost";
     if (camera_->recording().on) title += " | REC";
     window_->setTitle(title);
-    if (fresh_composite) window_->present();
+    window_->present();
     return true;
 }
 
