@@ -101,6 +101,19 @@ render::OverlayContent LiveWindow::overlayContent(const TrackedFrame* frame) con
         const double seconds = recording_started_ns_ > 0 ? static_cast<double>(monotonicNowNs() - recording_started_ns_) / 1e9 : 0.0;
         content.recording_text = format("REC %.0f s, %llu frames", seconds, static_cast<unsigned long long>(recording.frames));
     }
+    // The tag detections view: each tag's corners and id, as the tracker found them.
+    if (view == render::DebugView::kTags && frame) {
+        content.image_width = runner_->camera().width;
+        content.image_height = runner_->camera().height;
+        for (const tracking::TrackedTag& tag : frame->track.tags) {
+            render::OverlayTag t;
+            t.corners_px = tag.detection.corners;
+            t.id = tag.detection.id;
+            const auto& items = runner_->scene().tags.items;
+            t.in_scene = std::any_of(items.begin(), items.end(), [&](const auto& item) { return item.id == tag.detection.id; });
+            content.tags.push_back(t);
+        }
+    }
     return content;
 }
 
