@@ -12,6 +12,7 @@
 //   Step 4  summary and metrics
 #include <chrono>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <memory>
 
@@ -59,6 +60,17 @@ struct LiveOptions {
 std::string poseRow(std::int64_t timestamp_ns, const tracking::FrameTrack& track) {
     return std::to_string(timestamp_ns) + "," + tracking::trackStatusName(track.status) + "," +
            (track.cam_from_world ? poseColumns(*track.cam_from_world) : std::string(",,,,,,")) + "\n";
+}
+
+// Where key r records when --record was not given: DIR/live-YYYYMMDD-HHMMSS (DIR: --out, else the
+// current folder).
+fs::path defaultRecordFolder(const LiveOptions& options) {
+    const std::time_t now = std::time(nullptr);
+    std::tm local{};
+    localtime_r(&now, &local);
+    char name[32];
+    std::strftime(name, sizeof name, "live-%Y%m%d-%H%M%S", &local);
+    return (options.out.empty() ? fs::current_path() : fs::path(options.out)) / name;
 }
 
 int runLive(const LiveOptions& options) {
@@ -151,9 +163,12 @@ int runLive(const LiveOptions& options) {
         window_options.screenshots = !options.screenshots.empty() ? fs::path(options.screenshots)
                                      : !options.out.empty()        ? fs::path(options.out)
                                                                    : fs::current_path();
+        window_options.record = !options.record.empty() ? fs::path(options.record) : defaultRecordFolder(options);
+        window_options.sensor = sensor;
         auto created = pipeline::LiveWindow::create(**runner, **camera, window_options);
         if (!created) return reportError(created.error());
         window = std::move(*created);
+        if (options.record.empty()) log::info("key r records to " + window_options.record.string());
     }
     std::printf("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
                 options.scene.c_str(), options.record.empty() ? "" : (", recording to " + options.record).c_str());
@@ -253,7 +268,9 @@ void addLiveCommand(CLI::App& app, Runner& runner) {
     sub->add_option("--ground-truth", options->ground_truth,
                     "A recorded sequence the camera serves bit-exactly (serve-gige): frames are matched by their pixels "
                     "and the pose error is reported");
-    sub->add_option("--record", options->record, "Also record the camera's frames to this new sequence folder");
+    sub->add_option("--record", options->record,
+                    "Record the camera's frames to this new sequence folder from the start (the window's key r stops "
+                    "and restarts recording: SEQ-2, SEQ-3, ...)");
     sub->add_flag("--headless", options->headless, "No window: process and report (poses, metrics, --record)");
     sub->add_flag("--composite", options->composite, "With --headless: composite offscreen too (the metrics gain the compositor's)");
     sub->add_option("--screenshots", options->screenshots, "Folder for the window's screenshots (key s; default --out or .)");

@@ -15,7 +15,7 @@ namespace fs = std::filesystem;
 namespace {
 
 // GLFW key codes (GLFW/glfw3.h; render/ keeps GLFW to itself).
-constexpr int kKeySpace = 32, kKeyD = 'D', kKeyL = 'L', kKeyS = 'S', kKeyTab = 258;
+constexpr int kKeySpace = 32, kKeyD = 'D', kKeyL = 'L', kKeyR = 'R', kKeyS = 'S', kKeyTab = 258;
 constexpr int kKeyRight = 262, kKeyLeft = 263, kKeyDown = 264, kKeyUp = 265, kKeyPageUp = 266, kKeyPageDown = 267;
 
 std::string format(const char* fmt, auto... args) {
@@ -201,6 +201,7 @@ void LiveWindow::handleKey(int key) {
             redraw_ = true;
             break;
         }
+        case kKeyR: toggleRecording(); break;
         case kKeyS: screenshot(); break;
         case kKeyTab:
             if (!runner_->scene().virtual_objects.empty()) {
@@ -220,6 +221,25 @@ void LiveWindow::handleKey(int key) {
         runner_->moveVirtualObject(selected_, move);
         redraw_ = true;
     }
+}
+
+void LiveWindow::toggleRecording() {
+    if (camera_->recording().on) {
+        if (std::optional<capture::RecorderSummary> summary = camera_->stopRecording()) {
+            log::info(format("recording stopped: %zu frames written to %s (dropped by the recorder %llu, refused by the sequence %llu)",
+                             summary->frames_written, summary->root.c_str(), static_cast<unsigned long long>(summary->dropped),
+                             static_cast<unsigned long long>(summary->rejected)));
+            if (summary->write_error) log::error("recording: " + summary->write_error->message);
+        }
+        return;
+    }
+    const fs::path folder = freeRecordingFolder(options_.record);
+    if (auto started = camera_->startRecording(folder, options_.sensor); !started) {
+        log::error("cannot record: " + started.error().message);
+        return;
+    }
+    recording_started_ns_ = monotonicNowNs();
+    log::info("recording to " + folder.string());
 }
 
 void LiveWindow::screenshot() {

@@ -3,7 +3,7 @@
 // state), the figures in the title too, and the keys (docs/cli.md):
 //
 //   space pause / resume          l lighting on / off           d next debug view
-//   s screenshot of the window    tab select the next virtual object
+//   r start / stop recording      s screenshot of the window    tab select the next virtual object
 //   arrows, page up / down: move the selected virtual object 1 cm along world x, y, z
 //
 // Main thread (it owns GL): onFrame() and onIdle() are FrameRunner::run()'s callbacks.
@@ -23,6 +23,8 @@ namespace commonlight::pipeline {
 
 struct LiveWindowOptions {
     std::filesystem::path screenshots;  // folder of key s's screenshots
+    std::filesystem::path record;       // where key r records (a free name beside it when taken)
+    SensorInfo sensor;                  // sensor.yaml of a recording
 };
 
 class LiveWindow {
@@ -46,6 +48,7 @@ private:
     // sets the title and presents. False when the window was closed.
     bool show(const TrackedFrame* frame, bool fresh_composite);
     void handleKey(int key);
+    void toggleRecording();
     void screenshot();
 
     FrameRunner* runner_;
