@@ -179,7 +179,10 @@ int runLive(const LiveOptions& options) {
     Progress progress("live", options.frames);
     pipeline::LoopCallbacks callbacks;
     callbacks.on_tracked = [&](const pipeline::TrackedFrame& frame) {
-        if (poses) std::fputs(poseRow(frame.meta.timestamp_ns, frame.track).c_str(), poses.get());
+        if (poses) {
+            std::fputs(poseRow(frame.meta.timestamp_ns, frame.track).c_str(), poses.get());
+            std::fflush(poses.get());  // readable as it grows
+        }
         progress.update(frame.index + 1);
     };
     bool warned_bad = false;

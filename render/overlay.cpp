@@ -42,6 +42,45 @@ void outlinedText(cv::Mat& image, const std::string& text, cv::Point at, double 
     cv::putText(image, text, at, kFont, scale, colour, thickness, cv::LINE_AA);
 }
 
+// Splits `text` at spaces into lines no wider than `max_width` pixels (a word longer than that is
+// cut), at most `max_lines` (the last one then ends in "...").
+std::vector<std::string> wrapText(const std::string& text, double scale, int max_width, std::size_t max_lines) {
+    std::vector<std::string> lines;
+    if (text.empty() || max_width <= 0 || max_lines == 0) return lines;
+    int baseline = 0;
+    const auto fits = [&](const std::string& s) { return cv::getTextSize(s, kFont, scale, 1, &baseline).width <= max_width; };
+    std::string line;
+    std::size_t pos = 0;
+    while (pos <= text.size()) {
+        std::size_t end = text.find(' ', pos);
+        if (end == std::string::npos) end = text.size();
+        std::string word = text.substr(pos, end - pos);
+        pos = end + 1;
+        const std::string candidate = line.empty() ? word : line + " " + word;
+        if (fits(candidate)) {
+            line = candidate;
+            continue;
+        }
+        if (!line.empty()) lines.push_back(line);
+        while (!fits(word) && word.size() > 1) {
+            // A word wider than the line (a long path): cut it where it stops fitting.
+            std::size_t n = word.size() - 1;
+            while (n > 1 && !fits(word.substr(0, n))) --n;
+            lines.push_back(word.substr(0, n));
+            word = word.substr(n);
+        }
+        line = word;
+    }
+    if (!line.empty()) lines.push_back(line);
+    if (lines.size() > max_lines) {
+        lines.resize(max_lines);
+        std::string& last = lines.back();
+        while (!last.empty() && !fits(last + "...")) last.pop_back();
+        last += "...";
+    }
+    return lines;
+}
+
 }  // namespace
 
 void rasteriseOverlay(const OverlayContent& content, int width, int height, Image& out) {
@@ -109,22 +148,26 @@ void rasteriseOverlay(const OverlayContent& content, int width, int height, Imag
                     kFont, scale, rgba(255, 90, 90), 1, cv::LINE_AA);
     }
 
-    // Step 4: the warning banner across the middle.
+    // Step 4: the warning banner across the middle; its detail wrapped to the target's width.
     if (!content.banner.empty()) {
         const double big = scale * 1.5;
         int baseline = 0;
         const cv::Size size = cv::getTextSize(content.banner, kFont, big, 2, &baseline);
-        const cv::Size detail = content.banner_detail.empty() ? cv::Size(0, 0) : cv::getTextSize(content.banner_detail, kFont, scale, 1, &baseline);
-        const int box_w = std::min(width, std::max(size.width, detail.width) + 4 * pad);
-        const int box_h = size.height + (detail.height > 0 ? detail.height + pad : 0) + 3 * pad;
+        const std::vector<std::string> details = wrapText(content.banner_detail, scale, width - 4 * pad, 3);
+        int detail_w = 0;
+        for (const std::string& line : details) detail_w = std::max(detail_w, cv::getTextSize(line, kFont, scale, 1, &baseline).width);
+        const int detail_h = static_cast<int>(details.size()) * line_h;
+        const int box_w = std::min(width, std::max(size.width, detail_w) + 4 * pad);
+        const int box_h = size.height + detail_h + 3 * pad;
         const cv::Rect box((width - box_w) / 2, (height - box_h) / 2, box_w, box_h);
         cv::rectangle(image, box, rgba(190, 25, 25, 215), cv::FILLED);
         cv::putText(image, content.banner, cv::Point(box.x + (box_w - size.width) / 2, box.y + pad + size.height), kFont, big,
                     rgba(255, 255, 255), 2, cv::LINE_AA);
-        if (detail.height > 0) {
-            cv::putText(image, content.banner_detail,
-                        cv::Point(box.x + (box_w - detail.width) / 2, box.y + 2 * pad + size.height + detail.height), kFont, scale,
-                        rgba(255, 235, 235), 1, cv::LINE_AA);
+        for (std::size_t i = 0; i < details.size(); ++i) {
+            const int w = cv::getTextSize(details[i], kFont, scale, 1, &baseline).width;
+            cv::putText(image, details[i],
+                        cv::Point(box.x + (box_w - w) / 2, box.y + 2 * pad + size.height + static_cast<int>(i + 1) * line_h - line_h / 4),
+                        kFont, scale, rgba(255, 235, 235), 1, cv::LINE_AA);
         }
     }
 }

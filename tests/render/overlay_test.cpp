@@ -10,6 +10,7 @@
 #define GL_GLEXT_PROTOTYPES
 #include <GL/glcorearb.h>
 
+#include <cmath>
 #include <cstdlib>
 
 #include "render/compositor.h"
@@ -58,6 +59,25 @@ TEST(OverlayRaster, NothingDrawnIsTransparentAndEveryPixelIsPremultiplied) {
     EXPECT_EQ(px(image, 8, 12)[3], 150);
     EXPECT_EQ(px(image, 5, 470)[3], 0);
     EXPECT_EQ(px(image, 635, 470)[3], 0);
+}
+
+// A long reason (a device path) is wrapped onto more lines inside the banner, not cut at the edge.
+TEST(OverlayRaster, TheBannersDetailIsWrappedToTheWidth) {
+    const auto banner_rows = [](const std::string& detail) {
+        OverlayContent content;
+        content.banner = "camera lost: reconnecting";
+        content.banner_detail = detail;
+        Image image;
+        rasteriseOverlay(content, 320, 240, image);
+        int rows = 0;
+        for (int y = 0; y < 240; ++y) rows += px(image, 160, y)[3] >= 215;
+        return rows;
+    };
+    const int one_line = banner_rows("attempt 2: cam0 lost");
+    const int wrapped = banner_rows(
+        "attempt 2, back-off 0.50 s: replay:/tmp/some/very/long/folder/name/of/a/recording: device disconnected (fault injection)");
+    const int line_h = static_cast<int>(std::lround(36.0 * 0.3));  // the raster's line height at 240 rows
+    EXPECT_GE(wrapped - one_line, 2 * line_h - 1) << one_line << " rows for one line, " << wrapped << " wrapped";
 }
 
 // A tag in a 320x240 camera image drawn on a 640x480 target: its edges pass where the corners
