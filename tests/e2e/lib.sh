@@ -103,3 +103,16 @@ wait_for_log() {
 
 # count_of NAME COUNTS: the count named NAME in pngcheck.py's output COUNTS.
 count_of() { awk -v n="$1" '$1 == n {print $2}' <<<"$2"; }
+
+# wait_for_title WID PATTERN [SECONDS]: waits until window WID's title contains PATTERN (a bash
+# glob; default 90 s). live's title says "| tracked |" once a tracked frame has been composited
+# and shown, and "lighting v1" (and on) once it was drawn with a lighting snapshot.
+wait_for_title() {
+    local limit=${3:-90}
+    for _ in $(seq 1 $((limit * 10))); do
+        # shellcheck disable=SC2053
+        [[ $(xdotool getwindowname "$1" 2>/dev/null || true) == *$2* ]] && return 0
+        sleep 0.1
+    done
+    fail "waited $limit s for '$2' in the title of window $1 ($(xdotool getwindowname "$1" 2>/dev/null || true))"
+}
