@@ -155,8 +155,10 @@ bool LiveWindow::show(const TrackedFrame* frame, bool fresh_composite) {
     // window's back buffer is undefined after a swap).
     if (!fresh_composite) {
         const Image& last = runner_->compositeImage();
-        if (!last.empty()) {
-            if (auto drawn = overlay_->drawImageOnWindow(last.view()); !drawn) log::warning("overlay: " + drawn.error().message);
+        if (last.empty()) {
+            overlay_->clearWindow();
+        } else if (auto drawn = overlay_->drawImageOnWindow(last.view()); !drawn) {
+            log::warning("overlay: " + drawn.error().message);
         }
     }
     // Step 2: the overlay, window only (the composite that goes to files is the compositor's).

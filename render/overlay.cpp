@@ -277,6 +277,15 @@ Result<void> Overlay::drawOnWindow(const OverlayContent& content) {
     return draw(content, 0, w, h);
 }
 
+void Overlay::clearWindow() {
+    context_->makeCurrent();
+    glBindFramebuffer(GL_DRAW_FRAMEBUFFER, 0);
+    glDrawBuffer(GL_BACK);
+    glClearColor(0.0f, 0.0f, 0.0f, 1.0f);
+    glClear(GL_COLOR_BUFFER_BIT);
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+}
+
 Result<void> Overlay::drawImageOnWindow(const ImageView& rgb8) {
     int w = 0, h = 0;
     context_->windowSize(w, h);

@@ -61,6 +61,8 @@ public:
     // In the window: draw(content) over the window's back buffer at its framebuffer size.
     Result<void> drawOnWindow(const OverlayContent& content);
     Result<void> drawImageOnWindow(const ImageView& rgb8);
+    // Black under the overlay before there is any composite to show.
+    void clearWindow();
 
     // The last rasterised overlay: RGBA8, premultiplied, top row first (tests).
     const Image& rasterised() const noexcept { return rgba_; }

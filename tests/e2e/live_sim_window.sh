@@ -9,7 +9,7 @@ PNGCHECK="$(dirname "$0")/pngcheck.py"
 DESK="$SRC/data/scenes/desk"
 
 "$COMMONLIGHT" live --camera "sim:$DESK/scene.yaml?trajectory=$DESK/trajectory.yaml&spp=1&rate=max" --scene "$DESK/scene.yaml" \
-    --no-lighting --settle 0 --frames 8 --screenshots "$TMP" --out "$TMP/out" >"$TMP/live.out" 2>"$TMP/live.err" &
+    --no-lighting --settle 0 --timeout 120 --frames 8 --screenshots "$TMP" --out "$TMP/out" >"$TMP/live.out" 2>"$TMP/live.err" &
 pid=$!
 BG_PIDS+=("$pid")
 wid=$(find_window "$pid") || { cat "$TMP/live.err"; fail "no commonlight window appeared"; }
