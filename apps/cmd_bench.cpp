@@ -74,6 +74,12 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
     pipe->add_option("--sequence", pipeline_options->sequence, "A sequence with ground truth")->capture_default_str();
     pipe->add_option("--json", pipeline_options->json, "Write the figures as JSON");
     pipe->add_option("--repeats", pipeline_options->repeats, "Draws per compositor configuration")->capture_default_str();
+    pipe->add_option("--seconds", pipeline_options->seconds, "Seconds of real-time playback per configuration")
+        ->check(CLI::PositiveNumber)
+        ->capture_default_str();
+    pipe->add_option("--cases", pipeline_options->cases, "Cases to run: system, compositor, realtime (default: all)")
+        ->check(CLI::IsMember(benchPipelineCaseNames()))
+        ->delimiter(',');
     pipe->callback([pipeline_options, &runner] { runner = [pipeline_options] { return runBenchPipeline(*pipeline_options); }; });
 }
 

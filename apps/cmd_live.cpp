@@ -1,38 +1,34 @@
 // commonlight live --camera URI --scene S [--record SEQ] [--headless --frames N --out DIR]
 //
 // The live pipeline: a camera through a capture session (newest frame wins), tracking on every
-// frame taken, the photometry locked after a settle period, optional recording, and reconnection
-// with back-off when the camera is lost.
+// frame taken, the photometry locked after a settle period, optional recording, reconnection with
+// back-off when the camera is lost (pipeline/camera_source.h), and the window with its overlay and
+// keys (pipeline/live_window.h). Tracking runs on the pipeline thread, compositing on this one
+// (pipeline/frame_loop.h).
 //
 //   Step 1  scene, intrinsics, ground truth (optional), output files
-//   Step 2  open the camera and start a session; on a device error, retry with back-off
-//   Step 3  per frame: record, track, lock the photometry once settled, write the pose
+//   Step 2  open the camera, the recording, the per-frame pipeline and the window
+//   Step 3  the frames: FrameRunner::run (poses.csv on the pipeline thread, the window on this one)
 //   Step 4  summary and metrics
-#include <algorithm>
 #include <chrono>
-#include <cmath>
-#include <condition_variable>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <memory>
-#include <mutex>
-#include <thread>
 
 #include "apps/app.h"
-#include "core/response.h"
-#include "pipeline/runner.h"
 #include "apps/progress.h"
 #include "apps/report.h"
-#include "capture/capture_session.h"
-#include "capture/photometry_lock.h"
-#include "capture/recorder.h"
 #include "capture/stage_timings.h"
 #include "core/calibration_io.h"
 #include "core/clock.h"
 #include "core/log.h"
+#include "core/response.h"
 #include "core/scene_io.h"
 #include "core/sequence_io.h"
-#include "render/compositor.h"
+#include "pipeline/camera_source.h"
+#include "pipeline/live_window.h"
+#include "pipeline/runner.h"
 
 namespace commonlight::apps {
 
@@ -61,111 +57,20 @@ struct LiveOptions {
     std::string response;  // --response: overrides what the camera reports
 };
 
-// Sleeps up to `seconds`, waking early on Ctrl-C. False when stopped.
-bool sleepUnlessStopped(double seconds) {
-    std::mutex mutex;
-    std::condition_variable_any cv;
-    std::unique_lock lock(mutex);
-    std::stop_token stop = stopToken();
-    return !cv.wait_for(lock, stop, std::chrono::duration<double>(seconds), [] { return false; });
-}
-
-// Sums of the sessions' statistics (one session per connection).
-struct Totals {
-    std::uint64_t received = 0, delivered = 0, device = 0, no_slot = 0, mailbox = 0, corrupt = 0;
-    void add(const capture::CaptureStats& s) {
-        received += s.frames_received;
-        delivered += s.frames_delivered;
-        device += s.drops.device;
-        no_slot += s.drops.no_slot;
-        mailbox += s.drops.mailbox;
-        corrupt += s.drops.corrupt;
-    }
-};
-
-Result<std::unique_ptr<capture::CaptureSession>> connect(const hal::CameraRegistry& registry, const std::string& uri) {
-    CL_TRY(std::unique_ptr<hal::Camera> camera, registry.openConfigured(uri));
-    capture::CaptureOptions capture_options;  // newest wins: a live camera never waits for us
-    CL_TRY(std::unique_ptr<capture::CaptureSession> session,
-           capture::CaptureSession::create(std::move(camera), capture_options));
-    CL_TRY_VOID(session->start());
-    return session;
-}
-
 std::string poseRow(std::int64_t timestamp_ns, const tracking::FrameTrack& track) {
     return std::to_string(timestamp_ns) + "," + tracking::trackStatusName(track.status) + "," +
            (track.cam_from_world ? poseColumns(*track.cam_from_world) : std::string(",,,,,,")) + "\n";
 }
 
-// The window's state between frames: selection, pause, screenshots.
-struct WindowKeys {
-    std::size_t selected = 0;
-    bool lighting_shown = true;
-    bool paused = false;
-    int screenshot_count = 0;
-    fs::path screenshots;
-};
-
-// Shows the frame's composite, handles the keys (docs/cli.md): space pause, l lighting on/off,
-// d next debug view, s screenshot, tab next virtual object, arrows and page up/down move it by
-// 1 cm. The title carries the overlay's figures. False when the window was closed.
-bool handleWindow(render::GlContext& window, pipeline::FrameRunner& runner, const tracking::FrameTrack& track,
-                  WindowKeys& keys) {
-    do {
-        for (int key : window.pollKeys()) {
-            const double step = 0.01;
-            Eigen::Vector3d move = Eigen::Vector3d::Zero();
-            switch (key) {
-                case 32: keys.paused = !keys.paused; break;                                    // space
-                case 'L': keys.lighting_shown = !keys.lighting_shown; runner.setLightingShown(keys.lighting_shown); break;
-                case 'D':
-                    if (render::Compositor* c = runner.compositor()) {
-                        render::CompositorOptions o = c->options();
-                        o.debug = render::nextDebugView(o.debug);
-                        c->setOptions(o);
-                        log::info(std::string("view: ") + render::debugViewName(o.debug));
-                    }
-                    break;
-                case 'S': {
-                    auto shot = window.readWindow();
-                    const fs::path file = keys.screenshots / ("screenshot-" + std::to_string(keys.screenshot_count++) + ".png");
-                    if (shot && pipeline::writePng(file, shot->view())) {
-                        log::info("screenshot: " + file.string());
-                    } else {
-                        log::warning("cannot write the screenshot " + file.string());
-                    }
-                    break;
-                }
-                case 258:  // tab
-                    if (!runner.scene().virtual_objects.empty()) {
-                        keys.selected = (keys.selected + 1) % runner.scene().virtual_objects.size();
-                        log::info("selected: " + runner.scene().virtual_objects[keys.selected].name);
-                    }
-                    break;
-                case 262: move.x() = step; break;   // right
-                case 263: move.x() = -step; break;  // left
-                case 265: move.y() = step; break;   // up
-                case 264: move.y() = -step; break;  // down
-                case 266: move.z() = step; break;   // page up
-                case 267: move.z() = -step; break;  // page down
-                default: break;
-            }
-            if (!move.isZero()) runner.moveVirtualObject(keys.selected, move);
-        }
-        if (window.shouldClose()) return false;
-        if (keys.paused) std::this_thread::sleep_for(std::chrono::milliseconds(30));
-    } while (keys.paused);
-    // The overlay: fps, latency, tracking state, lighting version and lag.
-    char title[256];
-    const lighting::SnapshotPtr snapshot = runner.lighting() ? runner.lighting()->latest() : nullptr;
-    const capture::Percentiles composite = runner.timings().percentiles(runner.timings().id("pipeline"));
-    std::snprintf(title, sizeof title, "commonlight | %s | pipeline p50 %.0f ms | lighting v%llu%s | %s",
-                  tracking::trackStatusName(track.status), composite.p50,
-                  static_cast<unsigned long long>(snapshot ? snapshot->version : 0), keys.lighting_shown ? "" : " (off)",
-                  render::debugViewName(runner.compositor() ? runner.compositor()->options().debug : render::DebugView::kNone));
-    window.setTitle(title);
-    window.present();
-    return true;
+// Where key r records when --record was not given: DIR/live-YYYYMMDD-HHMMSS (DIR: --out, else the
+// current folder).
+fs::path defaultRecordFolder(const LiveOptions& options) {
+    const std::time_t now = std::time(nullptr);
+    std::tm local{};
+    localtime_r(&now, &local);
+    char name[32];
+    std::strftime(name, sizeof name, "live-%Y%m%d-%H%M%S", &local);
+    return (options.out.empty() ? fs::current_path() : fs::path(options.out)) / name;
 }
 
 int runLive(const LiveOptions& options) {
@@ -206,35 +111,40 @@ int runLive(const LiveOptions& options) {
         std::fprintf(poses.get(), "timestamp_ns,status,tx,ty,tz,qw,qx,qy,qz\n");
     }
 
-    // Step 2: the camera.
+    // Step 2: the camera (reopened with back-off when lost), its recording, the pipeline.
     const hal::CameraRegistry registry = makeCameraRegistry();
-    auto session = connect(registry, options.camera);
-    if (!session) return reportError(session.error());
-    const hal::StreamFormat format = (*session)->camera().activeFormat();
+    pipeline::CameraSourceOptions camera_options;
+    camera_options.uri = options.camera;
+    camera_options.frames = options.frames;
+    camera_options.timeout_s = options.timeout_s;
+    camera_options.reconnect = !options.no_reconnect;
+    camera_options.reconnect_max_s = options.reconnect_max_s;
+    camera_options.lock_photometry = !options.no_lock;
+    camera_options.settle_s = options.settle_s;
+    auto camera = pipeline::CameraSource::open(registry, camera_options);
+    if (!camera) return reportError(camera.error());
+    const hal::StreamFormat format = (*camera)->format();
     if (format.width != intrinsics->width || format.height != intrinsics->height) {
         return reportError(Error{ErrorCode::kUsage, options.camera + " streams " + hal::describe(format) +
                                                         " but the calibration is " + std::to_string(intrinsics->width) +
                                                         "x" + std::to_string(intrinsics->height)});
     }
-    std::unique_ptr<capture::Recorder> recorder;
+    SensorInfo sensor;
+    sensor.rate_hz = format.fps;
+    sensor.camera = *intrinsics;
+    sensor.comment = "recorded by commonlight live from " + options.camera;
     if (!options.record.empty()) {
-        SensorInfo sensor;
-        sensor.rate_hz = format.fps;
-        sensor.camera = *intrinsics;
-        sensor.comment = "recorded by commonlight live from " + options.camera;
-        auto r = capture::Recorder::start(options.record, sensor);
-        if (!r) return reportError(r.error());
-        recorder = std::move(*r);
+        if (auto started = (*camera)->startRecording(options.record, sensor); !started) return reportError(started.error());
     }
-    // Step 2b: the per-frame pipeline (pipeline/runner.h) with the lighting thread in real time
-    // (newest wins, it never holds the frames back). The response: --response, else what the
-    // camera reports (Aravis: its Gamma feature; replay: the recording's sensor.yaml).
+    // The per-frame pipeline (pipeline/runner.h) with the lighting thread in real time (newest
+    // wins, it never holds the frames back). The response: --response, else what the camera
+    // reports (Aravis: its Gamma feature; replay: the recording's sensor.yaml).
     pipeline::RunnerOptions runner_options;
     runner_options.tracker.edges = options.edges;
     runner_options.ground_truth = truth ? &*truth : nullptr;
     runner_options.lighting = !options.no_lighting;
     {
-        const std::string spec = options.response.empty() ? (*session)->camera().responseSpec() : options.response;
+        const std::string spec = options.response.empty() ? (*camera)->responseSpec() : options.response;
         auto response = ResponseCurve::parse(spec, fs::current_path());
         if (!response) return reportError(Error{response.error().code, "response '" + spec + "': " + response.error().message});
         runner_options.response = *response;
@@ -245,124 +155,74 @@ int runLive(const LiveOptions& options) {
     runner_options.fps = format.fps > 0.0 ? format.fps : 30.0;
     auto runner = pipeline::FrameRunner::create(*scene, *intrinsics, runner_options);
     if (!runner) return reportError(runner.error());
-    capture::StageTimings& timings = (*runner)->timings();
-    render::GlContext* window = (*runner)->glContext();
-    if (window && window->kind() != render::ContextKind::kWindow) window = nullptr;
-    WindowKeys keys;
-    keys.screenshots = !options.screenshots.empty() ? fs::path(options.screenshots)
-                       : !options.out.empty()        ? fs::path(options.out)
-                                                     : fs::current_path();
+    // A new connection's timestamps may start over: the tracking restarts (pipeline thread).
+    (*camera)->setOnReconnect([r = runner->get()] { return r->restart(); });
+    std::unique_ptr<pipeline::LiveWindow> window;
+    if (!options.headless) {
+        pipeline::LiveWindowOptions window_options;
+        window_options.screenshots = !options.screenshots.empty() ? fs::path(options.screenshots)
+                                     : !options.out.empty()        ? fs::path(options.out)
+                                                                   : fs::current_path();
+        window_options.record = !options.record.empty() ? fs::path(options.record) : defaultRecordFolder(options);
+        window_options.sensor = sensor;
+        auto created = pipeline::LiveWindow::create(**runner, **camera, window_options);
+        if (!created) return reportError(created.error());
+        window = std::move(*created);
+        if (options.record.empty()) log::info("key r records to " + window_options.record.string());
+    }
     std::printf("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
                 options.scene.c_str(), options.record.empty() ? "" : (", recording to " + options.record).c_str());
     if ((*runner)->lighting()) std::printf("lighting: real time, response %s\n", runner_options.response.name().c_str());
 
-    // Step 3: the frames.
-    capture::PhotometryLock photometry(static_cast<std::int64_t>(options.settle_s * 1e9));
-    const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(options.timeout_s));
-    Totals totals;
-    std::uint64_t taken = 0, reconnects = 0, bad_frames = 0;
-    std::optional<Error> failure;
+    // Step 3: the frames. The pipeline thread takes them from the camera, tracks them and writes
+    // poses.csv; this thread composites the newest and runs the window.
     Progress progress("live", options.frames);
-    const std::int64_t start_ns = monotonicNowNs();
-    while (options.frames == 0 || taken < options.frames) {
-        capture::NextFrame next = (*session)->next(stopToken(), timeout);
-        if (next && !next->has_value()) break;  // the stream ended (a recording's end)
-        if (!next) {
-            if (next.error().code == ErrorCode::kCancelled) break;
-            Error lost = next.error();
-            if (lost.code == ErrorCode::kTimeout) {
-                lost = Error{ErrorCode::kDevice, options.camera + ": no frame for " + std::to_string(options.timeout_s) + " s"};
-            }
-            log::error("camera lost: " + lost.message);
-            (*session)->stop();
-            totals.add((*session)->stats());
-            session->reset();
-            if (options.no_reconnect) {
-                failure = lost;
-                break;
-            }
-            // Back-off: 0.25 s doubling to 8 s, until the camera is back or reconnect_max_s passed.
-            double backoff = 0.25;
-            const std::int64_t lost_ns = monotonicNowNs();
-            while (true) {
-                if (!sleepUnlessStopped(backoff)) break;
-                auto again = connect(registry, options.camera);
-                if (again) {
-                    session = std::move(again);
-                    break;
-                }
-                const double waited = static_cast<double>(monotonicNowNs() - lost_ns) / 1e9;
-                log::warning("reconnecting to " + options.camera + " failed after " + std::to_string(waited) +
-                             " s: " + again.error().message);
-                if (waited >= options.reconnect_max_s) break;
-                backoff = std::min(backoff * 2.0, 8.0);
-            }
-            if (!*session) {
-                if (!stopToken().stop_requested()) {
-                    failure = Error{ErrorCode::kDevice, options.camera + ": lost and not back within " +
-                                                            std::to_string(options.reconnect_max_s) + " s (" + lost.message + ")"};
-                }
-                break;
-            }
-            ++reconnects;
-            photometry.reset();
-            if (auto restarted = (*runner)->restart(); !restarted) return reportError(restarted.error());
-            log::info("reconnected to " + options.camera);
-            continue;
+    pipeline::LoopCallbacks callbacks;
+    callbacks.on_tracked = [&](const pipeline::TrackedFrame& frame) {
+        if (poses) {
+            std::fputs(poseRow(frame.meta.timestamp_ns, frame.track).c_str(), poses.get());
+            std::fflush(poses.get());  // readable as it grows
         }
-        FrameHandle frame = std::move(**next);
-        ++taken;
-        progress.update(taken);
-        if (recorder) recorder->push(*frame);
-        if (!options.no_lock) {
-            auto locked = photometry.onFrame((*session)->camera(), frame->meta.arrival_ns);
-            if (!locked) {
-                log::warning("cannot lock the photometry: " + locked.error().message);
-            } else if (*locked) {
-                char settled[32];
-                std::snprintf(settled, sizeof settled, "%.1f s", options.settle_s);
-                log::info(std::string("photometry locked after ") + settled + ": " + (*locked)->describe());
-            }
-        }
-        if (frame->meta.status != FrameStatus::kOk) continue;  // counted by the session
-        auto tracked = (*runner)->process(*frame);
-        if (!tracked) {
-            if (tracked.error().code != ErrorCode::kBadInput) {
-                failure = tracked.error();
-                break;
-            }
-            if (bad_frames++ == 0) log::warning("frame " + std::to_string(frame->meta.timestamp_ns) + ": " + tracked.error().message);
-            continue;
-        }
-        if (poses) std::fputs(poseRow(frame->meta.timestamp_ns, *tracked).c_str(), poses.get());
-        if (window && !handleWindow(*window, **runner, *tracked, keys)) break;
+        progress.update(frame.index + 1);
+    };
+    bool warned_bad = false;
+    callbacks.on_bad_frame = [&warned_bad](const Frame& frame, const Error& error) {
+        if (!warned_bad) log::warning("frame " + std::to_string(frame.meta.timestamp_ns) + ": " + error.message);
+        warned_bad = true;
+    };
+    if (window) {
+        callbacks.on_frame = [&window](const pipeline::TrackedFrame& frame) { return window->onFrame(frame); };
+        callbacks.on_idle = [&window](const pipeline::TrackedFrame* last) { return window->onIdle(last); };
     }
+    const std::int64_t start_ns = monotonicNowNs();
+    const pipeline::LoopStats loop = (*runner)->run(**camera, callbacks, stopToken());
     (*runner)->stop();
     progress.finish();
     const double seconds = static_cast<double>(monotonicNowNs() - start_ns) / 1e9;
-    capture::CaptureStats last;
-    if (*session) {
-        (*session)->stop();
-        last = (*session)->stats();
-        totals.add(last);
-    }
-    std::optional<capture::RecorderSummary> recorded;
-    if (recorder) recorded = recorder->finish();
+    const pipeline::CameraTotals totals = (*camera)->finish();
+    const std::optional<capture::RecorderSummary> recorded = (*camera)->stopRecording();
+    window.reset();
 
     // Step 4: report.
-    std::printf("live: %llu frames in %.2f s (%.2f per s); %llu reconnects\n", static_cast<unsigned long long>(taken),
-                seconds, seconds > 0 ? static_cast<double>(taken) / seconds : 0.0,
-                static_cast<unsigned long long>(reconnects));
+    const capture::StageTimings& timings = (*runner)->timings();
+    std::printf("live: %llu frames in %.2f s (%.2f per s); %llu reconnects\n", static_cast<unsigned long long>(totals.taken),
+                seconds, seconds > 0 ? static_cast<double>(totals.taken) / seconds : 0.0,
+                static_cast<unsigned long long>(totals.reconnects));
     std::printf("  dropped   at the device %llu, no free buffer %llu, replaced in the mailbox %llu; corrupt %llu; "
                 "not trackable %llu\n",
                 static_cast<unsigned long long>(totals.device), static_cast<unsigned long long>(totals.no_slot),
                 static_cast<unsigned long long>(totals.mailbox), static_cast<unsigned long long>(totals.corrupt),
-                static_cast<unsigned long long>(bad_frames));
-    std::printf("  latency   p50 %.3f ms, p95 %.3f ms (last connection, frame arrival to hand-over)\n", last.latency_ms.p50,
-                last.latency_ms.p95);
+                static_cast<unsigned long long>(loop.bad_frames));
+    std::printf("  latency   p50 %.3f ms, p95 %.3f ms (last connection, frame arrival to hand-over)\n", totals.last.latency_ms.p50,
+                totals.last.latency_ms.p95);
+    if (runner_options.composite) {
+        std::printf("  composited %llu of %llu frames tracked (%llu replaced by newer ones before the compositor took them)\n",
+                    static_cast<unsigned long long>(loop.composited), static_cast<unsigned long long>(loop.tracked),
+                    static_cast<unsigned long long>(loop.replaced));
+    }
     printStages(timings);
     std::printf("tracked: %llu of %llu frames with a camera pose\n",
-                static_cast<unsigned long long>((*runner)->tracking().framesWithPose()), static_cast<unsigned long long>(taken));
+                static_cast<unsigned long long>((*runner)->tracking().framesWithPose()), static_cast<unsigned long long>(totals.taken));
     std::printf("%s", (*runner)->summary().c_str());
     if (truth) {
         if ((*runner)->tracking().framesWithoutTruth() > 0) {
@@ -372,18 +232,18 @@ int runLive(const LiveOptions& options) {
     }
     if (recorded) {
         std::printf("recorded %zu frames to %s (dropped by the recorder %llu, refused by the sequence %llu)\n",
-                    recorded->frames_written, options.record.c_str(), static_cast<unsigned long long>(recorded->dropped),
+                    recorded->frames_written, recorded->root.c_str(), static_cast<unsigned long long>(recorded->dropped),
                     static_cast<unsigned long long>(recorded->rejected));
         if (recorded->first_rejection) log::warning(recorded->first_rejection->message);
     }
     if (!options.out.empty()) {
-        nlohmann::json metrics = captureJson(last);
-        metrics["frames"] = taken;
+        nlohmann::json metrics = captureJson(totals.last);
+        metrics["frames"] = totals.taken;
         metrics["frames_received"] = totals.received;
         metrics["dropped_frames"] = totals.device + totals.no_slot + totals.mailbox;
         metrics["dropped"] = {{"device", totals.device}, {"no_slot", totals.no_slot}, {"mailbox", totals.mailbox}};
         metrics["corrupt_frames"] = totals.corrupt;
-        metrics["reconnects"] = reconnects;
+        metrics["reconnects"] = totals.reconnects;
         metrics["camera"] = options.camera;
         metrics["duration_s"] = seconds;
         metrics["stages_ms"] = stagesJson(timings);
@@ -393,9 +253,9 @@ int runLive(const LiveOptions& options) {
         std::printf("metrics written to %s\n", file.c_str());
     }
     if (recorded && recorded->write_error) return reportError(*recorded->write_error);
-    if (failure) {
-        if (recorder) log::info("the recording holds every frame received before the error");
-        return reportError(*failure);
+    if (loop.failure) {
+        if (recorded) log::info("the recording holds every frame received before the error");
+        return reportError(*loop.failure);
     }
     return stopToken().stop_requested() ? 130 : kExitOk;
 }
@@ -411,7 +271,9 @@ void addLiveCommand(CLI::App& app, Runner& runner) {
     sub->add_option("--ground-truth", options->ground_truth,
                     "A recorded sequence the camera serves bit-exactly (serve-gige): frames are matched by their pixels "
                     "and the pose error is reported");
-    sub->add_option("--record", options->record, "Also record the camera's frames to this new sequence folder");
+    sub->add_option("--record", options->record,
+                    "Record the camera's frames to this new sequence folder from the start (the window's key r stops "
+                    "and restarts recording: SEQ-2, SEQ-3, ...)");
     sub->add_flag("--headless", options->headless, "No window: process and report (poses, metrics, --record)");
     sub->add_flag("--composite", options->composite, "With --headless: composite offscreen too (the metrics gain the compositor's)");
     sub->add_option("--screenshots", options->screenshots, "Folder for the window's screenshots (key s; default --out or .)");

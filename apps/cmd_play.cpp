@@ -1,10 +1,11 @@
 // commonlight play SEQ [--metrics M.json] [--sync]: runs the pipeline on a recording.
 //
 // The sequence is replayed as a camera through a capture session (frame pool, mailbox,
-// statistics); every frame is converted and tracked (apps/pipeline.h) when the scene places tags
-// and the sequence has intrinsics, and the pose error is measured when it has ground truth.
-// Every tracked frame goes to the lighting thread (apps/lighting_stage.h) unless --no-lighting;
-// the metrics JSON then has a `lighting` section. Rendering joins it in a later issue.
+// statistics); every frame is converted and tracked (pipeline/frame_pipeline.h) when the scene
+// places tags and the sequence has intrinsics, and the pose error is measured when it has ground
+// truth. Every tracked frame goes to the lighting thread (pipeline/lighting_stage.h) unless
+// --no-lighting, and is composited (pipeline/runner.h) unless --no-composite. In real time
+// tracking runs on the pipeline thread and compositing on this one (pipeline/frame_loop.h).
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -136,43 +137,62 @@ int runPlay(const PlayOptions& options) {
     if (auto started = (*session)->start(); !started) return reportError(started.error());
     capture::StageTimings convert_only({"convert"});
     capture::StageTimings& timings = runner ? runner->timings() : convert_only;
-    capture::PixelConverter converter;
-    Image rgb;
     std::uint64_t undecodable = 0;
     std::optional<Error> failure;
     const std::int64_t start_ns = monotonicNowNs();
     Progress progress("play", recorded);
-    std::uint64_t handled = 0;
-    while (true) {
-        capture::NextFrame next = (*session)->next(stopToken(), timeout);
-        if (!next) {
-            if (next.error().code != ErrorCode::kCancelled) failure = next.error();
-            break;
+    // Every frame the session delivers counts for the progress bar (the pipeline thread's).
+    struct CountingSource final : pipeline::FrameSource {
+        pipeline::SessionSource session;
+        Progress* progress;
+        std::uint64_t handled = 0;
+        CountingSource(capture::CaptureSession& s, std::chrono::nanoseconds t, Progress& p) : session(s, t), progress(&p) {}
+        Result<std::optional<FrameHandle>> next(std::stop_token stop) override {
+            auto frame = session.next(stop);
+            if (frame && frame->has_value()) progress->update(++handled);
+            return frame;
         }
-        if (!next->has_value()) break;  // end of the recording
-        FrameHandle frame = std::move(**next);
-        progress.update(++handled);
-        if (frame->meta.status != FrameStatus::kOk) continue;  // counted by the session's stats
-        if (runner) {
-            auto tracked = runner->process(*frame);
-            if (!tracked && tracked.error().code == ErrorCode::kBadInput) {
-                ++undecodable;
-                log::warning("frame " + std::to_string(frame->meta.timestamp_ns) + ": " + tracked.error().message);
-            } else if (!tracked) {
-                failure = tracked.error();
-                break;
-            }
-            if (render::GlContext* gl = runner->glContext(); gl && gl->kind() == render::ContextKind::kWindow) {
+    } source(**session, timeout, progress);
+    if (runner) {
+        // Step 4: the pipeline (pipeline/frame_loop.h): in real time tracking runs on the pipeline
+        // thread while this thread composites; with --sync every stage in order.
+        pipeline::LoopCallbacks callbacks;
+        callbacks.on_bad_frame = [&undecodable](const Frame& frame, const Error& error) {
+            ++undecodable;
+            log::warning("frame " + std::to_string(frame.meta.timestamp_ns) + ": " + error.message);
+        };
+        render::GlContext* gl = runner->glContext();
+        if (gl && gl->kind() == render::ContextKind::kWindow) {
+            callbacks.on_frame = [gl](const pipeline::TrackedFrame&) {
                 gl->present();
                 gl->pollKeys();
-                if (gl->shouldClose()) break;
-            }
-            continue;
+                return !gl->shouldClose();
+            };
+            callbacks.on_idle = [gl](const pipeline::TrackedFrame*) {
+                gl->pollKeys();
+                return !gl->shouldClose();
+            };
         }
-        capture::StageTimer convert_timer(timings, timings.id("convert"));
-        if (auto converted = converter.convert(frame->image, PixelFormat::kRgb8, rgb); !converted) {
-            ++undecodable;
-            log::warning("frame " + std::to_string(frame->meta.timestamp_ns) + ": " + converted.error().message);
+        const pipeline::LoopStats loop = runner->run(source, callbacks, stopToken());
+        failure = loop.failure;
+    } else {
+        // Without tracking: capture and conversion only, on this thread.
+        capture::PixelConverter converter;
+        Image rgb;
+        while (true) {
+            auto next = source.next(stopToken());
+            if (!next) {
+                if (next.error().code != ErrorCode::kCancelled) failure = next.error();
+                break;
+            }
+            if (!next->has_value()) break;  // end of the recording
+            FrameHandle frame = std::move(**next);
+            if (frame->meta.status != FrameStatus::kOk) continue;  // counted by the session's stats
+            capture::StageTimer convert_timer(timings, timings.id("convert"));
+            if (auto converted = converter.convert(frame->image, PixelFormat::kRgb8, rgb); !converted) {
+                ++undecodable;
+                log::warning("frame " + std::to_string(frame->meta.timestamp_ns) + ": " + converted.error().message);
+            }
         }
     }
     const double seconds = static_cast<double>(monotonicNowNs() - start_ns) / 1e9;
@@ -182,7 +202,7 @@ int runPlay(const PlayOptions& options) {
     const capture::CaptureStats stats = (*session)->stats();
     const std::uint64_t corrupt = stats.drops.corrupt + undecodable;
 
-    // Step 4: report.
+    // Step 5: report.
     std::printf("played %llu of %zu frames in %.2f s (%llu corrupt)\n",
                 static_cast<unsigned long long>(stats.frames_delivered), recorded, seconds,
                 static_cast<unsigned long long>(corrupt));

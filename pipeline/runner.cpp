@@ -2,11 +2,23 @@
 
 #include <algorithm>
 #include <cmath>
+#include <thread>
 
 #include "core/clock.h"
 #include "core/log.h"
 
 namespace commonlight::pipeline {
+
+namespace {
+
+// Exposure (s) x analog gain of a frame; 1 for what the metadata does not say.
+double exposureGain(const FrameMetadata& meta) {
+    const double exposure_s = meta.exposure_us > 0.0 && std::isfinite(meta.exposure_us) ? meta.exposure_us * 1e-6 : 1.0;
+    const double gain = meta.analog_gain > 0.0 && std::isfinite(meta.analog_gain) ? meta.analog_gain : 1.0;
+    return exposure_s * gain;
+}
+
+}  // namespace
 
 FrameRunner::FrameRunner(const Scene& scene, const CameraModel& camera, const RunnerOptions& options)
     : scene_(scene),
@@ -56,6 +68,7 @@ double FrameRunner::sceneTime(std::int64_t timestamp_ns) {
 std::vector<std::optional<Rigid3d>> FrameRunner::virtualPoses(double t_s) const {
     std::vector<std::optional<Rigid3d>> poses;
     poses.reserve(scene_.virtual_objects.size());
+    std::lock_guard lock(offsets_mutex_);
     for (std::size_t i = 0; i < scene_.virtual_objects.size(); ++i) {
         std::optional<Rigid3d> pose = worldFromObject(scene_.virtual_objects[i], scene_.tags, t_s);
         if (pose) pose->translation += offsets_[i];
@@ -65,30 +78,180 @@ std::vector<std::optional<Rigid3d>> FrameRunner::virtualPoses(double t_s) const 
 }
 
 void FrameRunner::moveVirtualObject(std::size_t index, const Eigen::Vector3d& delta) {
+    std::lock_guard lock(offsets_mutex_);
     if (index < offsets_.size() && delta.allFinite()) offsets_[index] += delta;
 }
 
-Result<tracking::FrameTrack> FrameRunner::process(const Frame& frame) {
+LoopStats FrameRunner::run(FrameSource& source, const LoopCallbacks& callbacks, std::stop_token stop) {
+    LoopStats stats = options_.sync || !options_.pipeline_thread ? runInOrder(source, callbacks, stop)
+                                                                  : runPipelined(source, callbacks, stop);
+    loop_stats_ = stats;
+    return stats;
+}
+
+LoopStats FrameRunner::runInOrder(FrameSource& source, const LoopCallbacks& callbacks, std::stop_token stop) {
+    LoopStats stats;
+    while (true) {
+        // Step 1: the next frame.
+        Result<std::optional<FrameHandle>> next = source.next(stop);
+        if (!next) {
+            if (next.error().code != ErrorCode::kCancelled) stats.failure = next.error();
+            break;
+        }
+        if (!next->has_value()) break;
+        FrameHandle frame = std::move(**next);
+        if (frame->meta.status != FrameStatus::kOk) continue;  // counted by the source
+        // Step 2: track it (and, in sync mode, wait for its lighting update).
+        if (Result<void> tracked = track(*frame, sync_frame_); !tracked) {
+            if (tracked.error().code != ErrorCode::kBadInput) {
+                stats.failure = tracked.error();
+                break;
+            }
+            ++stats.bad_frames;
+            if (callbacks.on_bad_frame) callbacks.on_bad_frame(*frame, tracked.error());
+            continue;
+        }
+        ++stats.tracked;
+        if (callbacks.on_tracked) callbacks.on_tracked(sync_frame_);
+        frame.reset();  // the pool slot goes back to the camera
+        // Step 3: composite it.
+        if (Result<void> done = composite(sync_frame_); !done) {
+            stats.failure = done.error();
+            break;
+        }
+        ++stats.composited;
+        if (callbacks.on_frame && !callbacks.on_frame(sync_frame_)) {
+            stats.stopped = true;
+            break;
+        }
+    }
+    return stats;
+}
+
+LoopStats FrameRunner::runPipelined(FrameSource& source, const LoopCallbacks& callbacks, std::stop_token stop) {
+    TrackedFrameHandoff handoff;
+    // The pipeline thread's counts; read once it has been joined.
+    std::uint64_t tracked_count = 0, bad_count = 0;
+    std::jthread pipeline_thread([&](std::stop_token thread_stop) {
+        std::optional<Error> failure;
+        double track_ns = 0.0;  // the pipeline stage's time per frame, smoothed
+        while (true) {
+            // Step 1: take a camera frame just in time for the compositor (frame_loop.h).
+            if (!handoff.waitForDemand(static_cast<std::int64_t>(track_ns), thread_stop)) break;
+            Result<std::optional<FrameHandle>> next = source.next(thread_stop);
+            if (!next) {
+                if (next.error().code != ErrorCode::kCancelled) failure = next.error();
+                break;
+            }
+            if (!next->has_value()) break;
+            FrameHandle frame = std::move(**next);
+            if (frame->meta.status != FrameStatus::kOk) continue;
+            // Step 2: track it.
+            const std::int64_t started = monotonicNowNs();
+            TrackedFrame& out = handoff.writable();
+            if (Result<void> tracked = track(*frame, out); !tracked) {
+                if (tracked.error().code != ErrorCode::kBadInput) {
+                    failure = tracked.error();
+                    break;
+                }
+                ++bad_count;
+                if (callbacks.on_bad_frame) callbacks.on_bad_frame(*frame, tracked.error());
+                continue;
+            }
+            ++tracked_count;
+            if (callbacks.on_tracked) callbacks.on_tracked(out);
+            frame.reset();  // the pool slot goes back to the camera before the hand-over
+            // Step 3: hand it over (newest wins).
+            handoff.publish();
+            const double took = static_cast<double>(monotonicNowNs() - started);
+            track_ns = track_ns > 0.0 ? 0.8 * track_ns + 0.2 * took : took;
+        }
+        handoff.close(std::move(failure));
+    });
+    // Ctrl-C (or the caller's stop) stops the pipeline thread, which then closes the hand-over.
+    std::stop_callback forward(stop, [&pipeline_thread] { pipeline_thread.request_stop(); });
+
+    LoopStats stats;
+    const TrackedFrame* last = nullptr;
+    double busy_ns = 0.0;  // this thread's time per frame (composite and callbacks), smoothed
+    while (true) {
+        const TrackedFrame* frame = nullptr;
+        const TrackedFrameHandoff::Taken taken = handoff.take(callbacks.idle_period, frame, static_cast<std::int64_t>(busy_ns));
+        if (taken == TrackedFrameHandoff::Taken::kEnd) break;
+        if (taken == TrackedFrameHandoff::Taken::kTimeout) {
+            if (callbacks.on_idle && !callbacks.on_idle(last)) {
+                stats.stopped = true;
+                break;
+            }
+            continue;
+        }
+        const std::int64_t started = monotonicNowNs();
+        if (Result<void> done = composite(*frame); !done) {
+            stats.failure = done.error();
+            break;
+        }
+        ++stats.composited;
+        last = frame;
+        if (callbacks.on_frame && !callbacks.on_frame(*frame)) {
+            stats.stopped = true;
+            break;
+        }
+        const double took = static_cast<double>(monotonicNowNs() - started);
+        busy_ns = busy_ns > 0.0 ? 0.8 * busy_ns + 0.2 * took : took;
+    }
+    pipeline_thread.request_stop();
+    pipeline_thread.join();
+    stats.tracked = tracked_count;
+    stats.bad_frames = bad_count;
+    stats.replaced = handoff.replaced();
+    if (!stats.failure) stats.failure = handoff.error();
+    return stats;
+}
+
+Result<void> FrameRunner::track(const Frame& frame, TrackedFrame& out) {
     capture::StageTimer pipeline_timer(timings_, timings_.id("pipeline"));
+    // Step 1: grey conversion and tracking (stages convert and track).
     auto tracked = tracking_->process(frame);
     if (!tracked) {
         if (tracked.error().code == ErrorCode::kBadInput) ++bad_frames_;
-        return tracked;
+        return fail(tracked.error());
     }
-    const double t_s = sceneTime(frame.meta.timestamp_ns);
-    const std::vector<std::optional<Rigid3d>> poses = virtualPoses(t_s);
+    out.meta = frame.meta;
+    out.track = std::move(*tracked);
+    // Step 2: where the virtual objects are at the frame's time.
+    out.scene_time_s = sceneTime(frame.meta.timestamp_ns);
+    out.virtual_poses = virtualPoses(out.scene_time_s);
+    // The camera's frame period (frames dropped in between are counted by their sequence numbers).
+    if (last_frame_ns_ > 0 && frame.meta.timestamp_ns > last_frame_ns_) {
+        const double frames = frame.meta.sequence > last_sequence_ ? static_cast<double>(frame.meta.sequence - last_sequence_) : 1.0;
+        const double period = static_cast<double>(frame.meta.timestamp_ns - last_frame_ns_) / frames;
+        frame_period_ns_ = frame_period_ns_ > 0.0 ? 0.9 * frame_period_ns_ + 0.1 * period : period;
+    }
+    last_frame_ns_ = frame.meta.timestamp_ns;
+    last_sequence_ = frame.meta.sequence;
+    out.frame_period_ns = frame_period_ns_;
+    out.index = tracked_++;
+    // Step 3: the colour frame, for the lighting and the compositor.
     if (lighting_ || compositor_) {
-        CL_TRY_VOID(converter_.convert(frame.image, PixelFormat::kRgb8, rgb_));
+        CL_TRY_VOID(converter_.convert(frame.image, PixelFormat::kRgb8, out.rgb));
+    } else {
+        out.rgb = Image();
     }
+    // Step 4: the frame to the lighting thread (sync: its update is published before we go on).
     if (lighting_) {
         std::vector<Rigid3d> lighting_poses;
-        for (const auto& pose : poses) lighting_poses.push_back(pose.value_or(Rigid3d::identity()));
+        lighting_poses.reserve(out.virtual_poses.size());
+        for (const auto& pose : out.virtual_poses) lighting_poses.push_back(pose.value_or(Rigid3d::identity()));
         capture::StageTimer lighting_timer(timings_, timings_.id("lighting"));
-        CL_TRY_VOID(lighting_->process(rgb_.view(), frame.meta, tracked->cam_from_world, lighting_poses));
+        CL_TRY_VOID(lighting_->process(out.rgb.view(), frame.meta, out.track.cam_from_world, lighting_poses));
     }
-    if (compositor_) CL_TRY_VOID(compositeFrame(frame, tracked->cam_from_world, poses));
-    ++processed_;
-    return tracked;
+    return {};
+}
+
+Result<tracking::FrameTrack> FrameRunner::process(const Frame& frame) {
+    CL_TRY_VOID(track(frame, sync_frame_));
+    CL_TRY_VOID(composite(sync_frame_));
+    return sync_frame_.track;
 }
 
 void FrameRunner::setLightingShown(bool shown) {
@@ -98,36 +261,54 @@ void FrameRunner::setLightingShown(bool shown) {
     compositor_->setOptions(o);
 }
 
-Result<void> FrameRunner::compositeFrame(const Frame& frame, const std::optional<Rigid3d>& cam_from_world,
-                                         const std::vector<std::optional<Rigid3d>>& poses) {
-    std::optional<capture::StageTimer> timer;
-    timer.emplace(timings_, timings_.id("composite"));
+Result<void> FrameRunner::draw(const TrackedFrame& frame, const std::vector<std::optional<Rigid3d>>& poses,
+                               lighting::SnapshotPtr* used) {
     // The newest snapshot: in sync mode the one of this very frame; in real time whatever the
     // lighting thread has published (its lag is measured).
     static const lighting::LightingSnapshot kNothing{};
     const lighting::SnapshotPtr snapshot = lighting_ ? lighting_->latest() : nullptr;
-    const lighting::LightingSnapshot& use = snapshot ? *snapshot : kNothing;
-    if (snapshot && snapshot->version > 0) {
-        const double lag_ms = static_cast<double>(frame.meta.timestamp_ns - snapshot->frame_timestamp_ns) / 1e6;
-        lag_ms_.add(lag_ms);
-        if (last_frame_ns_ > 0 && frame.meta.timestamp_ns > last_frame_ns_) {
-            const double period = static_cast<double>(frame.meta.timestamp_ns - last_frame_ns_);
-            frame_period_ns_ = frame_period_ns_ > 0.0 ? 0.9 * frame_period_ns_ + 0.1 * period : period;
-        }
-        if (frame_period_ns_ > 0.0) lag_frames_.add(lag_ms * 1e6 / frame_period_ns_);
-    }
-    last_frame_ns_ = frame.meta.timestamp_ns;
     render::FrameInput input;
-    input.image = rgb_.view();
-    const double exposure_s = frame.meta.exposure_us > 0.0 && std::isfinite(frame.meta.exposure_us) ? frame.meta.exposure_us * 1e-6 : 1.0;
-    const double gain = frame.meta.analog_gain > 0.0 && std::isfinite(frame.meta.analog_gain) ? frame.meta.analog_gain : 1.0;
-    input.exposure_gain = exposure_s * gain;
-    input.cam_from_world = cam_from_world;
+    input.image = frame.rgb.view();
+    input.exposure_gain = exposureGain(frame.meta);
+    input.cam_from_world = frame.track.cam_from_world;
     input.virtual_poses = poses;
-    CL_TRY_VOID(compositor_->draw(input, use));
+    CL_TRY_VOID(compositor_->draw(input, snapshot ? *snapshot : kNothing));
     CL_TRY(composite_, compositor_->read());
+    if (used) *used = snapshot;
+    return {};
+}
+
+Result<void> FrameRunner::redraw(const TrackedFrame& frame) {
+    if (!compositor_ || frame.rgb.view().empty()) return {};
+    return draw(frame, virtualPoses(frame.scene_time_s), nullptr);
+}
+
+Result<void> FrameRunner::composite(const TrackedFrame& frame) {
+    if (!compositor_) {
+        ++processed_;
+        return {};
+    }
+    std::optional<capture::StageTimer> timer;
+    timer.emplace(timings_, timings_.id("composite"));
+    lighting::SnapshotPtr snapshot;
+    CL_TRY_VOID(draw(frame, frame.virtual_poses, &snapshot));
     timer.reset();  // outputs and ground truth are not the compositor's time
-    if (frame.meta.arrival_ns > 0) latency_ms_.add(static_cast<double>(monotonicNowNs() - frame.meta.arrival_ns) / 1e6);
+    last_composite_ = CompositeInfo{};
+    if (frame.meta.arrival_ns > 0) {
+        last_composite_.latency_ms = static_cast<double>(monotonicNowNs() - frame.meta.arrival_ns) / 1e6;
+        latency_ms_.add(last_composite_.latency_ms);
+    }
+    if (snapshot && snapshot->version > 0) {
+        last_composite_.lighting_version = snapshot->version;
+        const double lag_ms = static_cast<double>(frame.meta.timestamp_ns - snapshot->frame_timestamp_ns) / 1e6;
+        last_composite_.lighting_lag_ms = lag_ms;
+        lag_ms_.add(lag_ms);
+        if (frame.frame_period_ns > 0.0) {
+            last_composite_.lighting_lag_frames = lag_ms * 1e6 / frame.frame_period_ns;
+            lag_frames_.add(*last_composite_.lighting_lag_frames);
+        }
+    }
+    ++processed_;
 
     // Outputs and the error against ground truth.
     std::string stem = std::to_string(frame.meta.timestamp_ns);
@@ -141,11 +322,11 @@ Result<void> FrameRunner::compositeFrame(const Frame& frame, const std::optional
     if (options_.sequence) {
         CL_TRY(truth, readFrameTruth(*options_.sequence, frame.meta.timestamp_ns));
         if (truth) composite_errors_.add(composite_.view(), truth->composite.view(), truth->changed.view(), options_.response,
-                                         input.exposure_gain);
+                                         exposureGain(frame.meta));
     }
-    if (!options_.side_by_side.empty() && !side_by_side_done_ && processed_ >= options_.side_by_side_frame) {
+    if (!options_.side_by_side.empty() && !side_by_side_done_ && frame.index >= options_.side_by_side_frame) {
         const ImageView truth_view = truth ? truth->composite.view() : ImageView{};
-        CL_TRY_VOID(writeSideBySide(options_.side_by_side, rgb_.view(), composite_.view(), truth ? &truth_view : nullptr));
+        CL_TRY_VOID(writeSideBySide(options_.side_by_side, frame.rgb.view(), composite_.view(), truth ? &truth_view : nullptr));
         side_by_side_done_ = true;
     }
     return {};
@@ -169,6 +350,12 @@ nlohmann::json FrameRunner::metricsJson() const {
     if (compositor_) {
         nlohmann::json c;
         c["frames"] = processed_;
+        // Real time: frames tracked while the compositor was busy, replaced by newer ones before it
+        // took them (newest wins between the pipeline thread and the main thread).
+        c["threads"] = options_.sync              ? "in order (sync)"
+                       : options_.pipeline_thread ? "pipeline thread + main thread"
+                                                  : "one thread";
+        if (loop_stats_) c["replaced"] = loop_stats_->replaced;
         c["msaa_samples"] = compositor_->options().msaa_samples;
         c["renderer"] = context_->renderer();
         if (lag_ms_.count() > 0) {

@@ -2,16 +2,26 @@
 // thread and the compositor, their stage timings, the metrics JSON (docs/cli.md) and the
 // comparison with ground truth.
 //
-// Threads: the capture session's camera thread delivers frames; the caller's thread (the main
-// thread, which owns GL) runs process() for each one: convert, track, hand the frame to the
-// lighting thread, composite with the newest lighting snapshot. With `sync`, the lighting update
-// of a frame finishes before that frame is composited, so the output is deterministic; without
-// it the newest snapshot is used as it is (the lighting lags as in live use, and the metrics say
-// by how much).
+// Threads (pipeline/frame_loop.h): run() takes frames from a FrameSource. In real time it starts
+// the pipeline thread, which runs track() (conversion, tracking, the virtual objects' poses, the
+// hand-over to the lighting thread) for each frame, while the caller's thread (the main thread,
+// which owns GL) runs composite() on the newest tracked frame: tracking frame n+1 overlaps
+// compositing frame n. With `sync` both run on the caller's thread, one frame after the other, and
+// the lighting update of a frame finishes before that frame is composited, so the output is
+// deterministic; without it the newest snapshot is used as it is (the lighting lags as in live
+// use, and the metrics say by how much).
+//
+// Which thread may call what: track(), restart() and sceneTime(): the pipeline thread (inside
+// run(): from the source and the callbacks that run there). composite(), redraw(),
+// setLightingShown(), compositor(), glContext(), compositeImage() and lastComposite(): the thread
+// that created the runner (it owns GL). moveVirtualObject(), virtualPoses(), timings(): any thread.
+// metricsJson(), summary(), tracking(), lighting() statistics: once run() returned.
 #pragma once
 
 #include <cstdint>
 #include <memory>
+#include <mutex>
+#include <stop_token>
 #include <optional>
 #include <string>
 #include <vector>
@@ -26,6 +36,7 @@
 #include "core/scene.h"
 #include "core/sequence_io.h"
 #include "pipeline/composite_output.h"
+#include "pipeline/frame_loop.h"
 #include "pipeline/frame_pipeline.h"
 #include "pipeline/lighting_stage.h"
 #include "render/compositor.h"
@@ -36,6 +47,9 @@ namespace commonlight::pipeline {
 
 struct RunnerOptions {
     bool sync = false;      // every stage waits for the one before it (deterministic output)
+    // Real time: tracking on the pipeline thread, compositing on the caller's (false: both on the
+    // caller's thread, one after the other; for comparison in `bench pipeline`).
+    bool pipeline_thread = true;
     bool lighting = true;   // run the lighting thread (needs real proxies in the scene)
     tracking::TrackerOptions tracker;
     const GroundTruth* ground_truth = nullptr;  // pose truth (by timestamp or by pixels)
@@ -63,12 +77,37 @@ public:
     FrameRunner(const FrameRunner&) = delete;
     FrameRunner& operator=(const FrameRunner&) = delete;
 
-    // One frame whose status is ok. A frame that cannot be converted is kBadInput (counted: the
-    // caller warns and goes on); any other error ends the run.
+    // Every frame of `source` through the pipeline until the source ends, fails, a callback says
+    // stop or `stop` is requested: real time with the pipeline thread, or in order with `sync`
+    // (see above). Frames whose status is not ok are skipped.
+    LoopStats run(FrameSource& source, const LoopCallbacks& callbacks, std::stop_token stop);
+
+    // The pipeline stage of one frame whose status is ok: conversion, tracking, the virtual
+    // objects' poses at the frame's time, the frame to the lighting thread (in sync mode its
+    // update finishes first). The result goes into `out` (its buffers are reused). A frame that
+    // cannot be converted is kBadInput (counted: the caller warns and goes on); any other error
+    // ends the run.
+    Result<void> track(const Frame& frame, TrackedFrame& out);
+    // The main thread's stage: composites `frame` with the newest lighting snapshot, writes the
+    // outputs, measures against ground truth (nothing without a compositor but the count).
+    Result<void> composite(const TrackedFrame& frame);
+    // Draws `frame` again with the virtual objects where they are now (moved while paused or while
+    // the camera is lost), into the window and composite(); no outputs, no metrics.
+    Result<void> redraw(const TrackedFrame& frame);
+    // track() then composite() on the caller's thread.
     Result<tracking::FrameTrack> process(const Frame& frame);
 
+    // The figures of the last composite (main thread), for the window's overlay.
+    struct CompositeInfo {
+        double latency_ms = 0.0;                       // frame arrival to composite ready
+        std::uint64_t lighting_version = 0;            // the snapshot drawn with (0: none yet)
+        std::optional<double> lighting_lag_ms;         // the frame's timestamp minus the snapshot's
+        std::optional<double> lighting_lag_frames;
+    };
+    const CompositeInfo& lastComposite() const noexcept { return last_composite_; }
+
     // The newest composite (RGB8), when compositing; empty before the first frame.
-    const Image& composite() const noexcept { return composite_; }
+    const Image& compositeImage() const noexcept { return composite_; }
     render::Compositor* compositor() noexcept { return compositor_.get(); }
     render::GlContext* glContext() noexcept { return context_.get(); }
     // Lighting on or off at run time (live: key l): off draws no modulation and no lighting
@@ -111,9 +150,10 @@ private:
     std::optional<FramePipeline> tracking_;
     std::unique_ptr<LightingStage> lighting_;
     capture::PixelConverter converter_;
-    Image rgb_;
+    TrackedFrame sync_frame_;  // process()'s frame
     std::optional<std::int64_t> first_timestamp_;
-    std::vector<Eigen::Vector3d> offsets_;  // per virtual object, world metres
+    mutable std::mutex offsets_mutex_;
+    std::vector<Eigen::Vector3d> offsets_;  // per virtual object, world metres; guarded by offsets_mutex_
     std::unique_ptr<render::GlContext> context_;
     std::unique_ptr<render::Compositor> compositor_;
     std::unique_ptr<CompositeWriter> writer_;
@@ -122,13 +162,20 @@ private:
     capture::SampleReservoir lag_ms_;       // frame timestamp minus the snapshot's, per composite
     capture::SampleReservoir lag_frames_;
     capture::SampleReservoir latency_ms_;   // frame arrival to composite ready
-    std::uint64_t processed_ = 0;
-    std::int64_t last_frame_ns_ = 0;
+    CompositeInfo last_composite_;
+    std::uint64_t processed_ = 0;  // frames composited (main thread)
+    std::uint64_t tracked_ = 0;    // frames tracked (pipeline thread)
+    std::int64_t last_frame_ns_ = 0;  // the last tracked frame's timestamp and sequence number
+    std::uint64_t last_sequence_ = 0;
     double frame_period_ns_ = 0.0;
     bool side_by_side_done_ = false;
-    Result<void> compositeFrame(const Frame& frame, const std::optional<Rigid3d>& cam_from_world,
-                                const std::vector<std::optional<Rigid3d>>& poses);
+    std::optional<LoopStats> loop_stats_;  // the last run()'s
     std::uint64_t bad_frames_ = 0;
+
+    LoopStats runInOrder(FrameSource& source, const LoopCallbacks& callbacks, std::stop_token stop);
+    LoopStats runPipelined(FrameSource& source, const LoopCallbacks& callbacks, std::stop_token stop);
+    Result<void> draw(const TrackedFrame& frame, const std::vector<std::optional<Rigid3d>>& poses,
+                      lighting::SnapshotPtr* used);
 };
 
 }  // namespace commonlight::pipeline

@@ -21,6 +21,7 @@ const char* debugViewName(DebugView view) {
         case DebugView::kProxyWireframe: return "proxies (wireframe)";
         case DebugView::kElements: return "elements (radiosity of the real scene)";
         case DebugView::kRatio: return "ratio B/B~";
+        case DebugView::kTags: return "tag detections";
     }
     return "?";
 }
@@ -30,7 +31,8 @@ DebugView nextDebugView(DebugView view) {
         case DebugView::kNone: return DebugView::kProxyWireframe;
         case DebugView::kProxyWireframe: return DebugView::kElements;
         case DebugView::kElements: return DebugView::kRatio;
-        case DebugView::kRatio: return DebugView::kNone;
+        case DebugView::kRatio: return DebugView::kTags;
+        case DebugView::kTags: return DebugView::kNone;
     }
     return DebugView::kNone;
 }

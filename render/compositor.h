@@ -36,6 +36,7 @@ enum class DebugView {
     kProxyWireframe,  // the proxies' edges over the frame
     kElements,        // real faces show the model's radiance of the real scene alone (B~), element outlines
     kRatio,           // the modulation M as grey (0.5 = ratio 1), the frame elsewhere
+    kTags,            // the composite; the window's overlay draws the tag detections (render/overlay.h)
 };
 const char* debugViewName(DebugView view);
 DebugView nextDebugView(DebugView view);

@@ -5,7 +5,8 @@ SRC=${COMMONLIGHT_SOURCE_DIR:?set by CTest}
 SAMPLE="$SRC/data/sample"
 TMP=$(mktemp -d /tmp/commonlight-e2e-XXXXXX)
 SERVER_PID=  # a background server a test started (start_serve_gige); killed on exit
-trap '[[ -n $SERVER_PID ]] && kill -9 "$SERVER_PID" 2>/dev/null; [[ -n ${KEEP_TMP:-} ]] || rm -rf "$TMP"' EXIT
+BG_PIDS=()   # other background processes a test started (live in a window); killed on exit
+trap '[[ -n $SERVER_PID ]] && kill -9 "$SERVER_PID" 2>/dev/null; for p in "${BG_PIDS[@]}"; do kill -9 "$p" 2>/dev/null || true; done; [[ -n ${KEEP_TMP:-} ]] || rm -rf "$TMP"' EXIT
 
 fail() { echo "FAIL: $*" >&2; exit 1; }
 skip() { echo "SKIP: $*" >&2; exit 77; }
@@ -77,4 +78,44 @@ start_serve_gige() {
         sleep 0.05
     done
     fail "serve-gige did not start: $*"
+}
+
+# find_window PID: prints the id of the window of process PID titled commonlight..., waiting up to
+# 30 s. By PID, never by title alone: other GL tests may have windows on the same display.
+find_window() {
+    local wid
+    for _ in $(seq 1 150); do
+        wid=$(xdotool search --all --pid "$1" --name '^commonlight' 2>/dev/null | head -1 || true)
+        [[ -n $wid ]] && { echo "$wid"; return 0; }
+        kill -0 "$1" 2>/dev/null || return 1
+        sleep 0.2
+    done
+    return 1
+}
+
+# wait_for_log TEXT FILE [SECONDS]: waits until FILE contains TEXT (fixed string; default 90 s).
+wait_for_log() {
+    local limit=${3:-90}
+    for _ in $(seq 1 $((limit * 10))); do
+        grep -qF -- "$1" "$2" 2>/dev/null && return 0
+        sleep 0.1
+    done
+    echo "--- $2"; cat "$2"
+    fail "waited $limit s for '$1' in $2"
+}
+
+# count_of NAME COUNTS: the count named NAME in pngcheck.py's output COUNTS.
+count_of() { awk -v n="$1" '$1 == n {print $2}' <<<"$2"; }
+
+# wait_for_title WID PATTERN [SECONDS]: waits until window WID's title contains PATTERN (a bash
+# glob; default 90 s). live's title says "| tracked |" once a tracked frame has been composited
+# and shown, and "lighting v1" (and on) once it was drawn with a lighting snapshot.
+wait_for_title() {
+    local limit=${3:-90}
+    for _ in $(seq 1 $((limit * 10))); do
+        # shellcheck disable=SC2053
+        [[ $(xdotool getwindowname "$1" 2>/dev/null || true) == *$2* ]] && return 0
+        sleep 0.1
+    done
+    fail "waited $limit s for '$2' in the title of window $1 ($(xdotool getwindowname "$1" 2>/dev/null || true))"
 }

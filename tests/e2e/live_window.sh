@@ -1,70 +1,61 @@
 #!/usr/bin/env bash
-# live in a window (under Xvfb): keys sent with xdotool (d: a debug view and back, tab and the
-# arrow keys: the selected virtual object moves, s: a screenshot), the screenshot read from the
-# window shows the virtual objects; no display: exit 4.
+# live in a window (under Xvfb) on a replay: camera: keys sent with xdotool, screenshots read back
+# from the window (key s) and checked: the composite shows the virtual objects, the overlay shows
+# its panel of figures and the REC mark (recording from the start with --record), the tag
+# detections view (d pressed four times) draws the tags' outlines, r stops the recording and
+# starts a new one beside it, tab and the arrow keys move the selected virtual object.
 source "$(dirname "$0")/lib.sh"
 [[ -n "${DISPLAY:-}" ]] || { echo "skipped: no DISPLAY (run under xvfb-run)"; exit 77; }
 command -v xdotool >/dev/null || { echo "skipped: xdotool is not installed"; exit 77; }
+PNGCHECK="$(dirname "$0")/pngcheck.py"
 
 "$COMMONLIGHT" live --camera "replay:$SAMPLE?loop=1&speed=0.5" --scene "$SAMPLE/scene.yaml" --ground-truth "$SAMPLE" \
-    --no-lighting --settle 0 --frames 120 --screenshots "$TMP" --out "$TMP/out" >"$TMP/live.out" 2>"$TMP/live.err" &
+    --no-lighting --settle 0 --frames 120 --screenshots "$TMP" --out "$TMP/out" --record "$TMP/rec" \
+    >"$TMP/live.out" 2>"$TMP/live.err" &
 pid=$!
-wid=""
-for _ in $(seq 1 100); do
-    # This process's window (other GL tests may have windows of their own on the same display).
-    wid=$(xdotool search --all --pid "$pid" --name '^commonlight' 2>/dev/null | head -1 || true)
-    [[ -n "$wid" ]] && break
-    sleep 0.2
-done
-[[ -n "$wid" ]] || { kill "$pid" 2>/dev/null; cat "$TMP/live.err"; fail "no commonlight window appeared"; }
+BG_PIDS+=("$pid")
+wid=$(find_window "$pid") || { kill "$pid" 2>/dev/null; cat "$TMP/live.err"; fail "no commonlight window appeared"; }
+sleep 1
+# Each key is handled at the next frame (or within 0.1 s without one); a screenshot is what the
+# window shows then: wait for each one before the next keys.
+xdotool key --window "$wid" s
+wait_for_log "screenshot: $TMP/screenshot-0.png" "$TMP/live.err"
+xdotool key --window "$wid" Tab Right Right Right Up d
+wait_for_log "view: proxies (wireframe)" "$TMP/live.err"
+xdotool key --window "$wid" d d d
+wait_for_log "view: tag detections" "$TMP/live.err"
 sleep 1
 xdotool key --window "$wid" s
-sleep 0.5
-xdotool key --window "$wid" Tab Right Right Right Up d
-sleep 0.5
-xdotool key --window "$wid" d d d
-sleep 0.5
+wait_for_log "screenshot: $TMP/screenshot-1.png" "$TMP/live.err"
+xdotool key --window "$wid" r
+wait_for_log "recording stopped: " "$TMP/live.err"
+xdotool key --window "$wid" r
+wait_for_log "recording to $TMP/rec-2" "$TMP/live.err"
 wait "$pid" || { cat "$TMP/live.err"; fail "live exited with $?"; }
-expect_text "screenshot: " "$TMP/live.err"
 expect_text "selected: " "$TMP/live.err"
-expect_text "view: proxies (wireframe)" "$TMP/live.err"
-[[ -s "$TMP/screenshot-0.png" ]] || fail "no screenshot written"
-# The screenshot shows the virtual objects: the composite differs from the recorded frame, and
-# saturated green pixels of the green cube are there.
-python3 - "$TMP/screenshot-0.png" <<'PY'
-import sys, zlib, struct
-data = open(sys.argv[1], "rb").read()
-assert data[:8] == b"\x89PNG\r\n\x1a\n"
-pos, idat, w = 8, b"", 0
-while pos < len(data):
-    n, kind = struct.unpack(">I4s", data[pos:pos + 8])
-    body = data[pos + 8:pos + 8 + n]
-    if kind == b"IHDR":
-        w, h, depth, colour = struct.unpack(">IIBB", body[:10])
-        assert depth == 8 and colour == 2, (depth, colour)
-    if kind == b"IDAT":
-        idat += body
-    pos += 12 + n
-raw = zlib.decompress(idat)
-stride = 3 * w
-rows, prev = [], bytearray(stride)
-for y in range(h):
-    f, line = raw[y * (stride + 1)], bytearray(raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)])
-    for i in range(stride):
-        a = line[i - 3] if i >= 3 else 0
-        b = prev[i]
-        c = prev[i - 3] if i >= 3 else 0
-        if f == 1: line[i] = (line[i] + a) & 255
-        elif f == 2: line[i] = (line[i] + b) & 255
-        elif f == 3: line[i] = (line[i] + (a + b) // 2) & 255
-        elif f == 4:
-            p = a + b - c
-            pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
-            line[i] = (line[i] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
-    rows.append(line)
-    prev = line
-green = sum(1 for line in rows for x in range(w) if line[3 * x + 1] > line[3 * x] + 25 and line[3 * x + 1] > line[3 * x + 2] + 25)
-assert green > 200, green
-print("green pixels of the virtual cube in the screenshot:", green)
-PY
+
+# screenshot-0: the composite view. The green virtual cube is there; the overlay's panel (white
+# text, top left) and the REC mark (a red dot, top right); no bright green tag outlines.
+counts=$(python3 "$PNGCHECK" "$TMP/screenshot-0.png" \
+    "cube=0,0,640,480,g > r + 25 and g > b + 25 and g < 200" "panel=0,0,320,120,r > 230 and g > 230 and b > 230" \
+    "rec=-200,0,-1,40,r > 180 and g < 60 and b < 60" "outline=0,0,640,480,g > 200 and r < 120 and b < 140")
+cube=$(count_of cube "$counts"); panel=$(count_of panel "$counts"); rec=$(count_of rec "$counts"); outline=$(count_of outline "$counts")
+echo "screenshot-0: cube $cube, panel text $panel, REC $rec, tag outline $outline pixels"
+(( cube > 200 )) || fail "the virtual cube is not in the window ($cube green pixels)"
+(( panel > 300 )) || fail "no overlay panel in the window ($panel white pixels top left)"
+(( rec > 30 )) || fail "no REC mark in the window ($rec red pixels top right)"
+(( outline < 100 )) || fail "tag outlines in the composite view ($outline)"
+# screenshot-1: the tag detections view: the four tags' outlines.
+outline1=$(count_of outline "$(python3 "$PNGCHECK" "$TMP/screenshot-1.png" "outline=0,0,640,480,g > 200 and r < 120 and b < 140")")
+echo "screenshot-1: tag outline $outline1 pixels"
+(( outline1 > 400 )) || fail "the tag detections view shows no tags ($outline1 outline pixels)"
+
+# Both recordings are sequences; together they hold at most the frames live took.
+for seq in "$TMP/rec" "$TMP/rec-2"; do
+    [[ -f "$seq/cam0/data.csv" ]] || fail "no recording in $seq"
+    (( $(rows "$seq/cam0/data.csv") > 0 )) || fail "$seq holds no frame"
+done
+taken=$(json_get "$TMP/out/metrics.json" frames)
+(( $(rows "$TMP/rec/cam0/data.csv") + $(rows "$TMP/rec-2/cam0/data.csv") <= taken )) || fail "more frames recorded than taken"
+expect_text "recorded " "$TMP/live.out"
 echo PASS
