@@ -94,11 +94,6 @@ int runLive(const LiveOptions& options) {
         intrinsics = *c;
     } else if (scene->camera) {
         intrinsics = scene->camera;
-    } else if (truth_sequence && truth_sequence->sensor.camera) {
-        intrinsics = truth_sequence->sensor.camera;  // the served recording's camera
-    }
-    if (!intrinsics) {
-        return reportError(Error{ErrorCode::kUsage, "no camera calibration: give --calib (or a scene with camera:)"});
     }
     std::unique_ptr<std::FILE, int (*)(std::FILE*)> poses(nullptr, &std::fclose);
     if (!options.out.empty()) {
@@ -124,6 +119,14 @@ int runLive(const LiveOptions& options) {
     auto camera = pipeline::CameraSource::open(registry, camera_options);
     if (!camera) return reportError(camera.error());
     const hal::StreamFormat format = (*camera)->format();
+    // Without --calib or the scene's camera: what the camera source knows (a recording's
+    // sensor.yaml, the simulated lens), else the ground-truth recording's (a served recording).
+    if (!intrinsics) intrinsics = (*camera)->calibration();
+    if (!intrinsics && truth_sequence && truth_sequence->sensor.camera) intrinsics = truth_sequence->sensor.camera;
+    if (!intrinsics) {
+        return reportError(Error{ErrorCode::kUsage, options.camera + " does not report its calibration: give --calib "
+                                                                     "(or a scene with camera:)"});
+    }
     if (format.width != intrinsics->width || format.height != intrinsics->height) {
         return reportError(Error{ErrorCode::kUsage, options.camera + " streams " + hal::describe(format) +
                                                         " but the calibration is " + std::to_string(intrinsics->width) +

@@ -14,9 +14,11 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "core/camera_model.h"
 #include "core/frame.h"
 #include "core/image.h"
 #include "core/result.h"
@@ -131,6 +133,11 @@ public:
     // webcam's ISP applies.
     std::string responseSpec() const { return doResponseSpec(); }
 
+    // The camera's intrinsics and lens distortion when the source knows them (replay: the
+    // recording's sensor.yaml; sim: the simulated lens), so `live` needs no --calib for them.
+    // Hardware backends do not know their lens: nullopt.
+    std::optional<CameraModel> calibration() const { return doCalibration(); }
+
     // Frames the backend had to discard because no pool slot was free (lost in our pipeline,
     // not at the device).
     std::uint64_t framesWithoutSlot() const noexcept { return frames_without_slot_.load(std::memory_order_relaxed); }
@@ -152,6 +159,7 @@ private:
     virtual Result<double> doGetControl(Control control) const;
     virtual Result<void> doTrigger();
     virtual std::string doResponseSpec() const { return "srgb"; }
+    virtual std::optional<CameraModel> doCalibration() const { return std::nullopt; }
 
     std::string id_;
     State state_ = State::kOpened;

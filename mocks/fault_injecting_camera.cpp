@@ -188,4 +188,9 @@ std::string FaultInjectingCamera::doResponseSpec() const {
     return inner_->responseSpec();
 }
 
+std::optional<CameraModel> FaultInjectingCamera::doCalibration() const {
+    const std::lock_guard lock(inner_mutex_);
+    return inner_->calibration();
+}
+
 }  // namespace commonlight::mocks

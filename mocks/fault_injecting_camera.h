@@ -71,6 +71,7 @@ private:
     Result<double> doGetControl(hal::Control control) const override;
     Result<void> doTrigger() override;
     std::string doResponseSpec() const override;
+    std::optional<CameraModel> doCalibration() const override;
 
     // FrameAllocator for the wrapped camera: our own allocator's slots (counted by our
     // framesWithoutSlot()), none at all once disconnected. Wrapped camera's thread.

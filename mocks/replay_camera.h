@@ -55,6 +55,8 @@ private:
     std::vector<hal::StreamFormat> doFormats() const override { return {format_}; }
     // The recording's sensor.yaml `response`: relative files are made absolute (against cam0/).
     std::string doResponseSpec() const override;
+    // sensor.yaml's intrinsics and distortion, when it has them.
+    std::optional<CameraModel> doCalibration() const override { return sequence_.sensor.camera; }
     Result<hal::StreamFormat> doConfigure(const hal::StreamConfig& config) override;
     Result<void> doSetControl(hal::Control control, double value) override;
 

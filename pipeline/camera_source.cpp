@@ -69,6 +69,7 @@ Result<std::unique_ptr<CameraSource>> CameraSource::open(const hal::CameraRegist
     CL_TRY(source->session_, connect(registry, options.uri));
     source->format_ = source->session_->camera().activeFormat();
     source->response_spec_ = source->session_->camera().responseSpec();
+    source->calibration_ = source->session_->camera().calibration();
     return source;
 }
 

@@ -79,6 +79,8 @@ public:
     // The first connection's format and response (for the calibration check and the lighting).
     const hal::StreamFormat& format() const noexcept { return format_; }
     const std::string& responseSpec() const noexcept { return response_spec_; }
+    // The first connection's intrinsics, when the camera knows them (hal::Camera::calibration).
+    const std::optional<CameraModel>& calibration() const noexcept { return calibration_; }
 
     // Any thread. Starts recording every frame taken into a new sequence `folder` (its
     // sensor.yaml from `sensor`); errors name the folder (it exists, cannot be written). kUsage
@@ -104,6 +106,7 @@ private:
     capture::PhotometryLock photometry_;
     hal::StreamFormat format_;
     std::string response_spec_;
+    std::optional<CameraModel> calibration_;
     std::function<Result<void>()> on_reconnect_;
     CameraTotals totals_;  // the pipeline thread's (and finish's)
 

@@ -52,6 +52,7 @@ private:
     Result<void> doSetControl(hal::Control control, double value) override;
     Result<double> doGetControl(hal::Control control) const override;
     std::string doResponseSpec() const override;
+    std::optional<CameraModel> doCalibration() const override { return camera_; }
     std::shared_ptr<const SensorModel> currentSensor() const;
     void run(std::stop_token stop) override;  // the camera thread
 

@@ -56,7 +56,12 @@ expect_exit 4 "$COMMONLIGHT" live --camera "replay:$SAMPLE?fault_disconnect_afte
     --ground-truth "$SAMPLE" --headless --no-reconnect
 expect_text "device disconnected" "$TMP/err"
 
-# 5. Errors: a window without a display (device, naming DISPLAY and --headless), a missing scene (bad input), a bad URI option (usage).
+# 5. Without --calib (and without --ground-truth) a recording's own sensor.yaml gives the intrinsics.
+expect_exit 0 "$COMMONLIGHT" live --camera "replay:$SAMPLE?rate=max" --scene "$SAMPLE/scene.yaml" --headless --frames 5 \
+    --no-lighting --settle 0
+expect_text "live: replay:" "$TMP/out"
+
+# 6. Errors: a window without a display (device, naming DISPLAY and --headless), a missing scene (bad input), a bad URI option (usage).
 expect_exit 4 env -u DISPLAY -u WAYLAND_DISPLAY "$COMMONLIGHT" live --camera "replay:$SAMPLE" --scene "$SAMPLE/scene.yaml" \
     --ground-truth "$SAMPLE"
 expect_text "DISPLAY" "$TMP/err"

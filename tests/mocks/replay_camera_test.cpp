@@ -229,3 +229,52 @@ TEST(ReplayResponse, ReportsTheSequencesResponse) {
 
 }  // namespace
 }  // namespace commonlight::mocks
+
+namespace commonlight::mocks {
+namespace {
+
+// The recording's sensor.yaml intrinsics travel with the camera (live needs no --calib for a
+// recording); a recording without them reports none.
+TEST(ReplayCalibration, ReportsTheSequencesIntrinsics) {
+    ManualClock clock;
+    {
+        testing::TempDir dir;
+        writeTestSequence(dir.path(), PixelFormat::kGray8, 2, kInterval);
+        auto camera = openReplay(dir.path(), rate(PlaybackRate::kMax), clock);
+        ASSERT_TRUE(camera);
+        EXPECT_FALSE(camera->calibration().has_value());
+    }
+    testing::TempDir dir;
+    CameraModel model;
+    model.width = 32;
+    model.height = 24;
+    model.fx = 40.0;
+    model.fy = 41.0;
+    model.cx = 15.5;
+    model.cy = 11.25;
+    model.distortion.k1 = -0.1;
+    SensorInfo sensor;
+    sensor.rate_hz = 30.0;
+    sensor.camera = model;
+    {
+        auto writer = SequenceWriter::create(dir.path(), sensor, SequenceWriterOptions{.sync = false});
+        ASSERT_TRUE(writer) << writer.error().message;
+        FrameMetadata meta;
+        meta.timestamp_ns = 1'000'000'000;
+        ASSERT_TRUE(writer->write(testing::patternImage(PixelFormat::kGray8, 32, 24, 0), meta));
+    }
+    auto camera = openReplay(dir.path(), rate(PlaybackRate::kMax), clock);
+    ASSERT_TRUE(camera);
+    ASSERT_TRUE(camera->calibration().has_value());
+    const CameraModel got = *camera->calibration();
+    EXPECT_EQ(got.width, 32);
+    EXPECT_EQ(got.height, 24);
+    EXPECT_NEAR(got.fx, 40.0, 1e-9);
+    EXPECT_NEAR(got.fy, 41.0, 1e-9);
+    EXPECT_NEAR(got.cx, 15.5, 1e-9);
+    EXPECT_NEAR(got.cy, 11.25, 1e-9);
+    EXPECT_NEAR(got.distortion.k1, -0.1, 1e-9);
+}
+
+}  // namespace
+}  // namespace commonlight::mocks
