@@ -7,6 +7,8 @@
 #include <cstdio>
 #include <memory>
 
+#include <sys/resource.h>
+
 #include "apps/app.h"
 #include "apps/report.h"
 #include "capture/capture_session.h"
@@ -90,7 +92,129 @@ Result<nlohmann::json> playThrough(const Loaded& l, const pipeline::RunnerOption
     return m;
 }
 
+
+double cpuSeconds() {
+    rusage usage{};
+    getrusage(RUSAGE_SELF, &usage);
+    return static_cast<double>(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
+           static_cast<double>(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec) / 1e6;
+}
+
+// The sample's lighting snapshot at the end of a synchronous run (when the system case did not
+// leave one).
+Result<std::shared_ptr<const lighting::LightingSnapshot>> sampleSnapshot(const Loaded& l) {
+    std::shared_ptr<const lighting::LightingSnapshot> snapshot;
+    pipeline::RunnerOptions r;
+    r.lighting = true;
+    r.composite = false;
+    CL_TRY(nlohmann::json m, playThrough(l, r, true, &snapshot));
+    (void)m;
+    return snapshot;
+}
+
+// Case compositor: draw + read back of frame 30 with the sample's snapshot at two sizes, MSAA 4
+// and 1; "static" draws the same frame again (the shadow maps are reused), "moving" moves the
+// virtual objects by a tenth of a millimetre every draw (the shadow maps are re-rendered). Wall
+// time (p50, p95) and CPU time of the process (all of llvmpipe's threads) per frame; then the
+// same draws in profiling mode (glFinish after each pass): the mean wall/CPU time of each pass.
+// CPU time is what to compare between runs on a machine shared with other work.
+Result<nlohmann::json> benchCompositor(const Loaded& l, const BenchPipelineOptions& options,
+                                       std::shared_ptr<const lighting::LightingSnapshot> snapshot) {
+    if (!snapshot) {
+        CL_TRY(snapshot, sampleSnapshot(l));
+    }
+    std::printf("== compositor (draw and read back of frame 30, the sample's snapshot)\n");
+    const std::size_t index = std::min<std::size_t>(30, l.sequence.frames.size() - 1);
+    const std::int64_t frame_ts = l.sequence.frames[index].timestamp_ns;
+    std::optional<Rigid3d> world_from_cam = l.truth ? l.truth->atTimestamp(frame_ts) : std::nullopt;
+    const cv::Mat bgr = cv::imread((l.sequence.cam_dir / "data" / l.sequence.frames[index].filename).string());
+    if (bgr.empty() || !world_from_cam) return fail(ErrorCode::kBadInput, l.sequence.root.string() + ": frame 30 or its ground truth is missing");
+    std::vector<std::optional<Rigid3d>> poses;
+    for (const VirtualObject& v : l.scene.virtual_objects) poses.push_back(worldFromObject(v, l.scene.tags, 0.0));
+    nlohmann::json cases = nlohmann::json::array();
+    CL_TRY(std::unique_ptr<render::GlContext> context, render::GlContext::create({}));
+    const lighting::LightingSnapshot empty{};
+    for (const auto& [w, h] : {std::pair{640, 480}, std::pair{1280, 720}}) {
+        for (int msaa : {4, 1}) {
+            for (const bool moving : {false, true}) {
+                const CameraModel camera = l.camera.scaledTo(w, h);
+                cv::Mat resized, rgb;
+                cv::resize(bgr, resized, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+                cv::cvtColor(resized, rgb, cv::COLOR_BGR2RGB);
+                render::CompositorOptions co;
+                co.msaa_samples = msaa;
+                CL_TRY(std::unique_ptr<render::Compositor> c, render::Compositor::create(*context, l.scene, camera, l.response, co));
+                render::FrameInput in;
+                in.image = ImageView{PixelFormat::kRgb8, w, h, rgb.step, rgb.data, rgb.step * static_cast<std::size_t>(h)};
+                in.cam_from_world = world_from_cam->inverse();
+                in.exposure_gain = 1.0;
+                for (const std::optional<FrameMetaRecord>& meta : l.sequence.meta) {
+                    if (meta && meta->timestamp_ns == frame_ts && meta->exposure_us > 0) {
+                        in.exposure_gain = meta->exposure_us * 1e-6 * (meta->analog_gain > 0 ? meta->analog_gain : 1.0);
+                    }
+                }
+                const auto drawOnce = [&](int k) -> Result<void> {
+                    in.virtual_poses = poses;
+                    if (moving) {
+                        for (auto& p : in.virtual_poses) {
+                            if (p) p->translation.x() += 1e-4 * (k % 2);
+                        }
+                    }
+                    CL_TRY_VOID(c->draw(in, snapshot ? *snapshot : empty));
+                    CL_TRY(Image read, c->read());
+                    (void)read;
+                    return {};
+                };
+                std::vector<double> ms;
+                double cpu = 0.0;
+                for (int k = 0; k < options.repeats + 2; ++k) {
+                    const std::int64_t t0 = monotonicNowNs();
+                    const double c0 = cpuSeconds();
+                    CL_TRY_VOID(drawOnce(k));
+                    if (k >= 2) {  // the first two warm up
+                        ms.push_back(static_cast<double>(monotonicNowNs() - t0) / 1e6);
+                        cpu += cpuSeconds() - c0;
+                    }
+                }
+                std::sort(ms.begin(), ms.end());
+                const double p50 = capture::nearestRank(ms, 50), p95 = capture::nearestRank(ms, 95);
+                const double cpu_ms = 1e3 * cpu / static_cast<double>(ms.size());
+                // Profiling: the same draws with glFinish after each pass.
+                co.profile = true;
+                c->setOptions(co);
+                std::vector<std::pair<std::string, std::pair<double, double>>> passes;
+                const int profiled = std::max(3, options.repeats / 3);
+                for (int k = 0; k < profiled; ++k) {
+                    CL_TRY_VOID(drawOnce(k));
+                    for (const render::PassTime& t : c->passTimes()) {
+                        auto it = std::find_if(passes.begin(), passes.end(), [&](const auto& p) { return p.first == t.name; });
+                        if (it == passes.end()) {
+                            passes.emplace_back(t.name, std::pair{t.ms / profiled, t.cpu_ms / profiled});
+                        } else {
+                            it->second.first += t.ms / profiled;
+                            it->second.second += t.cpu_ms / profiled;
+                        }
+                    }
+                }
+                std::printf("  %4dx%-4d MSAA %d %-7s p50 %6.1f ms, p95 %6.1f ms, CPU %6.1f ms |", w, h, msaa, moving ? "moving" : "static", p50,
+                            p95, cpu_ms);
+                nlohmann::json pass_json = nlohmann::json::object();
+                for (const auto& [name, t] : passes) {
+                    std::printf(" %s %.1f/%.1f", name.c_str(), t.first, t.second);
+                    pass_json[name] = {{"ms", t.first}, {"cpu_ms", t.second}};
+                }
+                std::printf("\n");
+                cases.push_back({{"width", w}, {"height", h}, {"msaa", msaa}, {"moving", moving}, {"ms", {{"p50", p50}, {"p95", p95}}},
+                                 {"cpu_ms", cpu_ms}, {"passes_ms", pass_json}});
+            }
+        }
+    }
+    return nlohmann::json{{"cases", cases}, {"renderer", context->renderer()}};
+}
+
 }  // namespace
+
+std::vector<std::string> benchPipelineCaseNames() { return {"system", "compositor", "realtime"}; }
 
 int runBenchPipeline(const BenchPipelineOptions& options) {
     auto loaded = load(options.sequence);
@@ -99,6 +223,10 @@ int runBenchPipeline(const BenchPipelineOptions& options) {
     nlohmann::json out;
     out["sequence"] = options.sequence.string();
 
+    const std::vector<std::string> cases = options.cases.empty() ? benchPipelineCaseNames() : options.cases;
+    const auto wanted = [&](const char* name) { return std::find(cases.begin(), cases.end(), name) != cases.end(); };
+    std::shared_ptr<const lighting::LightingSnapshot> snapshot;
+    if (wanted("system")) {
     // Case system: every frame, lighting on/off, MSAA 4/1.
     std::printf("== system (every frame of %s, against groundtruth/composite)\n", options.sequence.c_str());
     std::printf("  %-26s %9s %12s %12s %12s %12s\n", "configuration", "PSNR dB", "RMSE frame", "RMSE changed", "composite ms",
@@ -108,7 +236,6 @@ int runBenchPipeline(const BenchPipelineOptions& options) {
         bool lighting;
         int msaa;
     };
-    std::shared_ptr<const lighting::LightingSnapshot> snapshot;
     nlohmann::json system = nlohmann::json::array();
     for (const Config& c : {Config{"lighting on, MSAA 4", true, 4}, Config{"lighting on, no MSAA", true, 1},
                             Config{"lighting off, MSAA 4", false, 4}}) {
@@ -128,53 +255,16 @@ int runBenchPipeline(const BenchPipelineOptions& options) {
                           {"stages_ms", st}, {"lighting_metrics", m->value("lighting", nlohmann::json())}});
     }
     out["system"] = system;
-
-    // Case compositor: draw + read back at two sizes.
-    std::printf("== compositor (draw and read back, the sample's snapshot)\n");
-    const std::int64_t frame_ts = l.sequence.frames[std::min<std::size_t>(30, l.sequence.frames.size() - 1)].timestamp_ns;
-    std::optional<Rigid3d> world_from_cam = l.truth ? l.truth->atTimestamp(frame_ts) : std::nullopt;
-    const cv::Mat bgr = cv::imread((l.sequence.cam_dir / "data" / l.sequence.frames[std::min<std::size_t>(30, l.sequence.frames.size() - 1)].filename).string());
-    if (bgr.empty() || !world_from_cam) return reportError(Error{ErrorCode::kBadInput, options.sequence.string() + ": frame 30 or its ground truth is missing"});
-    nlohmann::json compositor = nlohmann::json::array();
-    auto context = render::GlContext::create({});
-    if (!context) return reportError(context.error());
-    for (const auto& [w, h] : {std::pair{640, 480}, std::pair{1280, 720}}) {
-        for (int msaa : {4, 1}) {
-            const CameraModel camera = l.camera.scaledTo(w, h);
-            cv::Mat resized, rgb;
-            cv::resize(bgr, resized, cv::Size(w, h), 0, 0, cv::INTER_AREA);
-            cv::cvtColor(resized, rgb, cv::COLOR_BGR2RGB);
-            render::CompositorOptions co;
-            co.msaa_samples = msaa;
-            auto c = render::Compositor::create(**context, l.scene, camera, l.response, co);
-            if (!c) return reportError(c.error());
-            render::FrameInput in;
-            in.image = ImageView{PixelFormat::kRgb8, w, h, rgb.step, rgb.data, rgb.step * static_cast<std::size_t>(h)};
-            in.cam_from_world = world_from_cam->inverse();
-            in.exposure_gain = 1.0;
-            for (const std::optional<FrameMetaRecord>& meta : l.sequence.meta) {
-                if (meta && meta->timestamp_ns == frame_ts && meta->exposure_us > 0) {
-                    in.exposure_gain = meta->exposure_us * 1e-6 * (meta->analog_gain > 0 ? meta->analog_gain : 1.0);
-                }
-            }
-            std::vector<double> ms;
-            const lighting::LightingSnapshot empty{};
-            for (int k = 0; k < options.repeats + 2; ++k) {
-                const std::int64_t t0 = monotonicNowNs();
-                if (auto drawn = (*c)->draw(in, snapshot ? *snapshot : empty); !drawn) return reportError(drawn.error());
-                if (auto read = (*c)->read(); !read) return reportError(read.error());
-                if (k >= 2) ms.push_back(static_cast<double>(monotonicNowNs() - t0) / 1e6);  // the first two warm up
-            }
-            std::sort(ms.begin(), ms.end());
-            const double p50 = capture::nearestRank(ms, 50), p95 = capture::nearestRank(ms, 95);
-            std::printf("  %4dx%-4d MSAA %d: p50 %.1f ms, p95 %.1f ms\n", w, h, msaa, p50, p95);
-            compositor.push_back({{"width", w}, {"height", h}, {"msaa", msaa}, {"ms", {{"p50", p50}, {"p95", p95}}}});
-        }
     }
-    out["compositor"] = compositor;
-    out["renderer"] = (*context)->renderer();
-    context->reset();
 
+    if (wanted("compositor")) {
+        auto c = benchCompositor(l, options, snapshot);
+        if (!c) return reportError(c.error());
+        out["compositor"] = (*c)["cases"];
+        out["renderer"] = (*c)["renderer"];
+    }
+
+    if (wanted("realtime")) {
     // Case realtime: playback at the recorded rate.
     std::printf("== realtime (at the recorded rate, lighting on, MSAA 4)\n");
     pipeline::RunnerOptions r;
@@ -195,6 +285,7 @@ int runBenchPipeline(const BenchPipelineOptions& options) {
                     c["lighting_lag_frames"]["p95"].get<double>());
     }
     out["realtime"] = *m;
+    }
     if (!options.json.empty()) {
         if (auto written = writeJson(options.json, out); !written) return reportError(written.error());
         std::printf("json: %s\n", options.json.c_str());

@@ -13,6 +13,7 @@
 
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include "core/result.h"
 
@@ -23,7 +24,10 @@ struct BenchPipelineOptions {
     std::string json;
     std::string plot;
     int repeats = 30;  // draws per compositor configuration
+    std::vector<std::string> cases;  // empty: all (benchPipelineCaseNames())
 };
+
+std::vector<std::string> benchPipelineCaseNames();
 
 int runBenchPipeline(const BenchPipelineOptions& options);
 

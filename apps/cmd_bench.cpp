@@ -74,6 +74,11 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
     pipe->add_option("--sequence", pipeline_options->sequence, "A sequence with ground truth")->capture_default_str();
     pipe->add_option("--json", pipeline_options->json, "Write the figures as JSON");
     pipe->add_option("--repeats", pipeline_options->repeats, "Draws per compositor configuration")->capture_default_str();
+    pipe->add_option("--cases", pipeline_options->cases, "Cases to run (default: all)")
+        ->check(CLI::IsMember(benchPipelineCaseNames()))
+        ->delimiter(',');
+    pipe->footer("Cases: system (composite error and stage times, every frame), compositor (draw and read-back time, "
+                 "per pass), realtime (playback at the recorded rate: fps, latency, lighting lag).");
     pipe->callback([pipeline_options, &runner] { runner = [pipeline_options] { return runBenchPipeline(*pipeline_options); }; });
 }
 

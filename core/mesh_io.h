@@ -17,6 +17,7 @@ struct Mesh {
     std::vector<Eigen::Vector3f> positions;
     std::vector<Eigen::Vector3f> normals;  // unit, one per position, or empty when the file has none
     std::vector<std::uint32_t> indices;    // three per triangle, counter-clockwise seen from the front
+    std::vector<Eigen::Vector2f> texcoords;  // one per position (glTF convention: (0, 0) the image's top-left corner), or empty
 
     std::size_t triangleCount() const { return indices.size() / 3; }
 };

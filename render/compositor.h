@@ -44,8 +44,18 @@ struct CompositorOptions {
     int msaa_samples = 4;          // 1: none
     bool lighting = true;          // false: no background modulation; virtual objects lit by the snapshot's lights only
     DebugView debug = DebugView::kNone;
-    int shadow_map_size = 1024;
+    int shadow_map_size = 512;     // texels per side of each shadow map (64..4096); the map covers only the virtual objects' bounds
     int area_light_samples = 4;    // shadow maps per area or disc light (1..8)
+    // Benchmarks and profiling only: glFinish() after each pass and its wall time kept
+    // (Compositor::passTimes()). It serialises the GL's pipelining: never in the live loop.
+    bool profile = false;
+};
+
+// One pass's time in profiling mode (CompositorOptions::profile).
+struct PassTime {
+    const char* name;    // static string
+    double ms = 0.0;     // wall time
+    double cpu_ms = 0.0; // CPU time of the whole process (the GL's threads included) over the same span
 };
 
 struct FrameInput {
@@ -79,6 +89,9 @@ public:
     Result<void> draw(const FrameInput& frame, const lighting::LightingSnapshot& snapshot);
     // The last composite, kRgb8, top row first.
     Result<Image> read() const;
+
+    // The passes of the last draw() and read() with their times (profiling mode; empty otherwise).
+    const std::vector<PassTime>& passTimes() const noexcept;
 
     void setOptions(const CompositorOptions& options);
     const CompositorOptions& options() const noexcept;

@@ -277,6 +277,43 @@ TEST_F(CompositorTest, RealProxiesHideVirtualObjects) {
     EXPECT_GT(partial, 10);
 }
 
+// Where one virtual object passes in front of another, the edge is antialiased as a silhouette
+// over the frame is (the objects are shaded once per pixel and each sample takes the colour of
+// the surface that covers it): with 4 samples, pixels between the two objects' values exist; with
+// one sample, none.
+TEST_F(CompositorTest, EdgesBetweenVirtualObjectsAreAntialiased) {
+    Scene scene;
+    scene.virtual_objects.push_back(sphere("back", 0.4, {0.0, 0.0, 0.0}, Eigen::Vector3d::Zero(), Eigen::Vector3d::Constant(0.2)));
+    scene.virtual_objects.push_back(sphere("front", 0.2, {0.25, 0.1, 0.5}, Eigen::Vector3d::Zero(), Eigen::Vector3d::Constant(0.8)));
+    const CameraModel camera = smallCamera();
+    const Image frame = constantFrame(camera.width, camera.height, 0);
+    for (int samples : {4, 1}) {
+        CompositorOptions options;
+        options.msaa_samples = samples;
+        auto c = make(scene, camera, ResponseCurve::linear(), options);
+        ASSERT_TRUE(c);
+        const Image out = render(*c, frame.view(), lookingDown(), lighting::LightingSnapshot{});
+        // Pixels strictly between the two emissions (51 and 204), away from the frame (0): the
+        // front sphere's edge over the back one.
+        int between = 0, back = 0, front = 0;
+        for (int y = 0; y < camera.height; ++y) {
+            for (int x = 0; x < camera.width; ++x) {
+                const int v = out.view().row(y)[3 * x];
+                between += v > 56 && v < 199 ? 1 : 0;
+                back += std::abs(v - 51) <= 1 ? 1 : 0;
+                front += std::abs(v - 204) <= 1 ? 1 : 0;
+            }
+        }
+        EXPECT_GT(back, 1000) << samples;
+        EXPECT_GT(front, 500) << samples;
+        if (samples == 4) {
+            EXPECT_GT(between, 20) << "the edge between the objects is not antialiased";
+        } else {
+            EXPECT_EQ(between, 0) << "one sample: every pixel is one object or the other";
+        }
+    }
+}
+
 // A Lambertian sphere under one directional light of irradiance E: the brightest pixel's relative
 // radiance is albedo / pi x E x radiance_scale.
 TEST_F(CompositorTest, VirtualObjectsAreShadedInRelativeRadiance) {
@@ -449,6 +486,8 @@ TEST(CompositorWindow, ShowsTheCompositeInAWindow) {
     ASSERT_TRUE(window) << window.error().message;
     Scene scene;
     scene.virtual_objects.push_back(sphere("ball", 0.3, {0, 0, 0.3}, Eigen::Vector3d::Zero(), Eigen::Vector3d::Constant(0.7)));
+    // Off-centre, so an image upside down or mirrored differs.
+    scene.virtual_objects.push_back(sphere("marker", 0.1, {0.55, 0.45, 0.1}, Eigen::Vector3d::Zero(), Eigen::Vector3d::Constant(0.3)));
     const CameraModel camera = smallCamera();
     auto c = Compositor::create(**window, scene, camera, ResponseCurve::linear(), {});
     ASSERT_TRUE(c) << c.error().message;
@@ -457,6 +496,18 @@ TEST(CompositorWindow, ShowsTheCompositeInAWindow) {
     in.image = frame.view();
     in.cam_from_world = lookingDown();
     ASSERT_TRUE((*c)->draw(in, lighting::LightingSnapshot{}));
+    // What the window shows (its back buffer, the composite blitted at the same size): the composite,
+    // the right way up.
+    auto shown = (*window)->readWindow();
+    auto composite = (*c)->read();
+    ASSERT_TRUE(shown && composite);
+    ASSERT_EQ(shown->width(), composite->width());
+    ASSERT_EQ(shown->height(), composite->height());
+    int differing = 0;
+    for (int y = 0; y < composite->height(); ++y) {
+        differing += std::memcmp(shown->view().row(y), composite->view().row(y), 3 * static_cast<std::size_t>(composite->width())) != 0;
+    }
+    EXPECT_EQ(differing, 0) << "rows of the window that differ from the composite";
     (*window)->present();
     (*window)->pollKeys();
     EXPECT_FALSE((*window)->shouldClose());
@@ -464,7 +515,6 @@ TEST(CompositorWindow, ShowsTheCompositeInAWindow) {
     ASSERT_TRUE(out);
     const Eigen::Vector2d centre = *camera.project(lookingDown().rotation * Eigen::Vector3d(0, 0, 0.6) + lookingDown().translation);
     EXPECT_NEAR(out->view().row(static_cast<int>(centre.y()))[3 * static_cast<int>(centre.x())], 0.7 * 255, 2);
-    // What the window shows: its back buffer, read after the swap's blit.
     c->reset();
 }
 
