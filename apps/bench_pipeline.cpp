@@ -100,6 +100,40 @@ double cpuSeconds() {
            static_cast<double>(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec) / 1e6;
 }
 
+// An RGB image as a camera would send it in YUYV or NV12 (OpenCV's BT.601 I420 conversion, its
+// chroma interleaved; YUYV takes each row pair's chroma).
+std::vector<std::uint8_t> toYuv(const cv::Mat& rgb, PixelFormat format) {
+    cv::Mat i420;
+    cv::cvtColor(rgb, i420, cv::COLOR_RGB2YUV_I420);
+    const int w = rgb.cols, h = rgb.rows;
+    const std::uint8_t* y = i420.data;
+    const std::uint8_t* u = y + static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
+    const std::uint8_t* v = u + static_cast<std::size_t>(w / 2) * static_cast<std::size_t>(h / 2);
+    std::vector<std::uint8_t> out(imageBytes(format, w, h, minStride(format, w)));
+    for (int r = 0; r < h; ++r) {
+        for (int x = 0; x < w; x += 2) {
+            const std::size_t c = static_cast<std::size_t>(r / 2) * static_cast<std::size_t>(w / 2) + static_cast<std::size_t>(x / 2);
+            const std::size_t p = static_cast<std::size_t>(r) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x);
+            if (format == PixelFormat::kYuyv) {
+                std::uint8_t* o = out.data() + 2 * p;
+                o[0] = y[p];
+                o[1] = u[c];
+                o[2] = y[p + 1];
+                o[3] = v[c];
+            } else {
+                out[p] = y[p];
+                out[p + 1] = y[p + 1];
+                if (r % 2 == 0) {
+                    std::uint8_t* o = out.data() + static_cast<std::size_t>(w) * static_cast<std::size_t>(h) + static_cast<std::size_t>(r / 2) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x);
+                    o[0] = u[c];
+                    o[1] = v[c];
+                }
+            }
+        }
+    }
+    return out;
+}
+
 // The sample's lighting snapshot at the end of a synchronous run (when the system case did not
 // leave one).
 Result<std::shared_ptr<const lighting::LightingSnapshot>> sampleSnapshot(const Loaded& l) {
@@ -134,80 +168,96 @@ Result<nlohmann::json> benchCompositor(const Loaded& l, const BenchPipelineOptio
     nlohmann::json cases = nlohmann::json::array();
     CL_TRY(std::unique_ptr<render::GlContext> context, render::GlContext::create({}));
     const lighting::LightingSnapshot empty{};
+    struct Case {
+        int w, h, msaa;
+        bool moving;
+        PixelFormat format;
+    };
+    std::vector<Case> specs;
     for (const auto& [w, h] : {std::pair{640, 480}, std::pair{1280, 720}}) {
         for (int msaa : {4, 1}) {
-            for (const bool moving : {false, true}) {
-                const CameraModel camera = l.camera.scaledTo(w, h);
-                cv::Mat resized, rgb;
-                cv::resize(bgr, resized, cv::Size(w, h), 0, 0, cv::INTER_AREA);
-                cv::cvtColor(resized, rgb, cv::COLOR_BGR2RGB);
-                render::CompositorOptions co;
-                co.msaa_samples = msaa;
-                CL_TRY(std::unique_ptr<render::Compositor> c, render::Compositor::create(*context, l.scene, camera, l.response, co));
-                render::FrameInput in;
-                in.image = ImageView{PixelFormat::kRgb8, w, h, rgb.step, rgb.data, rgb.step * static_cast<std::size_t>(h)};
-                in.cam_from_world = world_from_cam->inverse();
-                in.exposure_gain = 1.0;
-                for (const std::optional<FrameMetaRecord>& meta : l.sequence.meta) {
-                    if (meta && meta->timestamp_ns == frame_ts && meta->exposure_us > 0) {
-                        in.exposure_gain = meta->exposure_us * 1e-6 * (meta->analog_gain > 0 ? meta->analog_gain : 1.0);
-                    }
-                }
-                const auto drawOnce = [&](int k) -> Result<void> {
-                    in.virtual_poses = poses;
-                    if (moving) {
-                        for (auto& p : in.virtual_poses) {
-                            if (p) p->translation.x() += 1e-4 * (k % 2);
-                        }
-                    }
-                    CL_TRY_VOID(c->draw(in, snapshot ? *snapshot : empty));
-                    CL_TRY(Image read, c->read());
-                    (void)read;
-                    return {};
-                };
-                std::vector<double> ms;
-                double cpu = 0.0;
-                for (int k = 0; k < options.repeats + 2; ++k) {
-                    const std::int64_t t0 = monotonicNowNs();
-                    const double c0 = cpuSeconds();
-                    CL_TRY_VOID(drawOnce(k));
-                    if (k >= 2) {  // the first two warm up
-                        ms.push_back(static_cast<double>(monotonicNowNs() - t0) / 1e6);
-                        cpu += cpuSeconds() - c0;
-                    }
-                }
-                std::sort(ms.begin(), ms.end());
-                const double p50 = capture::nearestRank(ms, 50), p95 = capture::nearestRank(ms, 95);
-                const double cpu_ms = 1e3 * cpu / static_cast<double>(ms.size());
-                // Profiling: the same draws with glFinish after each pass.
-                co.profile = true;
-                c->setOptions(co);
-                std::vector<std::pair<std::string, std::pair<double, double>>> passes;
-                const int profiled = std::max(3, options.repeats / 3);
-                for (int k = 0; k < profiled; ++k) {
-                    CL_TRY_VOID(drawOnce(k));
-                    for (const render::PassTime& t : c->passTimes()) {
-                        auto it = std::find_if(passes.begin(), passes.end(), [&](const auto& p) { return p.first == t.name; });
-                        if (it == passes.end()) {
-                            passes.emplace_back(t.name, std::pair{t.ms / profiled, t.cpu_ms / profiled});
-                        } else {
-                            it->second.first += t.ms / profiled;
-                            it->second.second += t.cpu_ms / profiled;
-                        }
-                    }
-                }
-                std::printf("  %4dx%-4d MSAA %d %-7s p50 %6.1f ms, p95 %6.1f ms, CPU %6.1f ms |", w, h, msaa, moving ? "moving" : "static", p50,
-                            p95, cpu_ms);
-                nlohmann::json pass_json = nlohmann::json::object();
-                for (const auto& [name, t] : passes) {
-                    std::printf(" %s %.1f/%.1f", name.c_str(), t.first, t.second);
-                    pass_json[name] = {{"ms", t.first}, {"cpu_ms", t.second}};
-                }
-                std::printf("\n");
-                cases.push_back({{"width", w}, {"height", h}, {"msaa", msaa}, {"moving", moving}, {"ms", {{"p50", p50}, {"p95", p95}}},
-                                 {"cpu_ms", cpu_ms}, {"passes_ms", pass_json}});
+            for (const bool moving : {false, true}) specs.push_back({w, h, msaa, moving, PixelFormat::kRgb8});
+        }
+    }
+    // The frame as a camera sends it, converted in the final pass.
+    specs.push_back({640, 480, 4, false, PixelFormat::kYuyv});
+    specs.push_back({640, 480, 4, false, PixelFormat::kNv12});
+    for (const Case& spec : specs) {
+        const int w = spec.w, h = spec.h, msaa = spec.msaa;
+        const bool moving = spec.moving;
+        const CameraModel camera = l.camera.scaledTo(w, h);
+        cv::Mat resized, rgb;
+        cv::resize(bgr, resized, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+        cv::cvtColor(resized, rgb, cv::COLOR_BGR2RGB);
+        const std::vector<std::uint8_t> yuv = spec.format == PixelFormat::kRgb8 ? std::vector<std::uint8_t>{} : toYuv(rgb, spec.format);
+        render::CompositorOptions co;
+        co.msaa_samples = msaa;
+        CL_TRY(std::unique_ptr<render::Compositor> c, render::Compositor::create(*context, l.scene, camera, l.response, co));
+        render::FrameInput in;
+        in.image = spec.format == PixelFormat::kRgb8
+                       ? ImageView{PixelFormat::kRgb8, w, h, rgb.step, rgb.data, rgb.step * static_cast<std::size_t>(h)}
+                       : ImageView{spec.format, w, h, minStride(spec.format, w), yuv.data(), yuv.size()};
+        in.cam_from_world = world_from_cam->inverse();
+        in.exposure_gain = 1.0;
+        for (const std::optional<FrameMetaRecord>& meta : l.sequence.meta) {
+            if (meta && meta->timestamp_ns == frame_ts && meta->exposure_us > 0) {
+                in.exposure_gain = meta->exposure_us * 1e-6 * (meta->analog_gain > 0 ? meta->analog_gain : 1.0);
             }
         }
+        const auto drawOnce = [&](int k) -> Result<void> {
+            in.virtual_poses = poses;
+            if (moving) {
+                for (auto& p : in.virtual_poses) {
+                    if (p) p->translation.x() += 1e-4 * (k % 2);
+                }
+            }
+            CL_TRY_VOID(c->draw(in, snapshot ? *snapshot : empty));
+            CL_TRY(Image read, c->read());
+            (void)read;
+            return {};
+        };
+        std::vector<double> ms;
+        double cpu = 0.0;
+        for (int k = 0; k < options.repeats + 2; ++k) {
+            const std::int64_t t0 = monotonicNowNs();
+            const double c0 = cpuSeconds();
+            CL_TRY_VOID(drawOnce(k));
+            if (k >= 2) {  // the first two warm up
+                ms.push_back(static_cast<double>(monotonicNowNs() - t0) / 1e6);
+                cpu += cpuSeconds() - c0;
+            }
+        }
+        std::sort(ms.begin(), ms.end());
+        const double p50 = capture::nearestRank(ms, 50), p95 = capture::nearestRank(ms, 95);
+        const double cpu_ms = 1e3 * cpu / static_cast<double>(ms.size());
+        // Profiling: the same draws with glFinish after each pass.
+        co.profile = true;
+        c->setOptions(co);
+        std::vector<std::pair<std::string, std::pair<double, double>>> passes;
+        const int profiled = std::max(3, options.repeats / 3);
+        for (int k = 0; k < profiled; ++k) {
+            CL_TRY_VOID(drawOnce(k));
+            for (const render::PassTime& t : c->passTimes()) {
+                auto it = std::find_if(passes.begin(), passes.end(), [&](const auto& p) { return p.first == t.name; });
+                if (it == passes.end()) {
+                    passes.emplace_back(t.name, std::pair{t.ms / profiled, t.cpu_ms / profiled});
+                } else {
+                    it->second.first += t.ms / profiled;
+                    it->second.second += t.cpu_ms / profiled;
+                }
+            }
+        }
+        const std::string format(pixelFormatName(spec.format));
+        std::printf("  %4dx%-4d %-4s MSAA %d %-7s p50 %6.1f ms, p95 %6.1f ms, CPU %6.1f ms |", w, h, format.c_str(), msaa,
+                    moving ? "moving" : "static", p50, p95, cpu_ms);
+        nlohmann::json pass_json = nlohmann::json::object();
+        for (const auto& [name, t] : passes) {
+            std::printf(" %s %.1f/%.1f", name.c_str(), t.first, t.second);
+            pass_json[name] = {{"ms", t.first}, {"cpu_ms", t.second}};
+        }
+        std::printf("\n");
+        cases.push_back({{"width", w}, {"height", h}, {"format", format}, {"msaa", msaa}, {"moving", moving},
+                         {"ms", {{"p50", p50}, {"p95", p95}}}, {"cpu_ms", cpu_ms}, {"passes_ms", pass_json}});
     }
     return nlohmann::json{{"cases", cases}, {"renderer", context->renderer()}};
 }

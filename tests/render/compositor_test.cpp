@@ -7,6 +7,8 @@
 
 #include <gtest/gtest.h>
 
+#include "capture/convert.h"
+
 #include <opencv2/imgcodecs.hpp>
 
 #include <cmath>
@@ -126,6 +128,96 @@ TEST_F(CompositorTest, AnUnchangedFrameComesBackByteForByte) {
         const Image lost = render(*c, frame.view(), std::nullopt, lighting::LightingSnapshot{});
         EXPECT_EQ(std::memcmp(lost.view().row(0), frame.view().row(0), 3 * static_cast<std::size_t>(camera.width)), 0);
     }
+}
+
+// The bytes of a YUYV or NV12 frame, random (every code, the out-of-range ones included), rows
+// padded by `padding` bytes, and the frame's view of them.
+std::vector<std::uint8_t> randomYuv(PixelFormat format, int w, int h, std::size_t padding, unsigned seed) {
+    std::vector<std::uint8_t> bytes(imageBytes(format, w, h, minStride(format, w) + padding));
+    std::mt19937 rng(seed);
+    for (auto& b : bytes) b = static_cast<std::uint8_t>(rng() & 0xff);
+    return bytes;
+}
+
+ImageView yuvView(const std::vector<std::uint8_t>& bytes, PixelFormat format, int w, int h, std::size_t padding) {
+    return ImageView{format, w, h, minStride(format, w) + padding, bytes.data(), bytes.size()};
+}
+
+// A YUYV or NV12 frame is converted in the final pass exactly as capture::PixelConverter converts
+// it on the CPU (OpenCV's BT.601 limited range): nothing changed, the composite is that RGB image,
+// within 1 code (measured: identical), with and without a pose, on padded rows too. With the
+// background modulated and a virtual object in view, the composite of the raw frame is the
+// composite of the converted frame.
+TEST_F(CompositorTest, YuyvAndNv12FramesAreConvertedAsTheCpuConvertsThem) {
+    const CameraModel camera = smallCamera();
+    Scene scene;
+    scene.real_objects.push_back(floorPlane());
+    auto c = make(scene, camera, ResponseCurve::srgb());
+    ASSERT_TRUE(c);
+    capture::PixelConverter converter;
+    for (PixelFormat format : {PixelFormat::kYuyv, PixelFormat::kNv12}) {
+        for (std::size_t padding : {std::size_t{0}, std::size_t{12}}) {
+            const std::vector<std::uint8_t> bytes = randomYuv(format, camera.width, camera.height, padding, 7u + static_cast<unsigned>(padding));
+            const ImageView raw = yuvView(bytes, format, camera.width, camera.height, padding);
+            Image rgb;
+            ASSERT_TRUE(converter.convert(raw, PixelFormat::kRgb8, rgb));
+            for (const std::optional<Rigid3d>& pose : {std::optional<Rigid3d>(lookingDown()), std::optional<Rigid3d>()}) {
+                const Image out = render(*c, raw, pose, lighting::LightingSnapshot{});
+                int worst = 0, differing = 0;
+                for (int y = 0; y < camera.height; ++y) {
+                    for (int x = 0; x < 3 * camera.width; ++x) {
+                        const int d = std::abs(static_cast<int>(out.view().row(y)[x]) - static_cast<int>(rgb.view().row(y)[x]));
+                        worst = std::max(worst, d);
+                        differing += d != 0 ? 1 : 0;
+                    }
+                }
+                EXPECT_LE(worst, 1) << pixelFormatName(format) << " padding " << padding;
+                RecordProperty(std::string(pixelFormatName(format)) + "_codes_differing", differing);
+            }
+        }
+    }
+    // Something changes: the floor's left half at ratio 0.5, and a virtual ball.
+    scene.virtual_objects.push_back(sphere("ball", 0.3, {0.5, 0.3, 0.3}, Eigen::Vector3d::Constant(0.5), Eigen::Vector3d::Constant(0.1)));
+    lighting::LightingSnapshot snapshot;
+    snapshot.version = 1;
+    lighting::FaceModulation f;
+    f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
+    f.width = 2;
+    f.height = 1;
+    f.ratio = {lighting::Rgb::Constant(0.5f), lighting::Rgb::Constant(1.0f)};
+    f.difference = {lighting::Rgb::Constant(-0.1f), lighting::Rgb::Zero()};
+    f.original = {lighting::Rgb::Constant(0.5f), lighting::Rgb::Constant(0.5f)};
+    f.mean_original = 0.5f;
+    snapshot.faces.push_back(f);
+    auto changed = make(scene, camera, ResponseCurve::srgb());
+    ASSERT_TRUE(changed);
+    for (PixelFormat format : {PixelFormat::kYuyv, PixelFormat::kNv12}) {
+        const std::vector<std::uint8_t> bytes = randomYuv(format, camera.width, camera.height, 0, 11);
+        const ImageView raw = yuvView(bytes, format, camera.width, camera.height, 0);
+        Image rgb;
+        ASSERT_TRUE(converter.convert(raw, PixelFormat::kRgb8, rgb));
+        const Image from_raw = render(*changed, raw, lookingDown(), snapshot);
+        const Image from_rgb = render(*changed, rgb.view(), lookingDown(), snapshot);
+        int worst = 0, changed_pixels = 0;
+        for (int y = 0; y < camera.height; ++y) {
+            for (int x = 0; x < 3 * camera.width; ++x) {
+                worst = std::max(worst, std::abs(static_cast<int>(from_raw.view().row(y)[x]) - static_cast<int>(from_rgb.view().row(y)[x])));
+                changed_pixels += from_rgb.view().row(y)[x] != rgb.view().row(y)[x] ? 1 : 0;
+            }
+        }
+        EXPECT_GT(changed_pixels, camera.width * camera.height / 4) << "the scene should change much of the frame";
+        EXPECT_LE(worst, 1) << pixelFormatName(format);
+    }
+    // Odd sizes are bad input for these formats.
+    const CameraModel odd = smallCamera(161, 120);
+    auto c_odd = make(Scene{}, odd, ResponseCurve::srgb());
+    ASSERT_TRUE(c_odd);
+    std::vector<std::uint8_t> zeros(imageBytes(PixelFormat::kYuyv, 162, 120, minStride(PixelFormat::kYuyv, 162)));
+    FrameInput in;
+    in.image = ImageView{PixelFormat::kYuyv, 161, 120, minStride(PixelFormat::kYuyv, 162), zeros.data(), zeros.size()};
+    auto drawn = c_odd->draw(in, lighting::LightingSnapshot{});
+    ASSERT_FALSE(drawn);
+    EXPECT_EQ(drawn.error().code, ErrorCode::kBadInput);
 }
 
 // A floor whose left half has ratio 0.5: those pixels' linear value halves; the right half is
