@@ -59,7 +59,7 @@ struct PassTime {
 };
 
 struct FrameInput {
-    ImageView image;                  // the camera frame, kRgb8 at the camera's size
+    ImageView image;                  // the camera frame at the camera's size: kRgb8, or kYuyv / kNv12 as the camera sent it (even sizes)
     double exposure_gain = 1.0;       // exposure (s) x analog gain; <= 0 or not finite: 1
     std::optional<Rigid3d> cam_from_world;              // nullopt (no pose): the frame unchanged
     std::vector<std::optional<Rigid3d>> virtual_poses;  // world_from_object per Scene::virtual_objects; nullopt: not drawn
@@ -85,7 +85,8 @@ public:
 
     // Renders the composite of this frame with this snapshot (into the output framebuffer; in a
     // window also onto the screen, call GlContext::present()). kBadInput: a frame that is not
-    // kRgb8 at the camera's size, or a pose list of the wrong length.
+    // kRgb8, kYuyv or kNv12 at the camera's size (YUYV and NV12: even sizes), with fewer bytes than
+    // its format needs, or a pose list of the wrong length.
     Result<void> draw(const FrameInput& frame, const lighting::LightingSnapshot& snapshot);
     // The last composite, kRgb8, top row first.
     Result<Image> read() const;
