@@ -169,6 +169,10 @@ struct Compositor::Impl {
     std::vector<float> shadow_key;  // what the shadow maps were rendered for (light views, object poses)
     SnapshotTextures snapshot_textures;
 
+    // surfacePoints(), made at its first call.
+    GLuint world_program = 0, warp_program = 0, world_fbo = 0, world_texture = 0, warp_fbo = 0, warp_texture = 0;
+    GLint world_model = -1, world_view_proj = -1, world_surface = -1;
+
     mutable std::vector<PassTime> pass_times;
     mutable std::int64_t pass_start_ns = 0;
     mutable double pass_start_cpu = 0.0;
@@ -785,6 +789,12 @@ void Compositor::Impl::releaseAll() {
         gl::deleteProgram(*p);
     }
     for (auto& [bits, p] : final_programs) gl::deleteProgram(p.id);
+    gl::deleteProgram(world_program);
+    gl::deleteProgram(warp_program);
+    gl::deleteTexture(world_texture);
+    gl::deleteFramebuffer(world_fbo);
+    gl::deleteTexture(warp_texture);
+    gl::deleteFramebuffer(warp_fbo);
     final_programs.clear();
 }
 
@@ -887,6 +897,88 @@ Compositor::~Compositor() {
 void Compositor::setOptions(const CompositorOptions& options) { impl_->options = options; }
 const CompositorOptions& Compositor::options() const noexcept { return impl_->options; }
 const std::vector<PassTime>& Compositor::passTimes() const noexcept { return impl_->pass_times; }
+
+Result<std::vector<Eigen::Vector4f>> Compositor::surfacePoints(const FrameInput& frame) {
+    Impl& d = *impl_;
+    d.context->makeCurrent();
+    std::vector<Eigen::Vector4f> points(static_cast<std::size_t>(d.width) * static_cast<std::size_t>(d.height), Eigen::Vector4f::Zero());
+    if (!frame.cam_from_world || !frame.cam_from_world->isValid()) return points;
+    if (d.world_program == 0) {
+        using shaders::programSource;
+        CL_TRY(d.world_program, gl::newProgram("world", programSource({}, shaders::kSceneVs), programSource({}, shaders::kWorldFs)));
+        d.world_model = loc(d.world_program, "u_model");
+        d.world_view_proj = loc(d.world_program, "u_view_proj");
+        d.world_surface = loc(d.world_program, "u_surface");
+        CL_TRY(d.warp_program, gl::newProgram("warp", programSource({}, shaders::kFinalVs), programSource({}, shaders::kWarpFs)));
+        glUseProgram(d.warp_program);
+        glUniform1i(loc(d.warp_program, "u_undistort"), 0);
+        glUniform1i(loc(d.warp_program, "u_world"), 1);
+        glUniform2i(loc(d.warp_program, "u_size"), d.layer_width, d.layer_height);
+        d.world_fbo = gl::newFramebuffer();
+        glBindFramebuffer(GL_FRAMEBUFFER, d.world_fbo);
+        d.world_texture = floatTexture(d.layer_width, d.layer_height, GL_RGBA32F, GL_RGBA, nullptr, GL_LINEAR);
+        glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, d.world_texture, 0);
+        glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, d.proxy_depth);
+        d.warp_fbo = gl::newFramebuffer();
+        glBindFramebuffer(GL_FRAMEBUFFER, d.warp_fbo);
+        d.warp_texture = floatTexture(d.width, d.height, GL_RGBA32F, GL_RGBA, nullptr, GL_NEAREST);
+        glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, d.warp_texture, 0);
+        if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
+            return fail(ErrorCode::kDevice, "render: the GL cannot make the RGBA32F framebuffers of surfacePoints");
+        }
+    }
+    // The layer: every proxy and virtual object's world position, depth-tested, with the same
+    // view and projection as draw()'s.
+    Eigen::Matrix4d view = Eigen::Matrix4d::Identity();
+    view.topLeftCorner<3, 3>() = frame.cam_from_world->rotation.toRotationMatrix();
+    view.topRightCorner<3, 1>() = frame.cam_from_world->translation;
+    view.row(1) *= -1.0;
+    view.row(2) *= -1.0;
+    const Eigen::Matrix4f view_proj = (d.layer_camera.glProjection(0.01, 100.0) * view).cast<float>();
+    glBindFramebuffer(GL_FRAMEBUFFER, d.world_fbo);
+    glViewport(0, 0, d.layer_width, d.layer_height);
+    const float none[4] = {0, 0, 0, 0};
+    glClearBufferfv(GL_COLOR, 0, none);
+    glDepthMask(GL_TRUE);
+    glClear(GL_DEPTH_BUFFER_BIT);
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    glDisable(GL_CULL_FACE);
+    glUseProgram(d.world_program);
+    setMat4(d.world_view_proj, view_proj);
+    float surface = 0.0f;
+    const auto draw = [&](const GpuMesh& mesh, const Eigen::Matrix4f& model) {
+        glUniform1f(d.world_surface, surface += 1.0f);
+        setMat4(d.world_model, model);
+        glBindVertexArray(mesh.vao);
+        for (const MeshPart& part : mesh.parts) drawPart(part);
+    };
+    for (std::size_t i = 0; i < d.real_meshes.size(); ++i) draw(d.real_meshes[i], d.real_models[i]);
+    for (std::size_t i = 0; i < d.virtual_meshes.size(); ++i) {
+        std::optional<Rigid3d> pose = i < frame.virtual_poses.size() ? frame.virtual_poses[i]
+                                                                      : worldFromObject(d.scene.virtual_objects[i], d.scene.tags, 0.0);
+        if (pose && pose->isValid()) draw(d.virtual_meshes[i], toGl(*pose));
+    }
+    glDisable(GL_DEPTH_TEST);
+    // The warp at every camera pixel.
+    glBindFramebuffer(GL_FRAMEBUFFER, d.warp_fbo);
+    glViewport(0, 0, d.width, d.height);
+    glUseProgram(d.warp_program);
+    glActiveTexture(GL_TEXTURE0);
+    glBindTexture(GL_TEXTURE_2D, d.undistort_texture);
+    glActiveTexture(GL_TEXTURE1);
+    glBindTexture(GL_TEXTURE_2D, d.world_texture);
+    glBindVertexArray(d.empty_vao);
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+    glBindVertexArray(0);
+    glActiveTexture(GL_TEXTURE0);
+    glPixelStorei(GL_PACK_ALIGNMENT, 4);
+    glReadPixels(0, 0, d.width, d.height, GL_RGBA, GL_FLOAT, points.data());
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    const GLenum error = glGetError();
+    if (error != GL_NO_ERROR) return fail(ErrorCode::kInternal, "render: GL error " + std::to_string(error) + " in surfacePoints");
+    return points;
+}
 
 Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingSnapshot& snapshot) {
     Impl& d = *impl_;

@@ -91,6 +91,14 @@ public:
     // The last composite, kRgb8, top row first.
     Result<Image> read() const;
 
+    // For tests of the registration: the world point (metres) of the real proxy or virtual object
+    // seen at each camera pixel, row-major, top row first, through the same projection, layer and
+    // lens warp as draw() (the layer's world positions read at each pixel's ideal position,
+    // filtered as the composite's layer is); w = 1 where one surface covers the four layer pixels
+    // the filter reads, 0.5 where several do (an edge: the point is a blend), 0 where there is none
+    // or no pose. The frame's pixels are not used.
+    Result<std::vector<Eigen::Vector4f>> surfacePoints(const FrameInput& frame);
+
     // The passes of the last draw() and read() with their times (profiling mode; empty otherwise).
     const std::vector<PassTime>& passTimes() const noexcept;
 

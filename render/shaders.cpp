@@ -253,6 +253,35 @@ void main() {
 }
 )";
 
+const char* const kWorldFs = R"(
+in vec3 v_world;
+in vec3 v_normal;
+in vec2 v_uv;
+layout(location = 0) out vec4 o_world;
+uniform float u_surface;  // which surface (> 0)
+void main() { o_world = vec4(v_world, u_surface); }
+)";
+
+// The same read of the layer as the final pass's (texel coordinates from the undistortion map,
+// bilinear), so it measures the composite's registration.
+const char* const kWarpFs = R"(
+layout(location = 0) out vec4 o_world;
+uniform sampler2D u_undistort;
+uniform sampler2D u_world;
+uniform ivec2 u_size;  // the layer's
+void main() {
+    vec2 texel = texelFetch(u_undistort, ivec2(gl_FragCoord.xy), 0).xy;
+    bool in_layer = all(greaterThanEqual(texel, vec2(0.0))) && all(lessThan(texel, vec2(u_size)));
+    // The four layer pixels the filter reads: one surface, some, or none.
+    ivec2 p0 = clamp(ivec2(floor(texel - 0.5)), ivec2(0), u_size - 1);
+    ivec2 p1 = clamp(p0 + 1, ivec2(0), u_size - 1);
+    vec4 ids = vec4(texelFetch(u_world, p0, 0).w, texelFetch(u_world, ivec2(p1.x, p0.y), 0).w,
+                    texelFetch(u_world, ivec2(p0.x, p1.y), 0).w, texelFetch(u_world, p1, 0).w);
+    float w = all(equal(ids, vec4(ids.x))) && ids.x > 0.0 ? 1.0 : (any(greaterThan(ids, vec4(0.0))) ? 0.5 : 0.0);
+    o_world = in_layer ? vec4(texture(u_world, texel / vec2(u_size)).xyz, w) : vec4(0.0);
+}
+)";
+
 const char* const kFinalVs = R"(
 void main() {
     vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
