@@ -693,7 +693,6 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
     for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
         if (!models[i]) continue;
         const VirtualObject& object = scene.virtual_objects[i];
-        setVec3(vp.albedo, object.material.albedo.cast<float>());
         setVec3(vp.emission, (object.emission.value_or(Eigen::Vector3d::Zero()) * scale).cast<float>());
         const ProbeGrid* grid = snapshot_textures.probes(i);
         // With nothing estimated yet (and no light to shade with), a neutral light that shows the
@@ -710,10 +709,22 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
             setVec3(vp.sh_scale, grid->scale);
             setVec3(vp.sh_offset, grid->offset);
         }
-        glUniform1i(vp.has_texture, 0);
         setMat4(vp.model, *models[i]);
         glBindVertexArray(virtual_meshes[i].vao);
-        for (const MeshPart& part : virtual_meshes[i].parts) drawPart(part);
+        for (const MeshPart& part : virtual_meshes[i].parts) {
+            // A part with the mesh file's own base colour: that, times its texture, is the albedo.
+            const GpuMaterial* material = part.material >= 0 && static_cast<std::size_t>(part.material) < virtual_meshes[i].materials.size()
+                                              ? &virtual_meshes[i].materials[static_cast<std::size_t>(part.material)]
+                                              : nullptr;
+            setVec3(vp.albedo, material ? material->colour : object.material.albedo.cast<float>());
+            glUniform1i(vp.has_texture, material && material->texture != 0 ? 1 : 0);
+            if (material && material->texture != 0) {
+                glActiveTexture(GL_TEXTURE0 + kUnitBaseColour);
+                glBindTexture(GL_TEXTURE_2D, material->texture);
+                glActiveTexture(GL_TEXTURE0);
+            }
+            drawPart(part);
+        }
     }
     glActiveTexture(GL_TEXTURE0);
     if (options.debug == DebugView::kProxyWireframe) drawLines(line_program, true);

@@ -94,7 +94,13 @@ void buildShape(const Shape& shape, std::vector<Vertex>& v, std::vector<std::uin
         }
         const int first = static_cast<int>(idx.size());
         for (std::uint32_t k : m.indices) idx.push_back(base + k);
-        parts.push_back({-1, first, static_cast<int>(idx.size()) - first});
+        if (m.ranges.empty()) {
+            parts.push_back({-1, first, static_cast<int>(idx.size()) - first, -1});
+        } else {
+            for (const MeshRange& r : m.ranges) {
+                parts.push_back({-1, first + static_cast<int>(r.first), static_cast<int>(r.count), r.material});
+            }
+        }
     }
 }
 
@@ -109,6 +115,28 @@ GpuMesh uploadMesh(const Shape& shape) {
         mesh.bmax = mesh.bmax.cwiseMax(p);
     }
     mesh.index_count = static_cast<int>(idx.size());
+    if (const auto* file = std::get_if<MeshShape>(&shape); file && file->mesh) {
+        for (const MeshMaterial& m : file->mesh->materials) {
+            GpuMaterial g;
+            g.colour = m.base_colour.head<3>();
+            if (m.texture && m.texture->format() == PixelFormat::kRgba8) {
+                g.texture = gl::newTexture();
+                glBindTexture(GL_TEXTURE_2D, g.texture);
+                glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+                glPixelStorei(GL_UNPACK_ROW_LENGTH, static_cast<GLint>(m.texture->stride() / 4));
+                // Row 0 is the image's top row: texture coordinate v = 0, as glTF has it.
+                glTexImage2D(GL_TEXTURE_2D, 0, GL_SRGB8_ALPHA8, m.texture->width(), m.texture->height(), 0, GL_RGBA, GL_UNSIGNED_BYTE,
+                             m.texture->data());
+                glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
+                glGenerateMipmap(GL_TEXTURE_2D);
+                glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR);
+                glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+                glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, m.repeat_s ? GL_REPEAT : GL_CLAMP_TO_EDGE);
+                glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, m.repeat_t ? GL_REPEAT : GL_CLAMP_TO_EDGE);
+            }
+            mesh.materials.push_back(g);
+        }
+    }
     mesh.vao = gl::newVertexArray();
     mesh.vbo = gl::newBuffer();
     mesh.ebo = gl::newBuffer();
@@ -128,6 +156,7 @@ GpuMesh uploadMesh(const Shape& shape) {
 }
 
 void releaseMesh(GpuMesh& mesh) {
+    for (GpuMaterial& m : mesh.materials) gl::deleteTexture(m.texture);
     gl::deleteVertexArray(mesh.vao);
     gl::deleteBuffer(mesh.vbo);
     gl::deleteBuffer(mesh.ebo);

@@ -20,14 +20,23 @@ struct Vertex {
 };
 
 struct MeshPart {
-    int face = -1;  // the snapshot's face number, -1: not modulated
-    int first = 0;  // first index
+    int face = -1;      // the snapshot's face number, -1: not modulated
+    int first = 0;      // first index
     int count = 0;
+    int material = -1;  // GpuMesh::materials index, -1: the scene's albedo
+};
+
+// A mesh file's base colour on the GPU: albedo = colour x the texture (sRGB, decoded to linear by
+// the GL when it is sampled).
+struct GpuMaterial {
+    Eigen::Vector3f colour = Eigen::Vector3f::Ones();  // linear
+    GLuint texture = 0;                                // SRGB8_ALPHA8 with mipmaps, 0: none
 };
 
 struct GpuMesh {
     GLuint vao = 0, vbo = 0, ebo = 0;
     std::vector<MeshPart> parts;
+    std::vector<GpuMaterial> materials;
     Eigen::Vector3d bmin = Eigen::Vector3d::Constant(1e30), bmax = Eigen::Vector3d::Constant(-1e30);  // object frame
     int index_count = 0;
 };
@@ -37,7 +46,8 @@ struct GpuMesh {
 // shape that is not loaded gives nothing.
 void buildShape(const Shape& shape, std::vector<Vertex>& vertices, std::vector<std::uint32_t>& indices, std::vector<MeshPart>& parts);
 
-// Uploads a shape (vertex attributes 0 position, 1 normal, 2 texture coordinates).
+// Uploads a shape (vertex attributes 0 position, 1 normal, 2 texture coordinates) and, for a mesh
+// file, its materials' base colours and textures.
 GpuMesh uploadMesh(const Shape& shape);
 void releaseMesh(GpuMesh& mesh);
 

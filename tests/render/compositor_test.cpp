@@ -8,11 +8,15 @@
 #include <gtest/gtest.h>
 
 #include "capture/convert.h"
+#include "core/mesh_io.h"
+#include "tests/test_support.h"
 
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <numbers>
 #include <random>
@@ -432,6 +436,95 @@ TEST_F(CompositorTest, RealProxiesHideVirtualObjects) {
     EXPECT_GT(partial, 10);
 }
 
+// A textured unit quad in glTF (positions in [0, 1]^2 at z = 0 facing +z, texture coordinates
+// with v down from the top edge), its base colour texture `image` (a file beside it) and factor.
+std::string texturedQuadGltf(const std::string& image, const std::string& factor) {
+    std::vector<float> floats = {0, 0, 0, 1, 0, 0, 0, 1, 0, 1, 1, 0,   // positions
+                                 0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1,   // normals
+                                 0, 1, 1, 1, 0, 0, 1, 0};              // texture coordinates
+    const std::vector<std::uint16_t> indices = {0, 1, 2, 2, 1, 3};
+    std::vector<std::uint8_t> bytes(floats.size() * 4 + indices.size() * 2);
+    std::memcpy(bytes.data(), floats.data(), floats.size() * 4);
+    std::memcpy(bytes.data() + floats.size() * 4, indices.data(), indices.size() * 2);
+    std::string hex;  // the buffer as a data URI (base64)
+    static const char* kAlphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    for (std::size_t i = 0; i < bytes.size(); i += 3) {
+        const std::uint32_t v = (std::uint32_t{bytes[i]} << 16) | (i + 1 < bytes.size() ? std::uint32_t{bytes[i + 1]} << 8 : 0u) |
+                                (i + 2 < bytes.size() ? std::uint32_t{bytes[i + 2]} : 0u);
+        hex += kAlphabet[(v >> 18) & 63];
+        hex += kAlphabet[(v >> 12) & 63];
+        hex += i + 1 < bytes.size() ? kAlphabet[(v >> 6) & 63] : '=';
+        hex += i + 2 < bytes.size() ? kAlphabet[v & 63] : '=';
+    }
+    return std::string(R"({"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+"meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1, "TEXCOORD_0": 2}, "indices": 3, "material": 0}]}],
+"materials": [{"pbrMetallicRoughness": {"baseColorFactor": )") + factor + R"(, "baseColorTexture": {"index": 0}}}],
+"textures": [{"source": 0}], "images": [{"uri": ")" + image + R"("}],
+"buffers": [{"byteLength": )" + std::to_string(bytes.size()) + R"(, "uri": "data:application/octet-stream;base64,)" + hex + R"("}],
+"bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 48},
+                {"buffer": 0, "byteOffset": 96, "byteLength": 32}, {"buffer": 0, "byteOffset": 128, "byteLength": 12}],
+"accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3"},
+              {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC3"},
+              {"bufferView": 2, "componentType": 5126, "count": 4, "type": "VEC2"},
+              {"bufferView": 3, "componentType": 5123, "count": 6, "type": "SCALAR"}]})";
+}
+
+// A glTF quad with a 2 x 2 base colour texture (top row red, green; bottom row sRGB grey 128,
+// blue) and baseColorFactor (0.5, 1, 1), lit by a directional light of irradiance pi straight
+// down, composited with a linear response: each quadrant's centre shows factor x the texel decoded
+// from sRGB to linear (grey 128 is 0.2158, not 0.5), in the image where the glTF puts it.
+TEST_F(CompositorTest, VirtualMeshesShowTheirBaseColourTexture) {
+    testing::TempDir dir;
+    cv::Mat bgr(2, 2, CV_8UC3);
+    bgr.at<cv::Vec3b>(0, 0) = {0, 0, 255};
+    bgr.at<cv::Vec3b>(0, 1) = {0, 255, 0};
+    bgr.at<cv::Vec3b>(1, 0) = {128, 128, 128};
+    bgr.at<cv::Vec3b>(1, 1) = {255, 0, 0};
+    ASSERT_TRUE(cv::imwrite((dir / "checker.png").string(), bgr));
+    testing::writeText(dir / "quad.gltf", texturedQuadGltf("checker.png", "[0.5, 1.0, 1.0, 1.0]"));
+    auto mesh = readMesh(dir / "quad.gltf");
+    ASSERT_TRUE(mesh) << mesh.error().message;
+    Scene scene;
+    VirtualObject quad;
+    quad.name = "quad";
+    quad.shape = MeshShape{dir / "quad.gltf", std::make_shared<const Mesh>(std::move(*mesh))};
+    quad.material.albedo = Eigen::Vector3d::Constant(0.3);  // not used where the file has a base colour
+    quad.placement = FixedPlacement{Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-0.5, -0.5, 0.0))};
+    scene.virtual_objects.push_back(quad);
+    lighting::LightingSnapshot snapshot;
+    snapshot.version = 1;
+    lighting::EstimatedLight sun;
+    sun.kind = lighting::LightKind::kDirectional;
+    sun.direction = Eigen::Vector3d(0, 0, -1);
+    sun.emission = Eigen::Vector3d::Constant(std::numbers::pi);
+    snapshot.lights.push_back(sun);
+    const CameraModel camera = smallCamera();
+    auto c = make(scene, camera, ResponseCurve::linear());
+    ASSERT_TRUE(c);
+    const Image frame = constantFrame(camera.width, camera.height, 0);
+    const Image out = render(*c, frame.view(), lookingDown(), snapshot);
+    if (std::getenv("CL_RENDER_DUMP")) {
+        cv::Mat rgb(out.height(), out.width(), CV_8UC3, const_cast<std::uint8_t*>(out.view().data)), shown;
+        cv::cvtColor(rgb, shown, cv::COLOR_RGB2BGR);
+        cv::imwrite("/tmp/textured_quad.png", shown);
+    }
+    const auto at = [&](double x, double y) {
+        const Eigen::Vector2d p = *camera.project(lookingDown().rotation * Eigen::Vector3d(x, y, 0) + lookingDown().translation);
+        const std::uint8_t* px = out.view().row(static_cast<int>(std::lround(p.y()))) + 3 * static_cast<int>(std::lround(p.x()));
+        return Eigen::Vector3i(px[0], px[1], px[2]);
+    };
+    const double grey = 255.0 * std::pow((128.0 / 255.0 + 0.055) / 1.055, 2.4);  // sRGB 128 in linear codes: 55.0
+    // 4 codes: the nearest pixel's centre is up to 0.7 px from the texel's centre, and a texel spans
+    // about 72 px, so the filter mixes in up to 1% of the neighbour.
+    const auto near = [](const Eigen::Vector3i& got, const Eigen::Vector3d& expected) {
+        return (got.cast<double>() - expected).cwiseAbs().maxCoeff() <= 4.0;
+    };
+    EXPECT_TRUE(near(at(-0.25, 0.25), Eigen::Vector3d(127.5, 0, 0))) << at(-0.25, 0.25).transpose();  // top-left: red x 0.5
+    EXPECT_TRUE(near(at(0.25, 0.25), Eigen::Vector3d(0, 255, 0))) << at(0.25, 0.25).transpose();       // top-right: green
+    EXPECT_TRUE(near(at(-0.25, -0.25), Eigen::Vector3d(0.5 * grey, grey, grey))) << at(-0.25, -0.25).transpose();
+    EXPECT_TRUE(near(at(0.25, -0.25), Eigen::Vector3d(0, 0, 255))) << at(0.25, -0.25).transpose();     // bottom-right: blue
+}
+
 // Where one virtual object passes in front of another, the edge is antialiased as a silhouette
 // over the frame is (the objects are shaded once per pixel and each sample takes the colour of
 // the surface that covers it): with 4 samples, pixels between the two objects' values exist; with
@@ -551,11 +644,22 @@ TEST_F(CompositorTest, ShadowMapsHaveRealAndVirtualOccluders) {
 // Creation and destruction leave no GL object behind, and drawing with new snapshot versions
 // does not accumulate any.
 TEST_F(CompositorTest, NoGlObjectIsLeaked) {
+    testing::TempDir dir;
+    cv::Mat bgr(4, 4, CV_8UC3, cv::Scalar(30, 60, 90));
+    ASSERT_TRUE(cv::imwrite((dir / "plain.png").string(), bgr));
+    testing::writeText(dir / "quad.gltf", texturedQuadGltf("plain.png", "[1, 1, 1, 1]"));
+    auto mesh = readMesh(dir / "quad.gltf");
+    ASSERT_TRUE(mesh) << mesh.error().message;
     const GlObjectCounts before = liveGlObjects();
     {
         Scene scene;
         scene.real_objects.push_back(floorPlane());
         scene.virtual_objects.push_back(sphere("ball", 0.2, {0, 0, 0.2}, Eigen::Vector3d::Constant(0.5)));
+        VirtualObject quad;
+        quad.name = "quad";
+        quad.shape = MeshShape{dir / "quad.gltf", std::make_shared<const Mesh>(std::move(*mesh))};
+        quad.placement = FixedPlacement{Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.3, 0.0, 0.1))};
+        scene.virtual_objects.push_back(quad);
         const CameraModel camera = smallCamera();
         auto c = make(scene, camera, ResponseCurve::srgb());
         ASSERT_TRUE(c);
