@@ -3,10 +3,14 @@
 //
 // Cases:
 //   compositor  draw + read-back time per frame at 640x480 and 1280x720, with and without MSAA,
-//               with the sample's lighting snapshot (p50, p95)
+//               objects still and moving, the frame as RGB8, YUYV and NV12, camera matching on,
+//               with the sample's lighting snapshot (p50, p95, CPU, each pass)
 //   system      every frame in order (--sync): composite error against groundtruth/composite
 //               (PSNR, linear RMSE over the frame and masks/changed) and the stage times, with
-//               lighting on and off, MSAA 4 and 1
+//               lighting on and off, MSAA 4 and 1, camera matching on
+//   matching    camera matching on frame 30: the frame's noise and blur as estimated and their
+//               cost; the noise in the virtual objects' pixels of the ground truth and of the
+//               composite without and with matching
 //   realtime    playback at the recorded rate: frames composited per second, frames dropped,
 //               latency from frame arrival to composite ready, how old the lighting was
 #pragma once

@@ -78,7 +78,8 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
         ->check(CLI::IsMember(benchPipelineCaseNames()))
         ->delimiter(',');
     pipe->footer("Cases: system (composite error and stage times, every frame), compositor (draw and read-back time, "
-                 "per pass), realtime (playback at the recorded rate: fps, latency, lighting lag).");
+                 "per pass), matching (camera matching's estimates and the noise of the virtual objects against the ground "
+                 "truth), realtime (playback at the recorded rate: fps, latency, lighting lag).");
     pipe->callback([pipeline_options, &runner] { runner = [pipeline_options] { return runBenchPipeline(*pipeline_options); }; });
 }
 

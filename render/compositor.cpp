@@ -10,6 +10,7 @@
 #include <utility>
 
 #include <Eigen/Geometry>
+#include <opencv2/imgproc.hpp>
 
 #include <sys/resource.h>
 
@@ -106,7 +107,7 @@ struct VirtualProgram {
 
 struct FinalProgram {
     GLuint id = 0;
-    GLint atlas_size = -1, layer_rect = -1, exposure_gain = -1, size = -1;
+    GLint atlas_size = -1, layer_rect = -1, exposure_gain = -1, size = -1, noise = -1, seed = -1;
 };
 
 // The final pass's variants.
@@ -117,6 +118,7 @@ enum FinalBits : int {
     kFinalVirtual = 8,
     kFinalElements = 16,
     kFinalRatio = 32,
+    kFinalNoise = 64,
 };
 
 }  // namespace
@@ -169,6 +171,14 @@ struct Compositor::Impl {
     std::vector<float> shadow_key;  // what the shadow maps were rendered for (light views, object poses)
     SnapshotTextures snapshot_textures;
 
+    // Camera matching: the last measurement, the frame as RGB8 when it came as YUV, the blur passes.
+    std::optional<CameraMatch> match;
+    std::uint64_t frames_drawn = 0;
+    Image match_rgb;
+    double warp_variance = 0.0;  // mean f (1 - f) of the layer's bilinear read (f: the fractional texel offset), px^2
+    GLuint blur_program = 0, blur_fbo[2] = {0, 0}, blur_texture[2] = {0, 0};
+    GLint blur_direction = -1, blur_radius = -1, blur_weights = -1, blur_rect = -1;
+
     // surfacePoints(), made at its first call.
     GLuint world_program = 0, warp_program = 0, world_fbo = 0, world_texture = 0, warp_fbo = 0, warp_texture = 0;
     GLint world_model = -1, world_view_proj = -1, world_surface = -1;
@@ -197,7 +207,7 @@ struct Compositor::Impl {
     void makeFrameTextures(PixelFormat format);
     void uploadFrame(const ImageView& image);
     void makeUndistortMap();
-    Rect layerRect(const std::vector<std::optional<Eigen::Matrix4f>>& models, const Eigen::Matrix4d& cam_from_world) const;
+    Rect layerRect(const std::vector<std::optional<Eigen::Matrix4f>>& models, const Eigen::Matrix4d& cam_from_world, double margin) const;
     Rect cameraRect(const Rect& layer) const;
     void renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
                           const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax);
@@ -207,6 +217,8 @@ struct Compositor::Impl {
                           const std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
                           const lighting::LightingSnapshot& snapshot, double eg);
     void releaseAll();
+    Result<void> measureCamera(const ImageView& image);
+    Result<void> blurLayer(const Rect& rect, double sigma);
 };
 
 Compositor::Compositor() : impl_(std::make_unique<Impl>()) {}
@@ -287,12 +299,15 @@ Result<const FinalProgram*> Compositor::Impl::finalProgram(int bits) {
     if (bits & kFinalVirtual) defines.push_back("VIRTUAL");
     if (bits & kFinalElements) defines.push_back("VIEW_ELEMENTS");
     if (bits & kFinalRatio) defines.push_back("VIEW_RATIO");
+    if (bits & kFinalNoise) defines.push_back("MATCH_NOISE");
     FinalProgram p;
     CL_TRY(p.id, gl::newProgram("final", shaders::programSource({}, shaders::kFinalVs), shaders::programSource(defines, shaders::kFinalFs)));
     p.atlas_size = loc(p.id, "u_atlas_size");
     p.layer_rect = loc(p.id, "u_layer_rect");
     p.exposure_gain = loc(p.id, "u_exposure_gain");
     p.size = loc(p.id, "u_size");
+    p.noise = loc(p.id, "u_noise");
+    p.seed = loc(p.id, "u_seed");
     glUseProgram(p.id);
     const std::pair<const char*, int> units[] = {{"u_frame", kUnitFrame},         {"u_frame_uv", kUnitFrameUv},
                                                  {"u_undistort", kUnitUndistort}, {"u_proxy_atlas", kUnitProxyAtlas},
@@ -417,6 +432,8 @@ void Compositor::Impl::makeUndistortMap() {
     layer_camera.distortion = Distortion{};
 
     std::vector<float> map(2 * n);
+    warp_variance = 0.0;
+    std::size_t warp_pixels = 0;
     blocks_x = (width + kBlock - 1) / kBlock;
     blocks_y = (height + kBlock - 1) / kBlock;
     block_bounds.assign(static_cast<std::size_t>(blocks_x) * static_cast<std::size_t>(blocks_y),
@@ -429,6 +446,10 @@ void Compositor::Impl::makeUndistortMap() {
                 // Texel coordinates: x + 0.5 from the layer's left, rows counted from its bottom.
                 t = Eigen::Vector2f(ideal[k].x() - static_cast<float>(layer_origin.x()) + 0.5f,
                                     static_cast<float>(layer_height) - (ideal[k].y() - static_cast<float>(layer_origin.y())) - 0.5f);
+                const Eigen::Vector2f f = t - t.array().floor().matrix() - Eigen::Vector2f::Constant(0.5f);  // offset from the texel's centre
+                const Eigen::Vector2f g = f.array().abs().matrix();
+                warp_variance += 0.5 * static_cast<double>(g.x() * (1.0f - g.x()) + g.y() * (1.0f - g.y()));
+                ++warp_pixels;
                 Eigen::Vector4f& b = block_bounds[static_cast<std::size_t>(y / kBlock * blocks_x + x / kBlock)];
                 b = Eigen::Vector4f(std::min(b[0], t.x()), std::min(b[1], t.y()), std::max(b[2], t.x()), std::max(b[3], t.y()));
             }
@@ -437,11 +458,13 @@ void Compositor::Impl::makeUndistortMap() {
         }
     }
     undistort_texture = floatTexture(width, height, GL_RG32F, GL_RG, map.data(), GL_NEAREST);
+    warp_variance = warp_pixels > 0 ? warp_variance / static_cast<double>(warp_pixels) : 0.0;
 }
 
 // The layer pixels the virtual objects can cover: their bounding boxes' corners through the
 // layer's pinhole, plus a margin. Everything when a corner is at or behind the camera's plane.
-Rect Compositor::Impl::layerRect(const std::vector<std::optional<Eigen::Matrix4f>>& models, const Eigen::Matrix4d& cam_from_world) const {
+Rect Compositor::Impl::layerRect(const std::vector<std::optional<Eigen::Matrix4f>>& models, const Eigen::Matrix4d& cam_from_world,
+                                double margin) const {
     Rect full{0, 0, layer_width - 1, layer_height - 1};
     double x0 = 1e30, y0 = 1e30, x1 = -1e30, y1 = -1e30;
     bool any = false;
@@ -465,8 +488,7 @@ Rect Compositor::Impl::layerRect(const std::vector<std::optional<Eigen::Matrix4f
         }
     }
     if (!any) return Rect{};
-    // Image rows (down) to GL rows (up); 2 pixels of margin for the antialiased edge.
-    const double margin = 2.0;
+    // Image rows (down) to GL rows (up); `margin` pixels for the antialiased edge (and a blur).
     Rect r;
     r.x0 = static_cast<int>(std::max(0.0, std::floor(x0 - margin)));
     r.x1 = static_cast<int>(std::min(layer_width - 1.0, std::ceil(x1 + margin)));
@@ -770,6 +792,85 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
     glDisable(GL_SCISSOR_TEST);
 }
 
+// The frame's noise and blur (CPU), and the blur the virtual layer lacks.
+Result<void> Compositor::Impl::measureCamera(const ImageView& image) {
+    ImageView rgb = image;
+    if (image.format == PixelFormat::kYuyv || image.format == PixelFormat::kNv12) {
+        match_rgb.reshape(PixelFormat::kRgb8, width, height);
+        const int rows = image.format == PixelFormat::kNv12 ? height + height / 2 : height;
+        const cv::Mat src(rows, width, image.format == PixelFormat::kNv12 ? CV_8UC1 : CV_8UC2, const_cast<std::uint8_t*>(image.data),
+                          image.stride);
+        cv::Mat dst(height, width, CV_8UC3, match_rgb.data(), match_rgb.stride());
+        cv::cvtColor(src, dst, image.format == PixelFormat::kNv12 ? cv::COLOR_YUV2RGB_NV12 : cv::COLOR_YUV2RGB_YUYV);
+        rgb = match_rgb.view();
+    }
+    CameraMatch m;
+    CL_TRY(m.noise, estimateNoise(rgb));
+    CL_TRY(m.blur, estimateBlur(rgb, response));
+    // The layer's own PSF: its square pixels (MSAA coverage, 1/12 px^2) and the bilinear read
+    // through the lens warp; the frame's PSF includes its pixels' integration too.
+    m.layer_sigma_px = std::sqrt(1.0 / 12.0 + warp_variance);
+    const double extra = m.blur.edges > 0 ? m.blur.sigma_px * m.blur.sigma_px - m.layer_sigma_px * m.layer_sigma_px : 0.0;
+    m.added_sigma_px = std::min(2.5, std::sqrt(std::max(0.0, extra)));
+    m.frame = frames_drawn;
+    match = m;
+    return {};
+}
+
+// A separable Gaussian of `sigma` pixels over the virtual layer in `rect` (two passes), the result
+// then the layer the final pass reads.
+Result<void> Compositor::Impl::blurLayer(const Rect& rect, double sigma) {
+    if (blur_program == 0) {
+        using shaders::programSource;
+        CL_TRY(blur_program, gl::newProgram("blur", programSource({}, shaders::kFinalVs), programSource({}, shaders::kBlurFs)));
+        blur_direction = loc(blur_program, "u_direction");
+        blur_radius = loc(blur_program, "u_radius");
+        blur_weights = loc(blur_program, "u_weights");
+        blur_rect = loc(blur_program, "u_rect");
+        glUseProgram(blur_program);
+        glUniform1i(loc(blur_program, "u_layer"), 0);
+        for (int k = 0; k < 2; ++k) {
+            blur_fbo[k] = gl::newFramebuffer();
+            glBindFramebuffer(GL_FRAMEBUFFER, blur_fbo[k]);
+            blur_texture[k] = floatTexture(layer_width, layer_height, GL_RGBA16F, GL_RGBA, nullptr, GL_LINEAR);
+            glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, blur_texture[k], 0);
+            if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
+                return fail(ErrorCode::kDevice, "render: the GL cannot make the camera matching's blur framebuffers");
+            }
+        }
+    }
+    const int radius = std::clamp(static_cast<int>(std::ceil(3.0 * sigma)), 1, 8);
+    std::array<float, 9> weights{};
+    float total = 0.0f;
+    for (int k = 0; k <= radius; ++k) {
+        weights[static_cast<std::size_t>(k)] = static_cast<float>(std::exp(-0.5 * k * k / (sigma * sigma)));
+        total += (k == 0 ? 1.0f : 2.0f) * weights[static_cast<std::size_t>(k)];
+    }
+    for (float& w : weights) w /= total;
+    glUseProgram(blur_program);
+    glUniform1i(blur_radius, radius);
+    glUniform1fv(blur_weights, 9, weights.data());
+    glViewport(0, 0, layer_width, layer_height);
+    glEnable(GL_SCISSOR_TEST);
+    rect.scissor();
+    glDisable(GL_DEPTH_TEST);
+    glBindVertexArray(empty_vao);
+    glActiveTexture(GL_TEXTURE0);
+    GLuint input = layer_v;
+    for (int pass = 0; pass < 2; ++pass) {
+        glBindFramebuffer(GL_FRAMEBUFFER, blur_fbo[pass]);
+        glBindTexture(GL_TEXTURE_2D, input);
+        glUniform2i(blur_direction, pass == 0 ? 1 : 0, pass == 0 ? 0 : 1);
+        glUniform4i(blur_rect, rect.x0, rect.y0, rect.x1, rect.y1);
+        glDrawArrays(GL_TRIANGLES, 0, 3);
+        input = blur_texture[pass];
+    }
+    glBindVertexArray(0);
+    glDisable(GL_SCISSOR_TEST);
+    layer_v = blur_texture[1];
+    return {};
+}
+
 void Compositor::Impl::releaseAll() {
     snapshot_textures.release();
     gl::deleteTexture(layer_samples_texture);
@@ -800,6 +901,11 @@ void Compositor::Impl::releaseAll() {
         gl::deleteProgram(*p);
     }
     for (auto& [bits, p] : final_programs) gl::deleteProgram(p.id);
+    gl::deleteProgram(blur_program);
+    for (int k = 0; k < 2; ++k) {
+        gl::deleteTexture(blur_texture[k]);
+        gl::deleteFramebuffer(blur_fbo[k]);
+    }
     gl::deleteProgram(world_program);
     gl::deleteProgram(warp_program);
     gl::deleteTexture(world_texture);
@@ -908,6 +1014,7 @@ Compositor::~Compositor() {
 void Compositor::setOptions(const CompositorOptions& options) { impl_->options = options; }
 const CompositorOptions& Compositor::options() const noexcept { return impl_->options; }
 const std::vector<PassTime>& Compositor::passTimes() const noexcept { return impl_->pass_times; }
+const std::optional<CameraMatch>& Compositor::cameraMatch() const noexcept { return impl_->match; }
 
 Result<std::vector<Eigen::Vector4f>> Compositor::surfacePoints(const FrameInput& frame) {
     Impl& d = *impl_;
@@ -1024,6 +1131,15 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     // Step 1: the frame, through the pixel buffer, in its own format.
     d.uploadFrame(frame.image);
     d.mark("upload frame");
+    if (d.options.camera_matching) {
+        const std::uint64_t interval = static_cast<std::uint64_t>(std::max(1, d.options.matching_interval));
+        if (!d.match || d.frames_drawn - d.match->frame >= interval) CL_TRY_VOID(d.measureCamera(frame.image));
+        d.mark("camera matching");
+    } else {
+        d.match.reset();
+    }
+    const bool matching = d.options.camera_matching && d.match.has_value();
+    const double added_blur = matching ? d.match->added_sigma_px : 0.0;
     d.snapshot_textures.update(snapshot, d.scene.virtual_objects.size(), d.options.lighting);
     d.mark("upload snapshot");
 
@@ -1067,9 +1183,13 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
         if (modulated) d.drawProxies(view_proj);
 
         d.mark("proxies");
-        layer_rect = d.options.debug == DebugView::kProxyWireframe ? Rect{0, 0, d.layer_width - 1, d.layer_height - 1}
-                                                                   : d.layerRect(virtual_model, cam_from_world);
-        if (!layer_rect.empty()) d.drawVirtualLayer(layer_rect, modulated, view_proj, camera_centre, samples, virtual_model, snapshot, eg);
+        layer_rect = d.options.debug == DebugView::kProxyWireframe
+                         ? Rect{0, 0, d.layer_width - 1, d.layer_height - 1}
+                         : d.layerRect(virtual_model, cam_from_world, 2.0 + (added_blur > 0.05 ? std::ceil(3.0 * added_blur) : 0.0));
+        if (!layer_rect.empty()) {
+            d.drawVirtualLayer(layer_rect, modulated, view_proj, camera_centre, samples, virtual_model, snapshot, eg);
+            if (added_blur > 0.05) CL_TRY_VOID(d.blurLayer(layer_rect, added_blur));
+        }
         d.mark("virtual layer");
     }
 
@@ -1084,7 +1204,7 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     CL_TRY(const FinalProgram* outside, d.finalProgram(bits));
     const FinalProgram* inside = nullptr;
     if (!camera_rect.empty()) {
-        CL_TRY(inside, d.finalProgram(bits | kFinalVirtual));
+        CL_TRY(inside, d.finalProgram(bits | kFinalVirtual | (matching ? kFinalNoise : 0)));
     }
     glBindFramebuffer(GL_FRAMEBUFFER, d.output_fbo);
     const GLenum out0 = GL_COLOR_ATTACHMENT0;
@@ -1108,6 +1228,14 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
         // Texel coordinates at which a bilinear read stays inside the drawn rectangle.
         glUniform4f(p.layer_rect, static_cast<float>(layer_rect.x0) + 0.5f, static_cast<float>(layer_rect.y0) + 0.5f,
                     static_cast<float>(layer_rect.x1) + 0.5f, static_cast<float>(layer_rect.y1) + 0.5f);
+        if (p.noise >= 0 && matching) {
+            std::array<float, 3 * NoiseProfile::kBins> noise{};
+            for (int b = 0; b < NoiseProfile::kBins; ++b) {
+                for (int c = 0; c < 3; ++c) noise[static_cast<std::size_t>(3 * b + c)] = d.match->noise.sigma[static_cast<std::size_t>(b)][c];
+            }
+            glUniform3fv(p.noise, NoiseProfile::kBins, noise.data());
+            glUniform1ui(p.seed, static_cast<GLuint>(d.frames_drawn & 0xffffffffu));
+        }
     };
     glBindVertexArray(d.empty_vao);
     setUniforms(*outside);
@@ -1146,6 +1274,7 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
         d.mark("window");
     }
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    ++d.frames_drawn;
     const GLenum error = glGetError();
     if (error != GL_NO_ERROR) return fail(ErrorCode::kInternal, "render: GL error " + std::to_string(error) + " while compositing");
     return {};

@@ -16,6 +16,7 @@
 //      nothing changes keeps its code exactly.
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -27,6 +28,7 @@
 #include "core/result.h"
 #include "core/scene.h"
 #include "lighting/snapshot.h"
+#include "render/camera_matching.h"
 #include "render/gl_context.h"
 
 namespace commonlight::render {
@@ -46,6 +48,11 @@ struct CompositorOptions {
     DebugView debug = DebugView::kNone;
     int shadow_map_size = 512;     // texels per side of each shadow map (64..4096); the map covers only the virtual objects' bounds
     int area_light_samples = 4;    // shadow maps per area or disc light (1..8)
+    // Camera matching (Klein and Murray, ISMAR 2008; render/camera_matching.h): the frame's sensor
+    // noise (per intensity) and blur are measured on the CPU every `matching_interval` frames, the
+    // virtual layer is blurred to the frame's PSF and gets noise of the frame's deviation in codes.
+    bool camera_matching = false;
+    int matching_interval = 30;  // frames between measurements (>= 1; the first frame is always measured)
     // Benchmarks and profiling only: glFinish() after each pass and its wall time kept
     // (Compositor::passTimes()). It serialises the GL's pipelining: never in the live loop.
     bool profile = false;
@@ -63,6 +70,15 @@ struct FrameInput {
     double exposure_gain = 1.0;       // exposure (s) x analog gain; <= 0 or not finite: 1
     std::optional<Rigid3d> cam_from_world;              // nullopt (no pose): the frame unchanged
     std::vector<std::optional<Rigid3d>> virtual_poses;  // world_from_object per Scene::virtual_objects; nullopt: not drawn
+};
+
+// What camera matching measured and applies (CompositorOptions::camera_matching).
+struct CameraMatch {
+    NoiseProfile noise;            // the frame's noise, codes per intensity bin
+    BlurEstimate blur;             // the frame's PSF (its sigma includes the pixels' own integration)
+    double layer_sigma_px = 0.0;   // the virtual layer's own PSF: square pixels (MSAA) and the lens warp's bilinear read
+    double added_sigma_px = 0.0;   // the Gaussian given to the virtual layer: sqrt(max(0, blur^2 - layer^2)), at most 2.5
+    std::uint64_t frame = 0;       // the draw() it was measured at (0: the first)
 };
 
 // Live GL objects of the render module (created minus deleted), for leak checks.
@@ -98,6 +114,9 @@ public:
     // the filter reads, 0.5 where several do (an edge: the point is a blend), 0 where there is none
     // or no pose. The frame's pixels are not used.
     Result<std::vector<Eigen::Vector4f>> surfacePoints(const FrameInput& frame);
+
+    // The last measurement of camera matching; nullopt when it is off or nothing was measured yet.
+    const std::optional<CameraMatch>& cameraMatch() const noexcept;
 
     // The passes of the last draw() and read() with their times (profiling mode; empty otherwise).
     const std::vector<PassTime>& passTimes() const noexcept;

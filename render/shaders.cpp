@@ -253,6 +253,28 @@ void main() {
 }
 )";
 
+// One direction of a separable Gaussian over the virtual layer (premultiplied: the coverage blurs
+// with the colour); texels outside the rectangle drawn this frame count as empty.
+const char* const kBlurFs = R"(
+layout(location = 0) out vec4 o_layer;
+uniform sampler2D u_layer;
+uniform ivec2 u_direction;   // (1, 0) or (0, 1)
+uniform int u_radius;        // texels each side, <= 8
+uniform float u_weights[9];  // the kernel's weights at 0 .. u_radius texels (sum over both sides 1)
+uniform ivec4 u_rect;        // the rectangle drawn this frame, inclusive (x0, y0, x1, y1)
+void main() {
+    ivec2 p = ivec2(gl_FragCoord.xy);
+    ivec2 last = textureSize(u_layer, 0) - 1;
+    vec4 sum = vec4(0.0);
+    for (int k = -u_radius; k <= u_radius; ++k) {
+        ivec2 q = p + k * u_direction;
+        bool inside = all(greaterThanEqual(q, u_rect.xy)) && all(lessThanEqual(q, u_rect.zw));
+        sum += inside ? texelFetch(u_layer, clamp(q, ivec2(0), last), 0) * u_weights[abs(k)] : vec4(0.0);
+    }
+    o_layer = sum;
+}
+)";
+
 const char* const kWorldFs = R"(
 in vec3 v_world;
 in vec3 v_normal;
@@ -348,6 +370,38 @@ vec2 atlasAt(ivec2 p) {
     return vec2(b.x * 256.0 + b.y, b.z * 256.0 + b.w);
 }
 
+#if defined(MATCH_NOISE)
+uniform vec3 u_noise[16];  // the frame's noise deviation in codes per channel, bins of 16 codes (centres 8, 24, ..)
+uniform uint u_seed;       // the frame's number
+
+// PCG hash (O'Neill; Jarzynski and Olano 2020): a random 32-bit word per pixel and frame.
+uint pcg(uint v) {
+    uint state = v * 747796405u + 2891336453u;
+    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// Three independent standard normal numbers (Box-Muller).
+vec3 gaussian3(ivec2 p) {
+    uint h1 = pcg(uint(p.x) + pcg(uint(p.y) + pcg(u_seed)));
+    uint h2 = pcg(h1);
+    uint h3 = pcg(h2);
+    uint h4 = pcg(h3);
+    vec4 u = (vec4(float(h1), float(h2), float(h3), float(h4)) + 0.5) / 4294967296.0;
+    float r1 = sqrt(-2.0 * log(max(u.x, 1e-30)));
+    float r2 = sqrt(-2.0 * log(max(u.z, 1e-30)));
+    return vec3(r1 * cos(6.2831853 * u.y), r1 * sin(6.2831853 * u.y), r2 * cos(6.2831853 * u.w));
+}
+
+vec3 noiseSigma(vec3 code) {
+    vec3 x = clamp((code - 8.0) / 16.0, 0.0, 15.0);
+    ivec3 i = min(ivec3(x), ivec3(14));
+    vec3 f = x - vec3(i);
+    return vec3(mix(u_noise[i.r].r, u_noise[i.r + 1].r, f.r), mix(u_noise[i.g].g, u_noise[i.g + 1].g, f.g),
+                mix(u_noise[i.b].b, u_noise[i.b + 1].b, f.b));
+}
+#endif
+
 vec3 toLinear(ivec3 code) { return vec3(u_to_linear[code.r].r, u_to_linear[code.g].g, u_to_linear[code.b].b); }
 
 vec3 encode(vec3 linear) {
@@ -420,7 +474,13 @@ void main() {
     bool unchanged = !forced && v.a < 1.0 / 1024.0 && all(lessThan(abs(m - 1.0), vec3(1e-4))) &&
                      all(lessThan(abs(d * u_exposure_gain), vec3(1e-6)));
     vec3 out_linear = (background * m + d * u_exposure_gain) * (1.0 - v.a) + v.rgb * u_exposure_gain;
-    vec3 result = floor(encode(out_linear) * 255.0 + 0.5) / 255.0;
+    vec3 encoded = encode(out_linear) * 255.0;
+#if defined(MATCH_NOISE)
+    // The sensor's noise is added after the optics mix the pixel: the frame's part already has its
+    // share (1 - a)^2 of the variance; the virtual part gets the rest.
+    encoded += noiseSigma(encoded) * gaussian3(pixel) * sqrt(max(0.0, 1.0 - (1.0 - v.a) * (1.0 - v.a)));
+#endif
+    vec3 result = clamp(floor(encoded + 0.5), 0.0, 255.0) / 255.0;
     o_colour = vec4(unchanged ? vec3(code) / 255.0 : result, 1.0);
 #endif
 #endif

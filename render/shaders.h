@@ -24,12 +24,14 @@ extern const char* const kVirtualFs;  // radiance (location 0), normal and camer
 extern const char* const kLineFs;     // debug lines: a constant colour (location 0), geometry (location 1)
 extern const char* const kGeometryFs; // the surface's normal and camera depth (location 0): the multisampled pass
 extern const char* const kComposeFs;  // the virtual layer from the shaded pixels and the samples' geometry (full-screen triangle)
+extern const char* const kBlurFs;     // one direction of a Gaussian over the virtual layer (camera matching)
 extern const char* const kWorldFs;    // the world position, w = 1 (location 0): surfacePoints()
 extern const char* const kWarpFs;     // the world positions' layer read at each camera pixel's ideal position (full-screen triangle)
 extern const char* const kFinalVs;    // a full-screen triangle
 // The final pass. Defines: FRAME_RGB8 | FRAME_YUYV | FRAME_NV12 (the frame's format), MODULATION
 // (real surfaces modulated by the snapshot through the face atlas), VIRTUAL (the virtual layer is
-// read), VIEW_ELEMENTS | VIEW_RATIO (debug views; with MODULATION).
+// read), MATCH_NOISE (with VIRTUAL: the frame's noise added where the virtual layer shows), VIEW_ELEMENTS |
+// VIEW_RATIO (debug views; with MODULATION).
 extern const char* const kFinalFs;
 
 }  // namespace commonlight::render::shaders

@@ -641,6 +641,134 @@ TEST_F(CompositorTest, ShadowMapsHaveRealAndVirtualOccluders) {
     EXPECT_LT(under_real, 0.2 * open_side);
 }
 
+// Camera matching (off by default): a frame with 4 codes of sensor noise; the virtual ball's
+// interior (flat emission) has no noise without matching and about the frame's deviation with it,
+// the frame's own pixels are unchanged, the noise changes from frame to frame and two compositors
+// give the same bytes.
+TEST_F(CompositorTest, CameraMatchingGivesTheVirtualLayerTheFramesNoise) {
+    Scene scene;
+    scene.virtual_objects.push_back(sphere("ball", 0.5, {0, 0, 0.5}, Eigen::Vector3d::Zero(), Eigen::Vector3d::Constant(0.6)));
+    const CameraModel camera = smallCamera(320, 240);
+    Image frame(PixelFormat::kRgb8, camera.width, camera.height);
+    std::mt19937 rng(17);
+    std::normal_distribution<float> normal(0.0f, 4.0f);
+    for (int y = 0; y < camera.height; ++y) {
+        for (int x = 0; x < 3 * camera.width; ++x) frame.mutableView().row(y)[x] = static_cast<std::uint8_t>(std::lround(std::clamp(90.0f + normal(rng), 0.0f, 255.0f)));
+    }
+    const auto interior = [&](const Image& out, double& mean, double& deviation) {
+        // Pixels well inside the ball's image (radius about 60 px): within 30 px of its centre.
+        const Eigen::Vector2d c = *camera.project(lookingDown().rotation * Eigen::Vector3d(0, 0, 1.0) + lookingDown().translation);
+        double sum = 0, sum2 = 0;
+        int n = 0;
+        for (int y = 0; y < camera.height; ++y) {
+            for (int x = 0; x < camera.width; ++x) {
+                if ((Eigen::Vector2d(x, y) - c).norm() > 30.0) continue;
+                const double v = out.view().row(y)[3 * x + 1];
+                sum += v;
+                sum2 += v * v;
+                ++n;
+            }
+        }
+        mean = sum / n;
+        deviation = std::sqrt(std::max(0.0, sum2 / n - mean * mean));
+    };
+    CompositorOptions off;
+    auto plain = make(scene, camera, ResponseCurve::linear(), off);
+    ASSERT_TRUE(plain);
+    const Image without = render(*plain, frame.view(), lookingDown(), lighting::LightingSnapshot{});
+    double mean_off = 0, dev_off = 0;
+    interior(without, mean_off, dev_off);
+    EXPECT_NEAR(mean_off, 0.6 * 255, 1.0);
+    EXPECT_LT(dev_off, 0.6);
+    EXPECT_FALSE(plain->cameraMatch());
+
+    CompositorOptions on;
+    on.camera_matching = true;
+    auto matched = make(scene, camera, ResponseCurve::linear(), on);
+    ASSERT_TRUE(matched);
+    const Image first = render(*matched, frame.view(), lookingDown(), lighting::LightingSnapshot{});
+    const Image second = render(*matched, frame.view(), lookingDown(), lighting::LightingSnapshot{});
+    ASSERT_TRUE(matched->cameraMatch());
+    const CameraMatch& m = *matched->cameraMatch();
+    const double frame_sigma = std::sqrt(16.0 + 1.0 / 12.0);
+    EXPECT_NEAR(m.noise.overall[1], frame_sigma, 0.1 * frame_sigma);
+    double mean_on = 0, dev_on = 0;
+    interior(first, mean_on, dev_on);
+    std::printf("ball interior: deviation %.2f codes without matching, %.2f with (frame %.2f)\n", dev_off, dev_on, frame_sigma);
+    EXPECT_NEAR(mean_on, mean_off, 1.0);
+    // 15%: about 2800 pixels, and the profile's bin around code 153 is interpolated from the frame's.
+    EXPECT_NEAR(dev_on, frame_sigma, 0.15 * frame_sigma);
+    // The frame's own pixels, far from the ball, are the frame's.
+    EXPECT_EQ(first.view().row(2)[6], frame.view().row(2)[6]);
+    EXPECT_EQ(first.view().row(camera.height - 3)[3 * (camera.width - 3)], frame.view().row(camera.height - 3)[3 * (camera.width - 3)]);
+    EXPECT_NE(std::memcmp(first.view().row(camera.height / 2), second.view().row(camera.height / 2), 3 * static_cast<std::size_t>(camera.width)), 0)
+        << "the noise should change from frame to frame";
+    auto again = make(scene, camera, ResponseCurve::linear(), on);
+    ASSERT_TRUE(again);
+    const Image repeat = render(*again, frame.view(), lookingDown(), lighting::LightingSnapshot{});
+    for (int y = 0; y < camera.height; ++y) {
+        ASSERT_EQ(std::memcmp(first.view().row(y), repeat.view().row(y), 3 * static_cast<std::size_t>(camera.width)), 0) << "row " << y;
+    }
+}
+
+// Camera matching blurs the virtual layer to the frame's PSF: a frame whose edges are blurred by
+// 1.5 px (left half) and a virtual box face-on (right half, over a flat part of the frame): the box's
+// edges measure about the frame's sigma with matching; without, they are too sharp to measure as a
+// Gaussian (the 4-sample coverage steps along them) or well under 0.5 px.
+TEST_F(CompositorTest, CameraMatchingBlursTheVirtualLayerLikeTheFrame) {
+    const CameraModel camera = smallCamera(320, 240);
+    cv::Mat fine(240 * 4, 160 * 4, CV_32FC1, cv::Scalar(0.05));
+    for (int k = 0; k < 4; ++k) cv::rectangle(fine, cv::Rect((10 + 35 * k) * 4, (20 + 40 * k) * 4, 25 * 4, 30 * 4), cv::Scalar(0.7), cv::FILLED);
+    cv::Mat linear;
+    cv::resize(fine, linear, cv::Size(160, 240), 0, 0, cv::INTER_AREA);
+    cv::GaussianBlur(linear, linear, cv::Size(0, 0), 1.5);
+    Image frame = constantFrame(camera.width, camera.height, 0);
+    const ResponseCurve srgb = ResponseCurve::srgb();
+    for (int y = 0; y < camera.height; ++y) {
+        for (int x = 0; x < 160; ++x) {
+            const auto code = static_cast<std::uint8_t>(std::lround(255.0f * srgb.toEncoded(1, linear.at<float>(y, x))));
+            for (int c = 0; c < 3; ++c) frame.mutableView().row(y)[3 * x + c] = code;
+        }
+        for (int x = 160; x < camera.width; ++x) {
+            for (int c = 0; c < 3; ++c) frame.mutableView().row(y)[3 * x + c] = static_cast<std::uint8_t>(std::lround(255.0f * srgb.toEncoded(1, 0.05f)));
+        }
+    }
+    Scene scene;
+    VirtualObject box;
+    box.name = "box";
+    box.shape = BoxShape{Eigen::Vector3d(0.35, 0.5, 0.1)};
+    box.material.albedo = Eigen::Vector3d::Zero();
+    box.emission = Eigen::Vector3d::Constant(0.7);
+    box.placement = FixedPlacement{Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(0.55, 0.0, 0.05))};
+    scene.virtual_objects.push_back(box);
+    double measured[2] = {0.0, 0.0};
+    for (const bool matching : {false, true}) {
+        CompositorOptions options;
+        options.camera_matching = matching;
+        auto c = make(scene, camera, srgb, options);
+        ASSERT_TRUE(c);
+        const Image out = render(*c, frame.view(), lookingDown(), lighting::LightingSnapshot{});
+        if (matching) {
+            ASSERT_TRUE(c->cameraMatch());
+            EXPECT_NEAR(c->cameraMatch()->blur.sigma_px, std::sqrt(1.5 * 1.5 + 1.0 / 12.0), 0.15);
+            EXPECT_GT(c->cameraMatch()->added_sigma_px, 1.3);
+        }
+        // The right half alone: the virtual box's edges.
+        cv::Mat right = cv::Mat(out.height(), out.width(), CV_8UC3, const_cast<std::uint8_t*>(out.view().data), out.stride())(cv::Rect(170, 0, 150, 240)).clone();
+        if (std::getenv("CL_RENDER_DUMP")) cv::imwrite(matching ? "/tmp/matching_on.png" : "/tmp/matching_off.png", right);
+        auto blur = estimateBlur(ImageView{PixelFormat::kRgb8, right.cols, right.rows, right.step, right.data, right.step * static_cast<std::size_t>(right.rows)}, srgb);
+        ASSERT_TRUE(blur);
+        if (matching) {
+            EXPECT_GT(blur->edges, 20);
+        }
+        measured[matching ? 1 : 0] = blur->sigma_px;
+    }
+    std::printf("virtual box edges: %.3f px without matching, %.3f px with (frame %.3f px)\n", measured[0], measured[1],
+                std::sqrt(1.5 * 1.5 + 1.0 / 12.0));
+    EXPECT_LT(measured[0], 0.5);  // 0: no edge fitted as a Gaussian
+    EXPECT_NEAR(measured[1], std::sqrt(1.5 * 1.5 + 1.0 / 12.0), 0.2);
+}
+
 // Creation and destruction leave no GL object behind, and drawing with new snapshot versions
 // does not accumulate any.
 TEST_F(CompositorTest, NoGlObjectIsLeaked) {
