@@ -77,9 +77,12 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
     pipe->add_option("--seconds", pipeline_options->seconds, "Seconds of real-time playback per configuration")
         ->check(CLI::PositiveNumber)
         ->capture_default_str();
-    pipe->add_option("--cases", pipeline_options->cases, "Cases to run: system, compositor, realtime (default: all)")
+    pipe->add_option("--cases", pipeline_options->cases, "Cases to run (default: all)")
         ->check(CLI::IsMember(benchPipelineCaseNames()))
         ->delimiter(',');
+    pipe->footer("Cases: system (composite error and stage times, every frame), compositor (draw and read-back time, "
+                 "per pass), matching (camera matching's estimates and the noise of the virtual objects against the ground "
+                 "truth), realtime (playback at the recorded rate: fps, latency, lighting lag; pipeline thread and one thread).");
     pipe->callback([pipeline_options, &runner] { runner = [pipeline_options] { return runBenchPipeline(*pipeline_options); }; });
 }
 

@@ -3,8 +3,12 @@
 #include <algorithm>
 #include <cctype>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <limits>
+#include <map>
 #include <sstream>
+#include <tuple>
 #include <string>
 #include <unordered_map>
 
@@ -13,6 +17,9 @@
 // The library (libtinygltf) holds the implementation and stb_image; only declarations here.
 #include <tiny_gltf.h>
 #include <tiny_obj_loader.h>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 namespace commonlight {
 
@@ -39,9 +46,58 @@ std::string oneLine(std::string text) {
     return text.empty() ? std::string("unknown error") : text;
 }
 
-// Meshes need no textures: skip decoding them (and do not fail on formats stb cannot read).
-bool skipImage(tinygltf::Image*, const int, std::string*, std::string*, int, int, const unsigned char*, int, void*) {
+// Images are decoded only when a material's base colour uses them (decodeTexture): keep the
+// encoded bytes (and do not fail on an image nothing uses).
+bool keepImageBytes(tinygltf::Image* image, const int, std::string*, std::string*, int, int, const unsigned char* bytes, int size,
+                    void*) {
+    image->image.assign(bytes, bytes + size);
+    image->width = -1;
+    image->height = -1;
+    image->component = 0;
     return true;
+}
+
+// An encoded image (PNG, JPEG, ...) as an RGBA8 texture, top row first, by OpenCV. `name` says
+// which texture in the errors.
+Result<std::shared_ptr<const Image>> decodeTexture(const std::vector<unsigned char>& bytes, const std::filesystem::path& file,
+                                                   const std::string& name) {
+    if (bytes.empty()) return fail(meshError(file, "base colour texture " + name + " cannot be read (missing or empty)"));
+    cv::Mat decoded;
+    try {
+        decoded = cv::imdecode(cv::Mat(1, static_cast<int>(bytes.size()), CV_8UC1, const_cast<unsigned char*>(bytes.data())),
+                               cv::IMREAD_UNCHANGED);
+    } catch (const cv::Exception&) {
+        decoded = cv::Mat();  // hard case: a corrupt file OpenCV throws on rather than reports
+    }
+    if (decoded.empty() || decoded.cols <= 0 || decoded.rows <= 0) {
+        return fail(meshError(file, "base colour texture " + name + " cannot be decoded (not an image OpenCV reads)"));
+    }
+    if (decoded.depth() == CV_16U) decoded.convertTo(decoded, CV_8U, 1.0 / 257.0);
+    if (decoded.depth() != CV_8U) return fail(meshError(file, "base colour texture " + name + " is neither 8 nor 16 bits per channel"));
+    cv::Mat rgba;
+    switch (decoded.channels()) {
+        case 1: cv::cvtColor(decoded, rgba, cv::COLOR_GRAY2RGBA); break;
+        case 3: cv::cvtColor(decoded, rgba, cv::COLOR_BGR2RGBA); break;
+        case 4: cv::cvtColor(decoded, rgba, cv::COLOR_BGRA2RGBA); break;
+        default: return fail(meshError(file, "base colour texture " + name + " has " + std::to_string(decoded.channels()) + " channels"));
+    }
+    auto image = std::make_shared<Image>(PixelFormat::kRgba8, rgba.cols, rgba.rows);
+    for (int y = 0; y < rgba.rows; ++y) std::memcpy(image->mutableView().row(y), rgba.ptr(y), 4 * static_cast<std::size_t>(rgba.cols));
+    return std::shared_ptr<const Image>(std::move(image));
+}
+
+// Ranges in index order with neighbours of the same material merged.
+std::vector<MeshRange> mergedRanges(const std::vector<MeshRange>& ranges) {
+    std::vector<MeshRange> out;
+    for (const MeshRange& r : ranges) {
+        if (r.count == 0) continue;
+        if (!out.empty() && out.back().material == r.material && out.back().first + out.back().count == r.first) {
+            out.back().count += r.count;
+        } else {
+            out.push_back(r);
+        }
+    }
+    return out;
 }
 
 const char* modeName(int mode) {
@@ -88,8 +144,15 @@ public:
         for (const int node : model_.scenes[static_cast<std::size_t>(scene)].nodes) {
             CL_TRY_VOID(visit(node, Eigen::Matrix4d::Identity()));
         }
-        // Step 3: normals only when every primitive had them.
+        // Step 3: normals only when every primitive had them; texture coordinates and materials
+        // only when some primitive had them.
         if (!all_have_normals_) mesh_.normals.clear();
+        if (!any_texcoords_) mesh_.texcoords.clear();
+        if (mesh_.materials.empty()) {
+            mesh_.ranges.clear();
+        } else {
+            mesh_.ranges = mergedRanges(mesh_.ranges);
+        }
         if (mesh_.indices.empty()) return fail(meshError(file_, "contains no triangles"));
         return std::move(mesh_);
     }
@@ -190,6 +253,70 @@ private:
         return out;
     }
 
+    // TEXCOORD_n: FLOAT, or normalized UNSIGNED_BYTE / UNSIGNED_SHORT (glTF 2.0 sec. 3.7.2.1).
+    Result<std::vector<Eigen::Vector2f>> readTexcoords(int accessor_index, const std::string& what) const {
+        CL_TRY(const AccessorView v, view(accessor_index, TINYGLTF_TYPE_VEC2, what));
+        std::vector<Eigen::Vector2f> out(v.count);
+        for (std::size_t i = 0; i < v.count; ++i) {
+            const unsigned char* p = v.data + i * v.stride;
+            switch (v.component_type) {
+                case TINYGLTF_COMPONENT_TYPE_FLOAT: std::memcpy(out[i].data(), p, 2 * sizeof(float)); break;
+                case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: out[i] = Eigen::Vector2f(p[0], p[1]) / 255.0f; break;
+                case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: {
+                    std::uint16_t uv[2];
+                    std::memcpy(uv, p, sizeof uv);
+                    out[i] = Eigen::Vector2f(uv[0], uv[1]) / 65535.0f;
+                    break;
+                }
+                default: return fail(meshError(file_, what + ": components must be FLOAT or normalized unsigned byte or short"));
+            }
+        }
+        return out;
+    }
+
+    // The mesh's material for a glTF material (made at its first use, its texture decoded then).
+    Result<int> material(int index, const std::string& where) {
+        if (index < 0) return -1;
+        if (index >= static_cast<int>(model_.materials.size())) {
+            return fail(meshError(file_, where + ": material " + std::to_string(index) + " does not exist"));
+        }
+        if (const auto it = material_of_.find(index); it != material_of_.end()) return it->second;
+        const tinygltf::Material& m = model_.materials[static_cast<std::size_t>(index)];
+        const tinygltf::PbrMetallicRoughness& pbr = m.pbrMetallicRoughness;
+        MeshMaterial out;
+        out.name = m.name;
+        if (pbr.baseColorFactor.size() == 4) {
+            for (int c = 0; c < 4; ++c) out.base_colour[c] = static_cast<float>(pbr.baseColorFactor[static_cast<std::size_t>(c)]);
+        }
+        if (!out.base_colour.allFinite() || (out.base_colour.array() < 0.0f).any()) {
+            return fail(meshError(file_, "material " + std::to_string(index) + ": baseColorFactor must be finite and not negative"));
+        }
+        if (pbr.baseColorTexture.index >= 0) {
+            const int t = pbr.baseColorTexture.index;
+            if (t >= static_cast<int>(model_.textures.size())) {
+                return fail(meshError(file_, "material " + std::to_string(index) + ": texture " + std::to_string(t) + " does not exist"));
+            }
+            const tinygltf::Texture& texture = model_.textures[static_cast<std::size_t>(t)];
+            if (texture.source < 0 || texture.source >= static_cast<int>(model_.images.size())) {
+                return fail(meshError(file_, "texture " + std::to_string(t) + ": image " + std::to_string(texture.source) + " does not exist"));
+            }
+            const tinygltf::Image& image = model_.images[static_cast<std::size_t>(texture.source)];
+            out.texture_file = !image.uri.empty() && image.uri.rfind("data:", 0) != 0
+                                   ? (file_.parent_path() / image.uri).string()
+                                   : "image " + std::to_string(texture.source) + " of " + file_.string();
+            CL_TRY(out.texture, decodeTexture(image.image, file_, "'" + out.texture_file + "'"));
+            if (texture.sampler >= 0 && texture.sampler < static_cast<int>(model_.samplers.size())) {
+                const tinygltf::Sampler& sampler = model_.samplers[static_cast<std::size_t>(texture.sampler)];
+                out.repeat_s = sampler.wrapS != TINYGLTF_TEXTURE_WRAP_CLAMP_TO_EDGE;
+                out.repeat_t = sampler.wrapT != TINYGLTF_TEXTURE_WRAP_CLAMP_TO_EDGE;
+            }
+        }
+        mesh_.materials.push_back(std::move(out));
+        const int mesh_index = static_cast<int>(mesh_.materials.size()) - 1;
+        material_of_[index] = mesh_index;
+        return mesh_index;
+    }
+
     Result<std::vector<std::uint32_t>> readIndices(int accessor_index, const std::string& what) const {
         CL_TRY(const AccessorView v, view(accessor_index, TINYGLTF_TYPE_SCALAR, what));
         std::vector<std::uint32_t> out(v.count);
@@ -258,6 +385,26 @@ private:
             return fail(meshError(file_, "has more vertices than 32-bit indices can address"));
         }
 
+        // The base colour: its material, and the texture coordinates its texture asks for.
+        CL_TRY(const int material_index, material(primitive.material, where));
+        std::vector<Eigen::Vector2f> texcoords(positions.size(), Eigen::Vector2f::Zero());
+        if (material_index >= 0 && mesh_.materials[static_cast<std::size_t>(material_index)].texture) {
+            const int set = model_.materials[static_cast<std::size_t>(primitive.material)].pbrMetallicRoughness.baseColorTexture.texCoord;
+            const std::string name = "TEXCOORD_" + std::to_string(std::max(set, 0));
+            const auto it = primitive.attributes.find(name);
+            if (it == primitive.attributes.end()) {
+                return fail(meshError(file_, where + ": its material has a base colour texture but the primitive has no " + name));
+            }
+            CL_TRY(texcoords, readTexcoords(it->second, where + " " + name));
+            if (texcoords.size() != positions.size()) {
+                return fail(meshError(file_, where + ": has " + std::to_string(texcoords.size()) + " texture coordinates for " +
+                                                 std::to_string(positions.size()) + " positions"));
+            }
+            any_texcoords_ = true;
+        }
+        mesh_.texcoords.insert(mesh_.texcoords.end(), texcoords.begin(), texcoords.end());
+        mesh_.ranges.push_back({mesh_.indices.size(), indices.size(), material_index});
+
         const auto base = static_cast<std::uint32_t>(mesh_.positions.size());
         const Eigen::Matrix3d linear = world.topLeftCorner<3, 3>();
         const Eigen::Vector3d offset = world.topRightCorner<3, 1>();
@@ -287,6 +434,8 @@ private:
     const tinygltf::Model& model_;
     Mesh mesh_;
     bool all_have_normals_ = true;
+    bool any_texcoords_ = false;
+    std::unordered_map<int, int> material_of_;  // glTF material -> mesh_.materials index
     std::vector<std::uint8_t> on_path_;  // 1 for nodes on the current root-to-node path, to catch cycles
 };
 
@@ -301,7 +450,7 @@ std::string lowerExtension(const std::filesystem::path& file) {
 Result<Mesh> readGltfMesh(const std::filesystem::path& file, bool binary) {
     CL_TRY_VOID(checkExists(file));
     tinygltf::TinyGLTF loader;
-    loader.SetImageLoader(&skipImage, nullptr);
+    loader.SetImageLoader(&keepImageBytes, nullptr);
     tinygltf::Model model;
     std::string err;
     std::string warn;
@@ -327,9 +476,14 @@ Result<Mesh> readObjMesh(const std::filesystem::path& file) {
         return Eigen::Vector3f(attrib.vertices[3 * i], attrib.vertices[3 * i + 1], attrib.vertices[3 * i + 2]);
     };
 
-    // Step 1: every corner, checked against the vertex and normal lists.
+    // Step 1: every corner, checked against the vertex, normal and texture coordinate lists; the
+    // material of every triangle.
+    const std::vector<tinyobj::material_t>& obj_materials = reader.GetMaterials();
+    const std::size_t texcoord_count = attrib.texcoords.size() / 2;
     std::vector<tinyobj::index_t> corners;
+    std::vector<int> triangle_material;
     bool all_have_normals = true;
+    bool all_have_texcoords = true;
     for (const tinyobj::shape_t& shape : reader.GetShapes()) {
         const std::string shape_name = shape.name.empty() ? std::string("shape") : "shape '" + shape.name + "'";
         const auto& faces = shape.mesh.num_face_vertices;
@@ -356,8 +510,17 @@ Result<Mesh> readObjMesh(const std::filesystem::path& file) {
                                                     std::to_string(corner.normal_index + 1) + ", but the file has " +
                                                     std::to_string(normal_count)));
                 }
+                if (corner.texcoord_index < 0) {
+                    all_have_texcoords = false;
+                } else if (static_cast<std::size_t>(corner.texcoord_index) >= texcoord_count) {
+                    return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to texture coordinate " +
+                                                    std::to_string(corner.texcoord_index + 1) + ", but the file has " +
+                                                    std::to_string(texcoord_count)));
+                }
                 corners.push_back(corner);
             }
+            const int id = f < shape.mesh.material_ids.size() ? shape.mesh.material_ids[f] : -1;
+            triangle_material.push_back(id >= 0 && static_cast<std::size_t>(id) < obj_materials.size() ? id : -1);
             offset += 3;
         }
     }
@@ -366,27 +529,80 @@ Result<Mesh> readObjMesh(const std::filesystem::path& file) {
         return fail(meshError(file, "has more vertices than 32-bit indices can address"));
     }
 
-    // Step 2: one mesh vertex per OBJ vertex, or per (vertex, normal) pair when there are normals.
+    // Step 2: the materials the triangles use (Kd, map_Kd relative to the .mtl's folder, which is the
+    // OBJ's).
     Mesh mesh;
+    std::vector<int> material_of(obj_materials.size(), -1);
+    bool textured = false;
+    for (const int id : triangle_material) {
+        if (id < 0 || material_of[static_cast<std::size_t>(id)] >= 0) continue;
+        const tinyobj::material_t& m = obj_materials[static_cast<std::size_t>(id)];
+        MeshMaterial out;
+        out.name = m.name;
+        out.base_colour = Eigen::Vector4f(static_cast<float>(m.diffuse[0]), static_cast<float>(m.diffuse[1]),
+                                          static_cast<float>(m.diffuse[2]), 1.0f);
+        if (!out.base_colour.allFinite() || (out.base_colour.array() < 0.0f).any()) {
+            return fail(meshError(file, "material '" + m.name + "': Kd must be finite and not negative"));
+        }
+        if (!m.diffuse_texname.empty()) {
+            const std::filesystem::path texture = file.parent_path() / m.diffuse_texname;
+            out.texture_file = texture.string();
+            std::vector<unsigned char> bytes;
+            std::ifstream in(texture, std::ios::binary);
+            if (in) bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+            CL_TRY(out.texture, decodeTexture(bytes, file, "'" + texture.string() + "' (map_Kd of material '" + m.name + "')"));
+            textured = true;
+        }
+        mesh.materials.push_back(std::move(out));
+        material_of[static_cast<std::size_t>(id)] = static_cast<int>(mesh.materials.size()) - 1;
+    }
+    const bool with_texcoords = textured && all_have_texcoords;
+    if (textured && !all_have_texcoords) {
+        return fail(meshError(file, "has a material with a texture (map_Kd) but faces without texture coordinates (vt)"));
+    }
+
+    // Step 3: triangles grouped by material, in file order within each (unchanged with one).
+    std::vector<std::size_t> order(triangle_material.size());
+    for (std::size_t t = 0; t < order.size(); ++t) order[t] = t;
+    const auto materialOf = [&](std::size_t t) { return triangle_material[t] < 0 ? -1 : material_of[static_cast<std::size_t>(triangle_material[t])]; };
+    std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return materialOf(a) < materialOf(b); });
+
+    // Step 4: one mesh vertex per OBJ vertex, or per (vertex, normal, texture coordinate)
+    // combination when there are normals or texture coordinates.
     mesh.indices.reserve(corners.size());
-    if (!all_have_normals) {
+    if (!mesh.materials.empty()) {
+        for (std::size_t i = 0; i < order.size(); ++i) mesh.ranges.push_back({3 * i, 3, materialOf(order[i])});
+        mesh.ranges = mergedRanges(mesh.ranges);
+    }
+    if (!all_have_normals && !with_texcoords) {
         mesh.positions.reserve(vertex_count);
         for (std::size_t i = 0; i < vertex_count; ++i) mesh.positions.push_back(position(i));
-        for (const tinyobj::index_t& c : corners) mesh.indices.push_back(static_cast<std::uint32_t>(c.vertex_index));
+        for (const std::size_t t : order) {
+            for (std::size_t k = 0; k < 3; ++k) mesh.indices.push_back(static_cast<std::uint32_t>(corners[3 * t + k].vertex_index));
+        }
         return mesh;
     }
-    std::unordered_map<std::uint64_t, std::uint32_t> vertex_of_pair;
-    for (const tinyobj::index_t& c : corners) {
-        const std::uint64_t key =
-            (static_cast<std::uint64_t>(c.vertex_index) << 32) | static_cast<std::uint32_t>(c.normal_index);
-        auto [it, inserted] = vertex_of_pair.try_emplace(key, static_cast<std::uint32_t>(mesh.positions.size()));
-        if (inserted) {
-            const auto n = static_cast<std::size_t>(c.normal_index);
-            const Eigen::Vector3f normal(attrib.normals[3 * n], attrib.normals[3 * n + 1], attrib.normals[3 * n + 2]);
-            mesh.positions.push_back(position(static_cast<std::size_t>(c.vertex_index)));
-            mesh.normals.push_back(normal.squaredNorm() > 0.0f ? normal.normalized() : normal);
+    std::map<std::tuple<int, int, int>, std::uint32_t> vertex_of;
+    for (const std::size_t t : order) {
+        for (std::size_t k = 0; k < 3; ++k) {
+            const tinyobj::index_t& c = corners[3 * t + k];
+            const std::tuple<int, int, int> key(c.vertex_index, all_have_normals ? c.normal_index : -1, with_texcoords ? c.texcoord_index : -1);
+            auto [it, inserted] = vertex_of.try_emplace(key, static_cast<std::uint32_t>(mesh.positions.size()));
+            if (inserted) {
+                mesh.positions.push_back(position(static_cast<std::size_t>(c.vertex_index)));
+                if (all_have_normals) {
+                    const auto n = static_cast<std::size_t>(c.normal_index);
+                    const Eigen::Vector3f normal(attrib.normals[3 * n], attrib.normals[3 * n + 1], attrib.normals[3 * n + 2]);
+                    mesh.normals.push_back(normal.squaredNorm() > 0.0f ? normal.normalized() : normal);
+                }
+                if (with_texcoords) {
+                    // OBJ's v grows upwards from the image's bottom row; glTF's convention has it downwards from the top.
+                    const auto i = static_cast<std::size_t>(c.texcoord_index);
+                    mesh.texcoords.emplace_back(attrib.texcoords[2 * i], 1.0f - attrib.texcoords[2 * i + 1]);
+                }
+            }
+            mesh.indices.push_back(it->second);
         }
-        mesh.indices.push_back(it->second);
     }
     return mesh;
 }

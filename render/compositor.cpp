@@ -10,8 +10,16 @@
 #include <utility>
 
 #include <Eigen/Geometry>
+#include <opencv2/imgproc.hpp>
 
+#include <sys/resource.h>
+
+#include "core/clock.h"
 #include "render/gl_objects.h"
+#include "render/gpu_mesh.h"
+#include "render/light_samples.h"
+#include "render/shaders.h"
+#include "render/snapshot_textures.h"
 
 namespace commonlight::render {
 
@@ -39,511 +47,13 @@ DebugView nextDebugView(DebugView view) {
 
 namespace {
 
-constexpr int kMaxLightSamples = 16;
-constexpr int kForwardLutSize = 4096;
+constexpr int kToCodeSize = 1024;   // entries of the encoding table (index sqrt(linear)): within 0.02 codes of the response
+constexpr int kBlock = 16;          // camera pixels per side of the blocks that bound the layer's footprint
+constexpr float kNoIdeal = -1e6f;   // a camera pixel with no ideal position inside the layer
 
-// ---------------------------------------------------------------------------------------------
-// Shaders (GLSL 3.30 core).
-
-const char* kShadowVs = R"(#version 330 core
-layout(location = 0) in vec3 a_position;
-uniform mat4 u_model;
-uniform mat4 u_view_proj;
-void main() { gl_Position = u_view_proj * u_model * vec4(a_position, 1.0); }
-)";
-const char* kShadowFs = R"(#version 330 core
-void main() {}
-)";
-
-const char* kSceneVs = R"(#version 330 core
-layout(location = 0) in vec3 a_position;
-layout(location = 1) in vec3 a_normal;
-uniform mat4 u_model;
-uniform mat4 u_view_proj;
-out vec3 v_world;
-out vec3 v_normal;
-void main() {
-    vec4 world = u_model * vec4(a_position, 1.0);
-    v_world = world.xyz;
-    v_normal = mat3(u_model) * a_normal;
-    gl_Position = u_view_proj * world;
-}
-)";
-
-// Real proxies: the background's modulation at this face (M, D), or nothing (M = 1, D = 0).
-const char* kProxyFs = R"(#version 330 core
-in vec3 v_world;
-in vec3 v_normal;
-layout(location = 0) out vec4 o_virtual;
-layout(location = 1) out vec4 o_m;
-layout(location = 2) out vec4 o_d;
-uniform int u_has_mod;
-uniform vec3 u_c0;
-uniform vec3 u_du;
-uniform vec3 u_dv;
-uniform sampler2D u_mod_m;
-uniform sampler2D u_mod_d;
-uniform sampler2D u_mod_o;
-uniform int u_show_original;   // debug: the model's B~ in the virtual layer
-uniform float u_inv_exposure;  // 1 / (exposure x gain)
-void main() {
-    o_virtual = vec4(0.0);
-    o_m = vec4(1.0);
-    o_d = vec4(0.0);
-    if (u_has_mod == 0) return;
-    vec3 p = v_world - u_c0;
-    vec2 st = vec2(dot(p, u_du), dot(p, u_dv));
-    o_m = vec4(texture(u_mod_m, st).rgb, 1.0);
-    o_d = vec4(texture(u_mod_d, st).rgb, 0.0);
-    if (u_show_original != 0) o_virtual = vec4(texture(u_mod_o, st).rgb, 1.0);
-}
-)";
-
-// Virtual objects: Lambertian, direct light with shadow maps, the snapshot's indirect SH
-// irradiance, emission. Linear relative radiance.
-const char* kVirtualFs = R"(#version 330 core
-in vec3 v_world;
-in vec3 v_normal;
-layout(location = 0) out vec4 o_virtual;
-layout(location = 1) out vec4 o_m;
-layout(location = 2) out vec4 o_d;
-const int kMaxSamples = 16;
-uniform vec3 u_albedo;
-uniform vec3 u_emission;        // relative radiance
-uniform vec3 u_ambient;         // relative irradiance (fallback when nothing was estimated)
-uniform vec3 u_camera_centre;   // world
-uniform int u_samples;
-uniform int u_kind[kMaxSamples];       // 0: a point of an area light (cosine at the light), 1: point light, 2: directional
-uniform vec3 u_position[kMaxSamples];
-uniform vec3 u_axis[kMaxSamples];      // area: the emitting normal; directional: the direction light travels
-uniform vec3 u_power[kMaxSamples];     // relative: L A / n, I, or E
-uniform int u_shadow_layer[kMaxSamples];  // -1: no shadow map
-uniform mat4 u_shadow_vp[kMaxSamples];
-uniform sampler2DArrayShadow u_shadow_maps;
-uniform int u_has_sh;
-uniform ivec3 u_dims;
-uniform vec3 u_bmin;
-uniform vec3 u_bmax;
-uniform sampler2D u_sh;  // width 9 (coefficients), one row per probe; RGB
-
-float visibility(int i, vec3 world, vec3 n) {
-    if (u_shadow_layer[i] < 0) return 1.0;
-    vec4 clip = u_shadow_vp[i] * vec4(world + n * 0.002, 1.0);
-    if (clip.w <= 0.0) return 1.0;
-    vec3 ndc = clip.xyz / clip.w;
-    vec3 uvz = ndc * 0.5 + 0.5;
-    if (any(lessThan(uvz.xy, vec2(0.0))) || any(greaterThan(uvz.xy, vec2(1.0))) || uvz.z > 1.0) return 1.0;
-    return texture(u_shadow_maps, vec4(uvz.xy, float(u_shadow_layer[i]), uvz.z - 0.0005));
-}
-
-vec3 probe(int index, vec3 n) {
-    float basis[9] = float[9](0.282095, 0.488603 * n.y, 0.488603 * n.z, 0.488603 * n.x, 1.092548 * n.x * n.y,
-                              1.092548 * n.y * n.z, 0.315392 * (3.0 * n.z * n.z - 1.0), 1.092548 * n.x * n.z,
-                              0.546274 * (n.x * n.x - n.y * n.y));
-    vec3 e = vec3(0.0);
-    for (int k = 0; k < 9; ++k) e += texelFetch(u_sh, ivec2(k, index), 0).rgb * basis[k];
-    return e;
-}
-
-vec3 indirect(vec3 world, vec3 n) {
-    if (u_has_sh == 0) return vec3(0.0);
-    vec3 extent = max(u_bmax - u_bmin, vec3(1e-6));
-    vec3 g = clamp((world - u_bmin) / extent, 0.0, 1.0) * vec3(max(u_dims - 1, ivec3(0)));
-    ivec3 i0 = ivec3(floor(g));
-    ivec3 i1 = min(i0 + 1, u_dims - 1);
-    vec3 f = g - vec3(i0);
-    vec3 e = vec3(0.0);
-    for (int c = 0; c < 8; ++c) {
-        ivec3 pick = ivec3(c & 1, (c >> 1) & 1, (c >> 2) & 1);
-        ivec3 idx = ivec3(mix(vec3(i0), vec3(i1), vec3(pick)) + 0.5);
-        vec3 w3 = mix(1.0 - f, f, vec3(pick));
-        float w = w3.x * w3.y * w3.z;
-        if (w > 0.0) e += w * probe(idx.x + u_dims.x * (idx.y + u_dims.y * idx.z), n);
-    }
-    return max(e, vec3(0.0));
-}
-
-void main() {
-    vec3 n = normalize(v_normal);
-    // Two-sided: a face seen from behind is lit on the side the camera sees.
-    if (dot(n, u_camera_centre - v_world) < 0.0) n = -n;
-    vec3 e = u_ambient + indirect(v_world, n);
-    for (int i = 0; i < u_samples; ++i) {
-        vec3 irradiance;
-        if (u_kind[i] == 2) {
-            irradiance = u_power[i] * max(dot(n, -u_axis[i]), 0.0);
-        } else {
-            vec3 to_light = u_position[i] - v_world;
-            float d2 = max(dot(to_light, to_light), 1e-4);
-            vec3 l = to_light * inversesqrt(d2);
-            float cos_r = max(dot(n, l), 0.0);
-            float cos_l = u_kind[i] == 0 ? max(dot(u_axis[i], -l), 0.0) : 1.0;
-            irradiance = u_power[i] * cos_r * cos_l / d2;
-        }
-        if (any(greaterThan(irradiance, vec3(0.0)))) irradiance *= visibility(i, v_world, n);
-        e += irradiance;
-    }
-    o_virtual = vec4(u_albedo / 3.14159265 * e + u_emission, 1.0);
-    o_m = vec4(1.0);
-    o_d = vec4(0.0);
-}
-)";
-
-// Debug lines (wireframe of the proxies): a constant colour in the virtual layer.
-const char* kLineFs = R"(#version 330 core
-in vec3 v_world;
-in vec3 v_normal;
-layout(location = 0) out vec4 o_virtual;
-layout(location = 1) out vec4 o_m;
-layout(location = 2) out vec4 o_d;
-uniform vec3 u_colour;
-void main() { o_virtual = vec4(u_colour, 1.0); o_m = vec4(1.0); o_d = vec4(0.0); }
-)";
-
-const char* kFinalVs = R"(#version 330 core
-void main() {
-    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
-    gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);
-}
-)";
-
-// At each camera pixel: the frame's code, the layer at the undistorted position, the
-// differential combination, the camera's response.
-const char* kFinalFs = R"(#version 330 core
-out vec4 o_colour;
-uniform sampler2D u_frame;       // RGB8, row 0 = the image's top row
-uniform sampler2D u_undistort;   // RG32F: the ideal pixel of each camera pixel, same rows
-uniform sampler2D u_layer_v;     // the 3D layer, GL orientation (row 0 = bottom)
-uniform sampler2D u_layer_m;
-uniform sampler2D u_layer_d;
-uniform sampler2D u_to_linear;   // 256 x 1 RGB32F
-uniform sampler2D u_to_code;     // 4096 x 1 RGB32F, index sqrt(linear) x 4095 -> encoded [0, 1]
-uniform float u_exposure_gain;
-uniform vec2 u_size;
-uniform int u_view;              // 0 composite, 3 ratio
-float encode(float linear, int c) {
-    float x = sqrt(clamp(linear, 0.0, 1.0)) * 4095.0;
-    float i0 = floor(x);
-    float a = texelFetch(u_to_code, ivec2(int(i0), 0), 0)[c];
-    float b = texelFetch(u_to_code, ivec2(min(int(i0) + 1, 4095), 0), 0)[c];
-    return mix(a, b, x - i0);
-}
-void main() {
-    ivec2 fc = ivec2(gl_FragCoord.xy);
-    ivec2 pixel = ivec2(fc.x, int(u_size.y) - 1 - fc.y);
-    vec3 frame = texelFetch(u_frame, pixel, 0).rgb;
-    vec2 ideal = texelFetch(u_undistort, pixel, 0).xy;
-    vec2 uv = vec2((ideal.x + 0.5) / u_size.x, 1.0 - (ideal.y + 0.5) / u_size.y);
-    vec4 v = texture(u_layer_v, uv);
-    vec3 m = texture(u_layer_m, uv).rgb;
-    vec3 d = texture(u_layer_d, uv).rgb;
-    if (u_view == 3) { o_colour = vec4(clamp(m * 0.5, 0.0, 1.0), 1.0); return; }
-    // Nothing changes this pixel: its code, exactly.
-    if (v.a < 1.0 / 1024.0 && all(lessThan(abs(m - 1.0), vec3(1e-4))) && all(lessThan(abs(d * u_exposure_gain), vec3(1e-6)))) {
-        o_colour = vec4(frame, 1.0);
-        return;
-    }
-    vec3 result;
-    for (int c = 0; c < 3; ++c) {
-        int code = int(frame[c] * 255.0 + 0.5);
-        float linear = texelFetch(u_to_linear, ivec2(code, 0), 0)[c];
-        float out_linear = (linear * m[c] + d[c] * u_exposure_gain) * (1.0 - v.a) + v[c] * u_exposure_gain;
-        result[c] = floor(encode(out_linear, c) * 255.0 + 0.5) / 255.0;
-    }
-    o_colour = vec4(result, 1.0);
-}
-)";
-
-// ---------------------------------------------------------------------------------------------
-// Geometry.
-
-struct Vertex {
-    float p[3];
-    float n[3];
-};
-
-struct Part {
-    int face = -1;  // the snapshot's face number, -1: not modulated
-    int first = 0;  // first index
-    int count = 0;
-};
-
-struct GpuMesh {
-    GLuint vao = 0, vbo = 0, ebo = 0;
-    std::vector<Part> parts;
-    Eigen::Vector3d bmin = Eigen::Vector3d::Constant(1e30), bmax = Eigen::Vector3d::Constant(-1e30);  // object frame
-    int index_count = 0;
-};
-
-void addQuad(std::vector<Vertex>& v, std::vector<std::uint32_t>& idx, const Eigen::Vector3f& c, const Eigen::Vector3f& a,
-             const Eigen::Vector3f& b, const Eigen::Vector3f& n) {
-    // c: centre, a and b: half extents along the two edges, counter-clockwise seen from n.
-    const auto base = static_cast<std::uint32_t>(v.size());
-    const Eigen::Vector3f corners[4] = {c - a - b, c + a - b, c + a + b, c - a + b};
-    for (const Eigen::Vector3f& p : corners) v.push_back({{p.x(), p.y(), p.z()}, {n.x(), n.y(), n.z()}});
-    for (std::uint32_t k : {0u, 1u, 2u, 0u, 2u, 3u}) idx.push_back(base + k);
-}
-
-void buildShape(const Shape& shape, std::vector<Vertex>& v, std::vector<std::uint32_t>& idx, std::vector<Part>& parts) {
-    if (const auto* plane = std::get_if<PlaneShape>(&shape)) {
-        addQuad(v, idx, Eigen::Vector3f::Zero(), Eigen::Vector3f(0.5f * static_cast<float>(plane->size.x()), 0, 0),
-                Eigen::Vector3f(0, 0.5f * static_cast<float>(plane->size.y()), 0), Eigen::Vector3f::UnitZ());
-        parts.push_back({0, 0, 6});
-    } else if (const auto* box = std::get_if<BoxShape>(&shape)) {
-        const Eigen::Vector3f h = (0.5 * box->size).cast<float>();
-        // Faces 0..5 = +x, -x, +y, -y, +z, -z (the snapshot's numbering).
-        for (int f = 0; f < 6; ++f) {
-            const int axis = f / 2;
-            const float sign = f % 2 == 0 ? 1.0f : -1.0f;
-            Eigen::Vector3f n = Eigen::Vector3f::Zero();
-            n[axis] = sign;
-            const int ua = (axis + 1) % 3, va = (axis + 2) % 3;
-            Eigen::Vector3f a = Eigen::Vector3f::Zero(), b = Eigen::Vector3f::Zero();
-            a[ua] = h[ua];
-            b[va] = h[va] * sign;  // keeps the quad counter-clockwise seen from n
-            const int first = static_cast<int>(idx.size());
-            addQuad(v, idx, n.cwiseProduct(h), a, b, n);
-            parts.push_back({f, first, 6});
-        }
-    } else if (const auto* sphere = std::get_if<SphereShape>(&shape)) {
-        const int rings = 24, segments = 48;
-        const auto base = static_cast<std::uint32_t>(v.size());
-        for (int i = 0; i <= rings; ++i) {
-            const double theta = std::numbers::pi * i / rings;
-            for (int j = 0; j <= segments; ++j) {
-                const double phi = 2.0 * std::numbers::pi * j / segments;
-                const Eigen::Vector3f n(static_cast<float>(std::sin(theta) * std::cos(phi)),
-                                        static_cast<float>(std::sin(theta) * std::sin(phi)), static_cast<float>(std::cos(theta)));
-                const Eigen::Vector3f p = n * static_cast<float>(sphere->radius);
-                v.push_back({{p.x(), p.y(), p.z()}, {n.x(), n.y(), n.z()}});
-            }
-        }
-        const int first = static_cast<int>(idx.size());
-        for (int i = 0; i < rings; ++i) {
-            for (int j = 0; j < segments; ++j) {
-                const auto a = base + static_cast<std::uint32_t>(i * (segments + 1) + j);
-                const auto b = a + static_cast<std::uint32_t>(segments + 1);
-                for (std::uint32_t k : {a, b, a + 1, a + 1, b, b + 1}) idx.push_back(k);
-            }
-        }
-        parts.push_back({-1, first, static_cast<int>(idx.size()) - first});
-    } else if (const auto* mesh = std::get_if<MeshShape>(&shape)) {
-        if (!mesh->mesh) return;
-        const Mesh& m = *mesh->mesh;
-        const auto base = static_cast<std::uint32_t>(v.size());
-        std::vector<Eigen::Vector3f> normals = m.normals;
-        if (normals.size() != m.positions.size()) {
-            // Area-weighted vertex normals from the triangles.
-            normals.assign(m.positions.size(), Eigen::Vector3f::Zero());
-            for (std::size_t t = 0; t + 2 < m.indices.size(); t += 3) {
-                const Eigen::Vector3f& p0 = m.positions[m.indices[t]];
-                const Eigen::Vector3f n = (m.positions[m.indices[t + 1]] - p0).cross(m.positions[m.indices[t + 2]] - p0);
-                for (int k = 0; k < 3; ++k) normals[m.indices[t + static_cast<std::size_t>(k)]] += n;
-            }
-            for (Eigen::Vector3f& n : normals) n = n.norm() > 0.0f ? n.normalized() : Eigen::Vector3f::UnitZ();
-        }
-        for (std::size_t i = 0; i < m.positions.size(); ++i) {
-            v.push_back({{m.positions[i].x(), m.positions[i].y(), m.positions[i].z()}, {normals[i].x(), normals[i].y(), normals[i].z()}});
-        }
-        const int first = static_cast<int>(idx.size());
-        for (std::uint32_t k : m.indices) idx.push_back(base + k);
-        parts.push_back({-1, first, static_cast<int>(idx.size()) - first});
-    }
-}
-
-GpuMesh upload(const Shape& shape) {
-    std::vector<Vertex> v;
-    std::vector<std::uint32_t> idx;
-    GpuMesh mesh;
-    buildShape(shape, v, idx, mesh.parts);
-    for (const Vertex& x : v) {
-        const Eigen::Vector3d p(x.p[0], x.p[1], x.p[2]);
-        mesh.bmin = mesh.bmin.cwiseMin(p);
-        mesh.bmax = mesh.bmax.cwiseMax(p);
-    }
-    mesh.index_count = static_cast<int>(idx.size());
-    mesh.vao = gl::newVertexArray();
-    mesh.vbo = gl::newBuffer();
-    mesh.ebo = gl::newBuffer();
-    glBindVertexArray(mesh.vao);
-    glBindBuffer(GL_ARRAY_BUFFER, mesh.vbo);
-    glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(v.size() * sizeof(Vertex)), v.data(), GL_STATIC_DRAW);
-    glBindBuffer(GL_ELEMENT_ARRAY_BUFFER, mesh.ebo);
-    glBufferData(GL_ELEMENT_ARRAY_BUFFER, static_cast<GLsizeiptr>(idx.size() * sizeof(std::uint32_t)), idx.data(), GL_STATIC_DRAW);
-    glEnableVertexAttribArray(0);
-    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, sizeof(Vertex), reinterpret_cast<void*>(0));
-    glEnableVertexAttribArray(1);
-    glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, sizeof(Vertex), reinterpret_cast<void*>(offsetof(Vertex, n)));
-    glBindVertexArray(0);
-    return mesh;
-}
-
-void release(GpuMesh& mesh) {
-    gl::deleteVertexArray(mesh.vao);
-    gl::deleteBuffer(mesh.vbo);
-    gl::deleteBuffer(mesh.ebo);
-}
-
-Eigen::Matrix4f toGl(const Rigid3d& pose) {
-    Eigen::Matrix4d m = Eigen::Matrix4d::Identity();
-    m.topLeftCorner<3, 3>() = pose.rotation.toRotationMatrix();
-    m.topRightCorner<3, 1>() = pose.translation;
-    return m.cast<float>();
-}
-
-// A look-at view matrix (GL camera: looks along -z).
-Eigen::Matrix4d lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target) {
-    const Eigen::Vector3d f = (target - eye).normalized();
-    Eigen::Vector3d up = std::abs(f.z()) < 0.9 ? Eigen::Vector3d::UnitZ() : Eigen::Vector3d::UnitX();
-    const Eigen::Vector3d s = f.cross(up).normalized();
-    const Eigen::Vector3d u = s.cross(f);
-    Eigen::Matrix4d m = Eigen::Matrix4d::Identity();
-    m.row(0).head<3>() = s;
-    m.row(1).head<3>() = u;
-    m.row(2).head<3>() = -f;
-    m(0, 3) = -s.dot(eye);
-    m(1, 3) = -u.dot(eye);
-    m(2, 3) = f.dot(eye);
-    return m;
-}
-
-Eigen::Matrix4d perspective(double half_angle, double near_m, double far_m) {
-    const double f = 1.0 / std::tan(half_angle);
-    Eigen::Matrix4d p = Eigen::Matrix4d::Zero();
-    p(0, 0) = f;
-    p(1, 1) = f;
-    p(2, 2) = -(far_m + near_m) / (far_m - near_m);
-    p(2, 3) = -2.0 * far_m * near_m / (far_m - near_m);
-    p(3, 2) = -1.0;
-    return p;
-}
-
-Eigen::Matrix4d orthographic(double half, double near_m, double far_m) {
-    Eigen::Matrix4d p = Eigen::Matrix4d::Identity();
-    p(0, 0) = 1.0 / half;
-    p(1, 1) = 1.0 / half;
-    p(2, 2) = -2.0 / (far_m - near_m);
-    p(2, 3) = -(far_m + near_m) / (far_m - near_m);
-    return p;
-}
-
-struct FaceTextures {
-    GLuint m = 0, d = 0, o = 0;
-    Eigen::Vector3f c0, du, dv;
-};
-
-struct LightSample {
-    int kind = 0;  // 0 area point, 1 point, 2 directional
-    Eigen::Vector3d position = Eigen::Vector3d::Zero();
-    Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();
-    Eigen::Vector3d power = Eigen::Vector3d::Zero();
-    int layer = -1;
-    Eigen::Matrix4f view_proj = Eigen::Matrix4f::Identity();
-};
-
-GLint uniform(GLuint program, const char* name) { return glGetUniformLocation(program, name); }
-
-void setMat4(GLuint program, const char* name, const Eigen::Matrix4f& m) {
-    glUniformMatrix4fv(uniform(program, name), 1, GL_FALSE, m.data());
-}
-void setVec3(GLuint program, const char* name, const Eigen::Vector3f& v) { glUniform3f(uniform(program, name), v.x(), v.y(), v.z()); }
-
-}  // namespace
-
-// -------------------------------------------------------------------------------------------------
-
-struct Compositor::Impl {
-    GlContext* context = nullptr;
-    Scene scene;
-    CameraModel camera;
-    ResponseCurve response;
-    CompositorOptions options;
-    int width = 0, height = 0;
-
-    GLuint shadow_program = 0, proxy_program = 0, virtual_program = 0, line_program = 0, final_program = 0;
-    GLuint empty_vao = 0;
-    std::vector<GpuMesh> real_meshes;     // by Scene::real_objects index
-    std::vector<GpuMesh> virtual_meshes;  // by Scene::virtual_objects index
-
-    GLuint frame_texture = 0, frame_pbo = 0, undistort_texture = 0, to_linear = 0, to_code = 0;
-    GLuint layer_fbo = 0, layer_rb[3] = {0, 0, 0}, layer_depth = 0;
-    GLuint resolve_fbo = 0, resolve_tex[3] = {0, 0, 0};
-    GLuint output_fbo = 0, output_tex = 0;
-    GLuint shadow_fbo = 0, shadow_maps = 0;
-    int shadow_layers = 0, shadow_size = 0, layer_samples = -1;
-    std::vector<float> shadow_key;  // what the shadow maps were rendered for (light views, object poses)
-
-    // Snapshot textures, rebuilt when the snapshot (version, lighting on/off) changes.
-    std::uint64_t snapshot_version = ~0ull;
-    const void* snapshot_address = nullptr;
-    bool snapshot_lighting = true;
-    std::map<std::pair<int, int>, FaceTextures> faces;
-    std::vector<GLuint> sh_textures;  // by virtual object index (0: none)
-
-    Result<void> makeTargets();
-    void releaseTargets();
-    void releaseSnapshot();
-    void uploadSnapshot(const lighting::LightingSnapshot& snapshot);
-    void drawParts(GLuint program, const GpuMesh& mesh, const Eigen::Matrix4f& model, bool modulated, int object_index);
-};
-
-Compositor::Compositor() : impl_(std::make_unique<Impl>()) {}
-
-Result<void> Compositor::Impl::makeTargets() {
-    GLint max_samples = 0;
-    glGetIntegerv(GL_MAX_SAMPLES, &max_samples);
-    GLint max_float_samples = 0;
-    glGetInternalformativ(GL_RENDERBUFFER, GL_RGBA16F, GL_SAMPLES, 1, &max_float_samples);
-    if (max_float_samples > 0) max_samples = std::min(max_samples, max_float_samples);
-    // More samples than the GL has: the most it has (llvmpipe: 4).
-    const int samples = options.msaa_samples > 1 ? std::min(options.msaa_samples, static_cast<int>(max_samples)) : 0;
-    if (samples == layer_samples && layer_fbo != 0) return {};
-    for (GLuint& rb : layer_rb) gl::deleteRenderbuffer(rb);
-    gl::deleteRenderbuffer(layer_depth);
-    gl::deleteFramebuffer(layer_fbo);
-    layer_fbo = gl::newFramebuffer();
-    glBindFramebuffer(GL_FRAMEBUFFER, layer_fbo);
-    for (int i = 0; i < 3; ++i) {
-        layer_rb[i] = gl::newRenderbuffer();
-        glBindRenderbuffer(GL_RENDERBUFFER, layer_rb[i]);
-        glRenderbufferStorageMultisample(GL_RENDERBUFFER, samples, GL_RGBA16F, width, height);
-        glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0 + static_cast<GLenum>(i), GL_RENDERBUFFER, layer_rb[i]);
-    }
-    layer_depth = gl::newRenderbuffer();
-    glBindRenderbuffer(GL_RENDERBUFFER, layer_depth);
-    glRenderbufferStorageMultisample(GL_RENDERBUFFER, samples, GL_DEPTH_COMPONENT24, width, height);
-    glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, layer_depth);
-    if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
-        return fail(ErrorCode::kDevice, "render: the GL cannot make a " + std::to_string(samples) + "x multisampled float framebuffer");
-    }
-    layer_samples = samples;
-    return {};
-}
-
-void Compositor::Impl::releaseSnapshot() {
-    for (auto& [key, f] : faces) {
-        gl::deleteTexture(f.m);
-        gl::deleteTexture(f.d);
-        gl::deleteTexture(f.o);
-    }
-    faces.clear();
-    for (GLuint& t : sh_textures) gl::deleteTexture(t);
-    sh_textures.clear();
-}
-
-void Compositor::Impl::releaseTargets() {
-    for (GLuint& rb : layer_rb) gl::deleteRenderbuffer(rb);
-    gl::deleteRenderbuffer(layer_depth);
-    gl::deleteFramebuffer(layer_fbo);
-    for (GLuint& t : resolve_tex) gl::deleteTexture(t);
-    gl::deleteFramebuffer(resolve_fbo);
-    gl::deleteTexture(output_tex);
-    gl::deleteFramebuffer(output_fbo);
-    gl::deleteTexture(shadow_maps);
-    gl::deleteFramebuffer(shadow_fbo);
-}
-
-namespace {
+// Texture units of the final pass and of the virtual objects' program.
+enum FinalUnit : int { kUnitFrame = 0, kUnitFrameUv, kUnitUndistort, kUnitProxyAtlas, kUnitAtlasM, kUnitAtlasD, kUnitAtlasO, kUnitLayerV };
+enum VirtualUnit : int { kUnitShadowMaps = 3, kUnitSh = 4, kUnitBaseColour = 5 };
 
 GLuint floatTexture(int width, int height, GLenum internal, GLenum format, const float* data, GLenum filter) {
     const GLuint t = gl::newTexture();
@@ -557,110 +67,854 @@ GLuint floatTexture(int width, int height, GLenum internal, GLenum format, const
     return t;
 }
 
-}  // namespace
-
-void Compositor::Impl::uploadSnapshot(const lighting::LightingSnapshot& snapshot) {
-    releaseSnapshot();
-    snapshot_version = snapshot.version;
-    snapshot_address = &snapshot;
-    snapshot_lighting = options.lighting;
-    if (!options.lighting) return;
-    for (const lighting::FaceModulation& f : snapshot.faces) {
-        if (f.width <= 0 || f.height <= 0 || f.corners.size() < 3) continue;
-        const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
-        if (f.ratio.size() != n || f.difference.size() != n || f.original.size() != n) continue;
-        std::vector<float> m(4 * n), d(4 * n), o(4 * n);
-        for (std::size_t k = 0; k < n; ++k) {
-            const float w = lighting::ratioWeight(lighting::luminance(f.original[k]), f.mean_original);
-            for (int c = 0; c < 3; ++c) {
-                const float ratio = std::isfinite(f.ratio[k][c]) ? f.ratio[k][c] : 1.0f;
-                const float diff = std::isfinite(f.difference[k][c]) ? f.difference[k][c] : 0.0f;
-                m[4 * k + static_cast<std::size_t>(c)] = w * ratio + (1.0f - w);
-                d[4 * k + static_cast<std::size_t>(c)] = (1.0f - w) * diff;
-                o[4 * k + static_cast<std::size_t>(c)] = std::isfinite(f.original[k][c]) ? f.original[k][c] : 0.0f;
-            }
-            m[4 * k + 3] = 1.0f;
-            d[4 * k + 3] = 0.0f;
-            o[4 * k + 3] = 1.0f;
-        }
-        // Element outlines in the debug view of B~: a darker rim on the texels at element borders.
-        for (const Eigen::Vector4f& e : f.elements) {
-            const int i0 = std::clamp(static_cast<int>(e[0] * static_cast<float>(f.width)), 0, f.width - 1);
-            const int j0 = std::clamp(static_cast<int>(e[1] * static_cast<float>(f.height)), 0, f.height - 1);
-            const int i1 = std::clamp(static_cast<int>(std::ceil(e[2] * static_cast<float>(f.width))) - 1, 0, f.width - 1);
-            const int j1 = std::clamp(static_cast<int>(std::ceil(e[3] * static_cast<float>(f.height))) - 1, 0, f.height - 1);
-            for (int i = i0; i <= i1; ++i) {
-                for (int j : {j0, j1}) for (int c = 0; c < 3; ++c) o[4 * f.texel(i, j) + static_cast<std::size_t>(c)] *= 0.6f;
-            }
-            for (int j = j0; j <= j1; ++j) {
-                for (int i : {i0, i1}) for (int c = 0; c < 3; ++c) o[4 * f.texel(i, j) + static_cast<std::size_t>(c)] *= 0.6f;
-            }
-        }
-        FaceTextures t;
-        t.m = floatTexture(f.width, f.height, GL_RGBA32F, GL_RGBA, m.data(), GL_LINEAR);
-        t.d = floatTexture(f.width, f.height, GL_RGBA32F, GL_RGBA, d.data(), GL_LINEAR);
-        t.o = floatTexture(f.width, f.height, GL_RGBA32F, GL_RGBA, o.data(), GL_NEAREST);
-        // The face's parametrisation p = c0 + s e1 + t e2 inverted by its dual basis.
-        const Eigen::Vector3d c0 = f.corners[0], e1 = f.corners[1] - c0, e2 = f.corners.back() - c0;
-        Eigen::Matrix2d g;
-        g << e1.dot(e1), e1.dot(e2), e1.dot(e2), e2.dot(e2);
-        if (!(std::abs(g.determinant()) > 1e-18)) {
-            gl::deleteTexture(t.m);
-            gl::deleteTexture(t.d);
-            gl::deleteTexture(t.o);
-            continue;  // hard case: a degenerate face
-        }
-        const Eigen::Matrix2d gi = g.inverse();
-        t.c0 = c0.cast<float>();
-        t.du = (gi(0, 0) * e1 + gi(0, 1) * e2).cast<float>();
-        t.dv = (gi(1, 0) * e1 + gi(1, 1) * e2).cast<float>();
-        faces[{f.object_index, f.face}] = t;
-    }
-    sh_textures.assign(scene.virtual_objects.size(), 0);
-    for (const lighting::VirtualIrradiance& v : snapshot.virtual_objects) {
-        if (v.object_index < 0 || static_cast<std::size_t>(v.object_index) >= sh_textures.size()) continue;
-        const std::size_t probes = static_cast<std::size_t>(v.dims.prod());
-        if (probes == 0 || v.indirect.size() != probes) continue;
-        std::vector<float> data(probes * 9 * 3);
-        for (std::size_t p = 0; p < probes; ++p) {
-            for (std::size_t k = 0; k < 9; ++k) {
-                for (int c = 0; c < 3; ++c) {
-                    const float x = v.indirect[p][k][c];
-                    data[(p * 9 + k) * 3 + static_cast<std::size_t>(c)] = std::isfinite(x) ? x : 0.0f;
-                }
-            }
-        }
-        sh_textures[static_cast<std::size_t>(v.object_index)] =
-            floatTexture(9, static_cast<int>(probes), GL_RGB32F, GL_RGB, data.data(), GL_NEAREST);
-    }
+GLuint byteTexture(int width, int height, GLenum internal, GLenum format) {
+    const GLuint t = gl::newTexture();
+    glBindTexture(GL_TEXTURE_2D, t);
+    glTexImage2D(GL_TEXTURE_2D, 0, static_cast<GLint>(internal), width, height, 0, format, GL_UNSIGNED_BYTE, nullptr);
+    // Nearest: integer textures are incomplete with any other filter.
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    return t;
 }
 
-void Compositor::Impl::drawParts(GLuint program, const GpuMesh& mesh, const Eigen::Matrix4f& model, bool modulated,
-                                 int object_index) {
-    setMat4(program, "u_model", model);
-    glBindVertexArray(mesh.vao);
-    for (const Part& part : mesh.parts) {
-        if (modulated) {
-            const auto it = part.face >= 0 ? faces.find({object_index, part.face}) : faces.end();
-            if (it != faces.end()) {
-                glUniform1i(uniform(program, "u_has_mod"), 1);
-                setVec3(program, "u_c0", it->second.c0);
-                setVec3(program, "u_du", it->second.du);
-                setVec3(program, "u_dv", it->second.dv);
-                glActiveTexture(GL_TEXTURE0);
-                glBindTexture(GL_TEXTURE_2D, it->second.m);
-                glActiveTexture(GL_TEXTURE1);
-                glBindTexture(GL_TEXTURE_2D, it->second.d);
-                glActiveTexture(GL_TEXTURE2);
-                glBindTexture(GL_TEXTURE_2D, it->second.o);
-            } else {
-                glUniform1i(uniform(program, "u_has_mod"), 0);
-            }
+GLint loc(GLuint program, const char* name) { return glGetUniformLocation(program, name); }
+void setMat4(GLint location, const Eigen::Matrix4f& m) { glUniformMatrix4fv(location, 1, GL_FALSE, m.data()); }
+void setVec3(GLint location, const Eigen::Vector3f& v) { glUniform3f(location, v.x(), v.y(), v.z()); }
+
+// Pixels [x0, x1] x [y0, y1], inclusive, in some framebuffer's GL rows.
+struct Rect {
+    int x0 = 0, y0 = 0, x1 = -1, y1 = -1;
+    bool empty() const { return x1 < x0 || y1 < y0; }
+    void scissor() const { glScissor(x0, y0, x1 - x0 + 1, y1 - y0 + 1); }
+};
+
+struct SceneProgram {  // shadow (depth only) and line programs
+    GLuint id = 0;
+    GLint model = -1, view_proj = -1, colour = -1, line = -1;
+};
+
+struct ProxyProgram {
+    GLuint id = 0;
+    GLint model = -1, view_proj = -1, has_mod = -1, c0 = -1, du = -1, dv = -1, atlas_rect = -1, clamp = -1;
+};
+
+struct VirtualProgram {
+    GLuint id = 0;
+    GLint model = -1, view_proj = -1, albedo = -1, emission = -1, ambient = -1, camera_centre = -1, samples = -1;
+    GLint kind = -1, position = -1, axis = -1, power = -1, shadow_layer = -1, shadow_vp = -1;
+    GLint has_sh = -1, bmin = -1, bmax = -1, sh_scale = -1, sh_offset = -1, sh_depth = -1, has_texture = -1;
+};
+
+struct FinalProgram {
+    GLuint id = 0;
+    GLint atlas_size = -1, layer_rect = -1, exposure_gain = -1, size = -1, noise = -1, seed = -1;
+};
+
+// The final pass's variants.
+enum FinalBits : int {
+    kFinalYuyv = 1,
+    kFinalNv12 = 2,
+    kFinalModulation = 4,
+    kFinalVirtual = 8,
+    kFinalElements = 16,
+    kFinalRatio = 32,
+    kFinalNoise = 64,
+};
+
+}  // namespace
+
+// -------------------------------------------------------------------------------------------------
+
+struct Compositor::Impl {
+    GlContext* context = nullptr;
+    Scene scene;
+    CameraModel camera;
+    CameraModel layer_camera;  // the undistorted pinhole of the 3D layer: camera's fx fy, a margin so every camera pixel's ideal position is inside
+    Eigen::Vector2i layer_origin = Eigen::Vector2i::Zero();  // the layer's pixel (0, 0) in the camera's ideal pixels
+    ResponseCurve response;
+    CompositorOptions options;
+    int width = 0, height = 0;              // the camera's
+    int layer_width = 0, layer_height = 0;  // the layer's
+
+    SceneProgram shadow_program, line_program, geometry_program;
+    GLuint compose_program = 0;
+    GLint compose_sample_count = -1;
+    ProxyProgram proxy_program;
+    VirtualProgram virtual_program;
+    std::map<int, FinalProgram> final_programs;  // by FinalBits
+    GLuint empty_vao = 0;
+    std::vector<GpuMesh> real_meshes;     // by Scene::real_objects index
+    std::vector<GpuMesh> virtual_meshes;  // by Scene::virtual_objects index
+    std::vector<Eigen::Matrix4f> real_models;
+
+    // The frame: a pixel buffer and the texture(s) of its format.
+    GLuint frame_pbo = 0, frame_texture = 0, frame_uv_texture = 0;
+    PixelFormat frame_format = PixelFormat::kInvalid;
+    // Camera pixel -> layer texel coordinates (GL rows), and its footprint per block of pixels.
+    GLuint undistort_texture = 0;
+    std::vector<Eigen::Vector4f> block_bounds;  // min x, min y, max x, max y of the layer coordinates per block
+    int blocks_x = 0, blocks_y = 0;
+    GLuint to_linear_ubo = 0, to_code_ubo = 0;
+
+    // Real proxies, single-sampled: the atlas coordinates of the surface at each layer pixel.
+    GLuint proxy_fbo = 0, proxy_atlas = 0, proxy_depth = 0;
+    // The virtual layer, drawn only in a rectangle around the virtual objects: shaded once per
+    // pixel (with the proxies' depth), the geometry multisampled, composed.
+    GLuint shade_fbo = 0, shade_texture = 0, shade_geometry = 0;
+    GLuint layer_fbo = 0, layer_samples_texture = 0, layer_depth = 0;
+    int layer_samples = -1;
+    GLuint resolve_fbo = 0, resolve_texture = 0;
+    GLuint layer_v = 0;  // what the final pass reads as the virtual layer this frame
+    GLuint output_fbo = 0, output_texture = 0;
+    GLuint shadow_fbo = 0, shadow_maps = 0;
+    int shadow_layers = 0, shadow_size = 0;
+    std::vector<float> shadow_key;  // what the shadow maps were rendered for (light views, object poses)
+    SnapshotTextures snapshot_textures;
+
+    // Camera matching: the last measurement, the frame as RGB8 when it came as YUV, the blur passes.
+    std::optional<CameraMatch> match;
+    std::uint64_t frames_drawn = 0;
+    Image match_rgb;
+    double warp_variance = 0.0;  // mean f (1 - f) of the layer's bilinear read (f: the fractional texel offset), px^2
+    GLuint blur_program = 0, blur_fbo[2] = {0, 0}, blur_texture[2] = {0, 0};
+    GLint blur_direction = -1, blur_radius = -1, blur_weights = -1, blur_rect = -1;
+
+    // surfacePoints(), made at its first call.
+    GLuint world_program = 0, warp_program = 0, world_fbo = 0, world_texture = 0, warp_fbo = 0, warp_texture = 0;
+    GLint world_model = -1, world_view_proj = -1, world_surface = -1;
+
+    mutable std::vector<PassTime> pass_times;
+    mutable std::int64_t pass_start_ns = 0;
+    mutable double pass_start_cpu = 0.0;
+
+    // Profiling: waits for the GL and books the time since the last mark to `name`.
+    void mark(const char* name) const {
+        if (!options.profile) return;
+        glFinish();
+        const std::int64_t now = monotonicNowNs();
+        rusage usage{};
+        getrusage(RUSAGE_SELF, &usage);
+        const double cpu = 1e3 * static_cast<double>(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
+                           1e-3 * static_cast<double>(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+        if (name != nullptr) pass_times.push_back({name, static_cast<double>(now - pass_start_ns) / 1e6, cpu - pass_start_cpu});
+        pass_start_ns = now;
+        pass_start_cpu = cpu;
+    }
+
+    Result<void> makePrograms();
+    Result<const FinalProgram*> finalProgram(int bits);
+    Result<void> makeLayerTargets();
+    void makeFrameTextures(PixelFormat format);
+    void uploadFrame(const ImageView& image);
+    void makeUndistortMap();
+    Rect layerRect(const std::vector<std::optional<Eigen::Matrix4f>>& models, const Eigen::Matrix4d& cam_from_world, double margin) const;
+    Rect cameraRect(const Rect& layer) const;
+    void renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
+                          const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax);
+    void drawProxies(const Eigen::Matrix4f& view_proj);
+    void drawProxyDepth();
+    void drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn, const Eigen::Matrix4f& view_proj, const Eigen::Vector3f& camera_centre,
+                          const std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
+                          const lighting::LightingSnapshot& snapshot, double eg);
+    void releaseAll();
+    Result<void> measureCamera(const ImageView& image);
+    Result<void> blurLayer(const Rect& rect, double sigma);
+};
+
+Compositor::Compositor() : impl_(std::make_unique<Impl>()) {}
+
+Result<void> Compositor::Impl::makePrograms() {
+    using shaders::programSource;
+    const std::string scene_vs = programSource({}, shaders::kSceneVs);
+    CL_TRY(shadow_program.id, gl::newProgram("shadow", programSource({}, shaders::kShadowVs), programSource({}, shaders::kShadowFs)));
+    shadow_program.model = loc(shadow_program.id, "u_model");
+    shadow_program.view_proj = loc(shadow_program.id, "u_view_proj");
+    CL_TRY(line_program.id, gl::newProgram("lines", scene_vs, programSource({}, shaders::kLineFs)));
+    line_program.model = loc(line_program.id, "u_model");
+    line_program.view_proj = loc(line_program.id, "u_view_proj");
+    line_program.colour = loc(line_program.id, "u_colour");
+
+    CL_TRY(geometry_program.id, gl::newProgram("geometry", scene_vs, programSource({}, shaders::kGeometryFs)));
+    geometry_program.model = loc(geometry_program.id, "u_model");
+    geometry_program.view_proj = loc(geometry_program.id, "u_view_proj");
+    geometry_program.line = loc(geometry_program.id, "u_line");
+    CL_TRY(compose_program, gl::newProgram("compose", programSource({}, shaders::kFinalVs), programSource({}, shaders::kComposeFs)));
+    glUseProgram(compose_program);
+    glUniform1i(loc(compose_program, "u_shaded"), 0);
+    glUniform1i(loc(compose_program, "u_shaded_geometry"), 1);
+    glUniform1i(loc(compose_program, "u_samples"), 2);
+    compose_sample_count = loc(compose_program, "u_sample_count");
+    glUseProgram(0);
+
+    CL_TRY(proxy_program.id, gl::newProgram("proxy", programSource({}, shaders::kProxyVs), programSource({}, shaders::kProxyFs)));
+    ProxyProgram& pp = proxy_program;
+    pp.model = loc(pp.id, "u_model");
+    pp.view_proj = loc(pp.id, "u_view_proj");
+    pp.has_mod = loc(pp.id, "u_has_mod");
+    pp.c0 = loc(pp.id, "u_c0");
+    pp.du = loc(pp.id, "u_du");
+    pp.dv = loc(pp.id, "u_dv");
+    pp.atlas_rect = loc(pp.id, "u_atlas_rect");
+    pp.clamp = loc(pp.id, "u_clamp");
+
+    CL_TRY(virtual_program.id, gl::newProgram("virtual", programSource({}, shaders::kVirtualVs), programSource({}, shaders::kVirtualFs)));
+    VirtualProgram& vp = virtual_program;
+    vp.model = loc(vp.id, "u_model");
+    vp.view_proj = loc(vp.id, "u_view_proj");
+    vp.albedo = loc(vp.id, "u_albedo");
+    vp.emission = loc(vp.id, "u_emission");
+    vp.ambient = loc(vp.id, "u_ambient");
+    vp.camera_centre = loc(vp.id, "u_camera_centre");
+    vp.samples = loc(vp.id, "u_samples");
+    vp.kind = loc(vp.id, "u_kind");
+    vp.position = loc(vp.id, "u_position");
+    vp.axis = loc(vp.id, "u_axis");
+    vp.power = loc(vp.id, "u_power");
+    vp.shadow_layer = loc(vp.id, "u_shadow_layer");
+    vp.shadow_vp = loc(vp.id, "u_shadow_vp");
+    vp.has_sh = loc(vp.id, "u_has_sh");
+    vp.bmin = loc(vp.id, "u_bmin");
+    vp.bmax = loc(vp.id, "u_bmax");
+    vp.sh_scale = loc(vp.id, "u_sh_scale");
+    vp.sh_offset = loc(vp.id, "u_sh_offset");
+    vp.sh_depth = loc(vp.id, "u_sh_depth");
+    vp.has_texture = loc(vp.id, "u_has_texture");
+    glUseProgram(vp.id);
+    glUniform1i(loc(vp.id, "u_shadow_maps"), kUnitShadowMaps);
+    glUniform1i(loc(vp.id, "u_sh"), kUnitSh);
+    glUniform1i(loc(vp.id, "u_base_colour"), kUnitBaseColour);
+    glUniform1f(vp.sh_depth, 1.0f / 9.0f);
+    glUseProgram(0);
+
+    // The final pass's everyday variants (RGB8 frames); the others are made when first needed.
+    for (int bits : {0, int{kFinalModulation}, int{kFinalVirtual}, kFinalModulation | kFinalVirtual}) CL_TRY_VOID(finalProgram(bits));
+    return {};
+}
+
+Result<const FinalProgram*> Compositor::Impl::finalProgram(int bits) {
+    if (const auto it = final_programs.find(bits); it != final_programs.end()) return &it->second;
+    std::vector<std::string> defines;
+    defines.push_back((bits & kFinalYuyv) ? "FRAME_YUYV" : (bits & kFinalNv12) ? "FRAME_NV12" : "FRAME_RGB8");
+    if (bits & kFinalModulation) defines.push_back("MODULATION");
+    if (bits & kFinalVirtual) defines.push_back("VIRTUAL");
+    if (bits & kFinalElements) defines.push_back("VIEW_ELEMENTS");
+    if (bits & kFinalRatio) defines.push_back("VIEW_RATIO");
+    if (bits & kFinalNoise) defines.push_back("MATCH_NOISE");
+    FinalProgram p;
+    CL_TRY(p.id, gl::newProgram("final", shaders::programSource({}, shaders::kFinalVs), shaders::programSource(defines, shaders::kFinalFs)));
+    p.atlas_size = loc(p.id, "u_atlas_size");
+    p.layer_rect = loc(p.id, "u_layer_rect");
+    p.exposure_gain = loc(p.id, "u_exposure_gain");
+    p.size = loc(p.id, "u_size");
+    p.noise = loc(p.id, "u_noise");
+    p.seed = loc(p.id, "u_seed");
+    glUseProgram(p.id);
+    const std::pair<const char*, int> units[] = {{"u_frame", kUnitFrame},         {"u_frame_uv", kUnitFrameUv},
+                                                 {"u_undistort", kUnitUndistort}, {"u_proxy_atlas", kUnitProxyAtlas},
+                                                 {"u_atlas_m", kUnitAtlasM},      {"u_atlas_d", kUnitAtlasD},
+                                                 {"u_atlas_o", kUnitAtlasO},      {"u_layer_v", kUnitLayerV}};
+    for (const auto& [name, unit] : units) {
+        if (const GLint l = loc(p.id, name); l >= 0) glUniform1i(l, unit);
+    }
+    if (const GLuint block = glGetUniformBlockIndex(p.id, "ToLinear"); block != GL_INVALID_INDEX) glUniformBlockBinding(p.id, block, 0);
+    if (const GLuint block = glGetUniformBlockIndex(p.id, "ToCode"); block != GL_INVALID_INDEX) glUniformBlockBinding(p.id, block, 1);
+    glUniform2i(p.size, layer_width, layer_height);
+    glUseProgram(0);
+    return &(final_programs[bits] = p);
+}
+
+Result<void> Compositor::Impl::makeLayerTargets() {
+    GLint max_samples = 0, max_texture_samples = 0, max_format_samples = 0;
+    glGetIntegerv(GL_MAX_SAMPLES, &max_samples);
+    glGetIntegerv(GL_MAX_COLOR_TEXTURE_SAMPLES, &max_texture_samples);
+    glGetInternalformativ(GL_TEXTURE_2D_MULTISAMPLE, GL_RGBA16F, GL_SAMPLES, 1, &max_format_samples);
+    max_samples = std::min(max_samples, max_texture_samples);
+    if (max_format_samples > 0) max_samples = std::min(max_samples, max_format_samples);
+    // More samples than the GL has: the most it has (llvmpipe: 4). One sample: no multisampled pass.
+    const int samples = options.msaa_samples > 1 ? std::min(options.msaa_samples, static_cast<int>(max_samples)) : 1;
+    if (samples == layer_samples) return {};
+    gl::deleteTexture(layer_samples_texture);
+    gl::deleteRenderbuffer(layer_depth);
+    gl::deleteFramebuffer(layer_fbo);
+    layer_samples = samples;
+    if (samples <= 1) return {};
+    layer_fbo = gl::newFramebuffer();
+    glBindFramebuffer(GL_FRAMEBUFFER, layer_fbo);
+    layer_samples_texture = gl::newTexture();
+    glBindTexture(GL_TEXTURE_2D_MULTISAMPLE, layer_samples_texture);
+    glTexImage2DMultisample(GL_TEXTURE_2D_MULTISAMPLE, samples, GL_RGBA16F, layer_width, layer_height, GL_TRUE);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE, layer_samples_texture, 0);
+    layer_depth = gl::newRenderbuffer();
+    glBindRenderbuffer(GL_RENDERBUFFER, layer_depth);
+    glRenderbufferStorageMultisample(GL_RENDERBUFFER, samples, GL_DEPTH_COMPONENT24, layer_width, layer_height);
+    glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, layer_depth);
+    if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
+        layer_samples = -1;
+        return fail(ErrorCode::kDevice, "render: the GL cannot make a " + std::to_string(samples) + "x multisampled float framebuffer");
+    }
+    return {};
+}
+
+void Compositor::Impl::makeFrameTextures(PixelFormat format) {
+    if (format == frame_format) return;
+    gl::deleteTexture(frame_texture);
+    gl::deleteTexture(frame_uv_texture);
+    switch (format) {
+        case PixelFormat::kYuyv: frame_texture = byteTexture(width / 2, height, GL_RGBA8UI, GL_RGBA_INTEGER); break;
+        case PixelFormat::kNv12:
+            frame_texture = byteTexture(width, height, GL_R8UI, GL_RED_INTEGER);
+            frame_uv_texture = byteTexture(width / 2, height / 2, GL_RG8UI, GL_RG_INTEGER);
+            break;
+        default: frame_texture = byteTexture(width, height, GL_RGB8, GL_RGB); break;
+    }
+    frame_format = format;
+}
+
+// The frame's bytes into the pixel buffer (rows packed), then into its texture(s) as they are.
+void Compositor::Impl::uploadFrame(const ImageView& image) {
+    makeFrameTextures(image.format);
+    const bool nv12 = image.format == PixelFormat::kNv12;
+    const std::size_t row = image.format == PixelFormat::kRgb8 ? 3 * static_cast<std::size_t>(width)
+                            : image.format == PixelFormat::kYuyv ? 2 * static_cast<std::size_t>(width)
+                                                                 : static_cast<std::size_t>(width);
+    const int rows = nv12 ? height + height / 2 : height;
+    glBindBuffer(GL_PIXEL_UNPACK_BUFFER, frame_pbo);
+    glBufferData(GL_PIXEL_UNPACK_BUFFER, static_cast<GLsizeiptr>(row * static_cast<std::size_t>(rows)), nullptr, GL_STREAM_DRAW);
+    if (auto* dst = static_cast<std::uint8_t*>(glMapBuffer(GL_PIXEL_UNPACK_BUFFER, GL_WRITE_ONLY))) {
+        for (int y = 0; y < rows; ++y) std::memcpy(dst + row * static_cast<std::size_t>(y), image.row(y), row);
+        glUnmapBuffer(GL_PIXEL_UNPACK_BUFFER);
+    }
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    glBindTexture(GL_TEXTURE_2D, frame_texture);
+    switch (image.format) {
+        case PixelFormat::kYuyv: glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, width / 2, height, GL_RGBA_INTEGER, GL_UNSIGNED_BYTE, nullptr); break;
+        case PixelFormat::kNv12: {
+            glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, width, height, GL_RED_INTEGER, GL_UNSIGNED_BYTE, nullptr);
+            glBindTexture(GL_TEXTURE_2D, frame_uv_texture);
+            const std::size_t offset = row * static_cast<std::size_t>(height);
+            glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, width / 2, height / 2, GL_RG_INTEGER, GL_UNSIGNED_BYTE,
+                            reinterpret_cast<void*>(static_cast<std::uintptr_t>(offset)));
+            break;
         }
-        glDrawElements(GL_TRIANGLES, part.count, GL_UNSIGNED_INT,
-                       reinterpret_cast<void*>(static_cast<std::uintptr_t>(part.first) * sizeof(std::uint32_t)));
+        default: glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, width, height, GL_RGB, GL_UNSIGNED_BYTE, nullptr); break;
+    }
+    glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+}
+
+// Every camera pixel's ideal (undistorted) position in the layer's texel coordinates (GL rows),
+// and the layer that holds them all: the camera's pinhole with a margin (barrel distortion puts
+// the corners' ideal positions outside the camera's own rectangle).
+void Compositor::Impl::makeUndistortMap() {
+    const std::size_t n = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
+    std::vector<Eigen::Vector2f> ideal(n, Eigen::Vector2f::Constant(kNoIdeal));
+    Eigen::Vector2d lo(0.0, 0.0), hi(width - 1.0, height - 1.0);
+    // Hard case: beyond the fold of a strong barrel distortion ideal positions run far out; the
+    // layer covers at most twice the camera's size around it, and pixels beyond show no layer.
+    const Eigen::Vector2d limit_lo(-0.5 * width, -0.5 * height), limit_hi(1.5 * width, 1.5 * height);
+    for (int y = 0; y < height; ++y) {
+        for (int x = 0; x < width; ++x) {
+            const std::optional<Eigen::Vector2d> p = camera.undistortPixel(Eigen::Vector2d(x, y));
+            if (!p || !p->allFinite() || (p->array() < limit_lo.array()).any() || (p->array() > limit_hi.array()).any()) continue;
+            ideal[static_cast<std::size_t>(y) * static_cast<std::size_t>(width) + static_cast<std::size_t>(x)] = p->cast<float>();
+            lo = lo.cwiseMin(*p);
+            hi = hi.cwiseMax(*p);
+        }
+    }
+    // Two pixels of margin: bilinear reads and the rectangles' rounding.
+    layer_origin = Eigen::Vector2i(static_cast<int>(std::floor(lo.x())) - 2, static_cast<int>(std::floor(lo.y())) - 2);
+    layer_width = static_cast<int>(std::ceil(hi.x())) + 2 - layer_origin.x() + 1;
+    layer_height = static_cast<int>(std::ceil(hi.y())) + 2 - layer_origin.y() + 1;
+    layer_camera = camera;
+    layer_camera.width = layer_width;
+    layer_camera.height = layer_height;
+    layer_camera.cx = camera.cx - layer_origin.x();
+    layer_camera.cy = camera.cy - layer_origin.y();
+    layer_camera.distortion = Distortion{};
+
+    std::vector<float> map(2 * n);
+    warp_variance = 0.0;
+    std::size_t warp_pixels = 0;
+    blocks_x = (width + kBlock - 1) / kBlock;
+    blocks_y = (height + kBlock - 1) / kBlock;
+    block_bounds.assign(static_cast<std::size_t>(blocks_x) * static_cast<std::size_t>(blocks_y),
+                        Eigen::Vector4f(1e9f, 1e9f, -1e9f, -1e9f));
+    for (int y = 0; y < height; ++y) {
+        for (int x = 0; x < width; ++x) {
+            const std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(width) + static_cast<std::size_t>(x);
+            Eigen::Vector2f t = Eigen::Vector2f::Constant(kNoIdeal);
+            if (ideal[k].x() != kNoIdeal) {
+                // Texel coordinates: x + 0.5 from the layer's left, rows counted from its bottom.
+                t = Eigen::Vector2f(ideal[k].x() - static_cast<float>(layer_origin.x()) + 0.5f,
+                                    static_cast<float>(layer_height) - (ideal[k].y() - static_cast<float>(layer_origin.y())) - 0.5f);
+                const Eigen::Vector2f f = t - t.array().floor().matrix() - Eigen::Vector2f::Constant(0.5f);  // offset from the texel's centre
+                const Eigen::Vector2f g = f.array().abs().matrix();
+                warp_variance += 0.5 * static_cast<double>(g.x() * (1.0f - g.x()) + g.y() * (1.0f - g.y()));
+                ++warp_pixels;
+                Eigen::Vector4f& b = block_bounds[static_cast<std::size_t>(y / kBlock * blocks_x + x / kBlock)];
+                b = Eigen::Vector4f(std::min(b[0], t.x()), std::min(b[1], t.y()), std::max(b[2], t.x()), std::max(b[3], t.y()));
+            }
+            map[2 * k] = t.x();
+            map[2 * k + 1] = t.y();
+        }
+    }
+    undistort_texture = floatTexture(width, height, GL_RG32F, GL_RG, map.data(), GL_NEAREST);
+    warp_variance = warp_pixels > 0 ? warp_variance / static_cast<double>(warp_pixels) : 0.0;
+}
+
+// The layer pixels the virtual objects can cover: their bounding boxes' corners through the
+// layer's pinhole, plus a margin. Everything when a corner is at or behind the camera's plane.
+Rect Compositor::Impl::layerRect(const std::vector<std::optional<Eigen::Matrix4f>>& models, const Eigen::Matrix4d& cam_from_world,
+                                double margin) const {
+    Rect full{0, 0, layer_width - 1, layer_height - 1};
+    double x0 = 1e30, y0 = 1e30, x1 = -1e30, y1 = -1e30;
+    bool any = false;
+    for (std::size_t i = 0; i < models.size(); ++i) {
+        if (!models[i]) continue;
+        const GpuMesh& m = virtual_meshes[i];
+        const Eigen::Matrix4d model = models[i]->cast<double>();
+        for (int c = 0; c < 8; ++c) {
+            const Eigen::Vector4d corner((c & 1) ? m.bmax.x() : m.bmin.x(), (c & 2) ? m.bmax.y() : m.bmin.y(),
+                                         (c & 4) ? m.bmax.z() : m.bmin.z(), 1.0);
+            const Eigen::Vector4d p = cam_from_world * (model * corner);
+            if (!(p.z() > 0.01)) return full;
+            const double u = layer_camera.fx * p.x() / p.z() + layer_camera.cx;
+            const double v = layer_camera.fy * p.y() / p.z() + layer_camera.cy;
+            if (!std::isfinite(u) || !std::isfinite(v)) return full;
+            x0 = std::min(x0, u);
+            x1 = std::max(x1, u);
+            y0 = std::min(y0, v);
+            y1 = std::max(y1, v);
+            any = true;
+        }
+    }
+    if (!any) return Rect{};
+    // Image rows (down) to GL rows (up); `margin` pixels for the antialiased edge (and a blur).
+    Rect r;
+    r.x0 = static_cast<int>(std::max(0.0, std::floor(x0 - margin)));
+    r.x1 = static_cast<int>(std::min(layer_width - 1.0, std::ceil(x1 + margin)));
+    r.y0 = static_cast<int>(std::max(0.0, std::floor(layer_height - 1.0 - y1 - margin)));
+    r.y1 = static_cast<int>(std::min(layer_height - 1.0, std::ceil(layer_height - 1.0 - y0 + margin)));
+    return r;
+}
+
+// The camera pixels whose ideal positions can fall in a layer rectangle (whole blocks; output
+// rows are image rows).
+Rect Compositor::Impl::cameraRect(const Rect& layer) const {
+    Rect r{1 << 30, 1 << 30, -1, -1};
+    if (layer.empty()) return Rect{};
+    const float lx0 = static_cast<float>(layer.x0), ly0 = static_cast<float>(layer.y0);
+    const float lx1 = static_cast<float>(layer.x1 + 1), ly1 = static_cast<float>(layer.y1 + 1);
+    for (int by = 0; by < blocks_y; ++by) {
+        for (int bx = 0; bx < blocks_x; ++bx) {
+            const Eigen::Vector4f& b = block_bounds[static_cast<std::size_t>(by * blocks_x + bx)];
+            if (b[2] < lx0 || b[0] > lx1 || b[3] < ly0 || b[1] > ly1) continue;
+            r.x0 = std::min(r.x0, bx * kBlock);
+            r.y0 = std::min(r.y0, by * kBlock);
+            r.x1 = std::max(r.x1, std::min(width, (bx + 1) * kBlock) - 1);
+            r.y1 = std::max(r.y1, std::min(height, (by + 1) * kBlock) - 1);
+        }
+    }
+    return r.x1 < 0 ? Rect{} : r;
+}
+
+void Compositor::Impl::renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
+                                        const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax) {
+    fitShadowViews(samples, vmin, vmax);
+    const int layers = static_cast<int>(samples.size());
+    const int size = std::clamp(options.shadow_map_size, 64, 4096);
+    if (layers > shadow_layers || size != shadow_size) {
+        gl::deleteTexture(shadow_maps);
+        shadow_maps = gl::newTexture();
+        glBindTexture(GL_TEXTURE_2D_ARRAY, shadow_maps);
+        glTexImage3D(GL_TEXTURE_2D_ARRAY, 0, GL_DEPTH_COMPONENT24, size, size, std::max(layers, 1), 0, GL_DEPTH_COMPONENT, GL_FLOAT, nullptr);
+        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_COMPARE_MODE, GL_COMPARE_REF_TO_TEXTURE);
+        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_COMPARE_FUNC, GL_LEQUAL);
+        shadow_layers = std::max(layers, 1);
+        shadow_size = size;
+        shadow_key.clear();
+    }
+    // The maps depend only on the light samples' views and the virtual objects' poses (the real
+    // proxies do not move): unchanged since the last frame, they are reused.
+    std::vector<float> key;
+    for (const LightSample& s : samples) key.insert(key.end(), s.view_proj.data(), s.view_proj.data() + 16);
+    for (const auto& m : models) {
+        if (m) key.insert(key.end(), m->data(), m->data() + 16);
+        key.push_back(m ? 1.0f : 0.0f);
+    }
+    key.push_back(static_cast<float>(shadow_size));
+    if (key == shadow_key) return;
+    shadow_key = std::move(key);
+    glUseProgram(shadow_program.id);
+    glBindFramebuffer(GL_FRAMEBUFFER, shadow_fbo);
+    glDrawBuffer(GL_NONE);
+    glReadBuffer(GL_NONE);
+    glViewport(0, 0, shadow_size, shadow_size);
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    glDepthMask(GL_TRUE);
+    glDisable(GL_CULL_FACE);
+    glEnable(GL_POLYGON_OFFSET_FILL);
+    glPolygonOffset(2.0f, 4.0f);
+    for (const LightSample& s : samples) {
+        glFramebufferTextureLayer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, shadow_maps, 0, s.layer);
+        glClear(GL_DEPTH_BUFFER_BIT);
+        setMat4(shadow_program.view_proj, s.view_proj);
+        const auto draw = [&](const GpuMesh& mesh, const Eigen::Matrix4f& model) {
+            setMat4(shadow_program.model, model);
+            glBindVertexArray(mesh.vao);
+            for (const MeshPart& part : mesh.parts) drawPart(part);
+        };
+        for (std::size_t i = 0; i < real_meshes.size(); ++i) draw(real_meshes[i], real_models[i]);
+        for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
+            if (models[i]) draw(virtual_meshes[i], *models[i]);
+        }
     }
     glBindVertexArray(0);
+    glDisable(GL_POLYGON_OFFSET_FILL);
+}
+
+// The real proxies, single-sampled over the whole layer: each pixel gets the atlas coordinates of
+// the modulation of the surface it sees (depth-tested among the proxies).
+void Compositor::Impl::drawProxies(const Eigen::Matrix4f& view_proj) {
+    glBindFramebuffer(GL_FRAMEBUFFER, proxy_fbo);
+    glViewport(0, 0, layer_width, layer_height);
+    const float none[4] = {1.0f, 1.0f, 1.0f, 1.0f};
+    glClearBufferfv(GL_COLOR, 0, none);
+    glDepthMask(GL_TRUE);
+    glClear(GL_DEPTH_BUFFER_BIT);
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    glDisable(GL_CULL_FACE);
+    const ProxyProgram& pp = proxy_program;
+    glUseProgram(pp.id);
+    setMat4(pp.view_proj, view_proj);
+    for (std::size_t i = 0; i < real_meshes.size(); ++i) {
+        const GpuMesh& mesh = real_meshes[i];
+        setMat4(pp.model, real_models[i]);
+        glBindVertexArray(mesh.vao);
+        for (const MeshPart& part : mesh.parts) {
+            const FaceInAtlas* face = part.face >= 0 ? snapshot_textures.face(static_cast<int>(i), part.face) : nullptr;
+            glUniform1i(pp.has_mod, face ? 1 : 0);
+            if (face) {
+                setVec3(pp.c0, face->c0);
+                setVec3(pp.du, face->du);
+                setVec3(pp.dv, face->dv);
+                glUniform4fv(pp.atlas_rect, 1, face->rect.data());
+                const Eigen::Vector4f& r = face->rect;
+                glUniform4f(pp.clamp, 16.0f * r.x(), 16.0f * r.y(), 16.0f * (r.x() + r.z()), 16.0f * (r.y() + r.w()));
+            } else {
+                glUniform4f(pp.clamp, 65535.0f, 65535.0f, 65535.0f, 65535.0f);
+            }
+            drawPart(part);
+        }
+    }
+    glBindVertexArray(0);
+    glDisable(GL_DEPTH_TEST);
+}
+
+// The proxies' depth (only) in the bound framebuffer, for real objects to hide virtual ones.
+void Compositor::Impl::drawProxyDepth() {
+    glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+    glUseProgram(shadow_program.id);
+    for (std::size_t i = 0; i < real_meshes.size(); ++i) {
+        setMat4(shadow_program.model, real_models[i]);
+        glBindVertexArray(real_meshes[i].vao);
+        for (const MeshPart& part : real_meshes[i].parts) drawPart(part);
+    }
+    glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+}
+
+// The virtual layer in `rect`. llvmpipe runs a fragment shader once per sample of a multisampled
+// target (measured: the full shading cost 3.5x as much at 4 samples as at 1), so the objects are
+// shaded once per pixel, at its centre, in a single-sampled target depth-tested against the
+// proxies; only their geometry (normal, depth: a cheap shader) is multisampled; the composition
+// gives each covered sample the colour of the best matching shaded pixel nearby (kComposeFs:
+// silhouettes, creases and overlaps antialiased as with multisampled shading).
+void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn, const Eigen::Matrix4f& view_proj,
+                                        const Eigen::Vector3f& camera_centre, const std::vector<LightSample>& samples,
+                                        const std::vector<std::optional<Eigen::Matrix4f>>& models,
+                                        const lighting::LightingSnapshot& snapshot, double eg) {
+    const auto drawObjects = [&](GLint model_location) {
+        for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
+            if (!models[i]) continue;
+            setMat4(model_location, *models[i]);
+            glBindVertexArray(virtual_meshes[i].vao);
+            for (const MeshPart& part : virtual_meshes[i].parts) drawPart(part);
+        }
+    };
+    const auto drawLines = [&](const SceneProgram& program, bool colour) {
+        glUseProgram(program.id);
+        setMat4(program.view_proj, view_proj);
+        if (colour) setVec3(program.colour, Eigen::Vector3f(0.1f, 0.9f, 0.2f) / static_cast<float>(eg));
+        glDisable(GL_DEPTH_TEST);
+        glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
+        for (std::size_t i = 0; i < real_meshes.size(); ++i) {
+            setMat4(program.model, real_models[i]);
+            glBindVertexArray(real_meshes[i].vao);
+            for (const MeshPart& part : real_meshes[i].parts) drawPart(part);
+        }
+        glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
+        glEnable(GL_DEPTH_TEST);
+    };
+    glViewport(0, 0, layer_width, layer_height);
+    glEnable(GL_SCISSOR_TEST);
+    rect.scissor();
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    glDepthMask(GL_TRUE);
+    glDisable(GL_CULL_FACE);
+    const float clear[4] = {0, 0, 0, 0};
+
+    // Step a: shaded once per pixel, against the proxies' depth (already there when the proxies
+    // were drawn for the modulation).
+    glBindFramebuffer(GL_FRAMEBUFFER, shade_fbo);
+    glClearBufferfv(GL_COLOR, 0, clear);
+    glClearBufferfv(GL_COLOR, 1, clear);
+    glUseProgram(shadow_program.id);
+    setMat4(shadow_program.view_proj, view_proj);
+    if (!proxy_depth_drawn) {
+        glClear(GL_DEPTH_BUFFER_BIT);
+        drawProxyDepth();
+    }
+    const VirtualProgram& vp = virtual_program;
+    glUseProgram(vp.id);
+    setMat4(vp.view_proj, view_proj);
+    setVec3(vp.camera_centre, camera_centre);
+    const int n = static_cast<int>(samples.size());
+    glUniform1i(vp.samples, n);
+    if (n > 0) {
+        std::array<GLint, kMaxLightSamples> kinds{}, layers{};
+        std::array<float, 3 * kMaxLightSamples> positions{}, axes{}, powers{};
+        std::array<float, 16 * kMaxLightSamples> matrices{};
+        for (int k = 0; k < n; ++k) {
+            const LightSample& s = samples[static_cast<std::size_t>(k)];
+            const std::size_t i = static_cast<std::size_t>(k);
+            kinds[i] = s.kind;
+            layers[i] = s.layer;
+            for (int c = 0; c < 3; ++c) {
+                positions[3 * i + static_cast<std::size_t>(c)] = static_cast<float>(s.position[c]);
+                axes[3 * i + static_cast<std::size_t>(c)] = static_cast<float>(s.axis[c]);
+                powers[3 * i + static_cast<std::size_t>(c)] = static_cast<float>(s.power[c]);
+            }
+            std::copy(s.view_proj.data(), s.view_proj.data() + 16, matrices.begin() + static_cast<std::ptrdiff_t>(16 * i));
+        }
+        glUniform1iv(vp.kind, n, kinds.data());
+        glUniform1iv(vp.shadow_layer, n, layers.data());
+        glUniform3fv(vp.position, n, positions.data());
+        glUniform3fv(vp.axis, n, axes.data());
+        glUniform3fv(vp.power, n, powers.data());
+        glUniformMatrix4fv(vp.shadow_vp, n, GL_FALSE, matrices.data());
+    }
+    glActiveTexture(GL_TEXTURE0 + kUnitShadowMaps);
+    glBindTexture(GL_TEXTURE_2D_ARRAY, shadow_maps);
+    const double scale = snapshot.radiance_scale > 0.0 && std::isfinite(snapshot.radiance_scale) ? snapshot.radiance_scale : 1.0;
+    for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
+        if (!models[i]) continue;
+        const VirtualObject& object = scene.virtual_objects[i];
+        setVec3(vp.emission, (object.emission.value_or(Eigen::Vector3d::Zero()) * scale).cast<float>());
+        const ProbeGrid* grid = snapshot_textures.probes(i);
+        // With nothing estimated yet (and no light to shade with), a neutral light that shows the
+        // object at mid grey.
+        const bool unlit = grid == nullptr && samples.empty();
+        const float ambient = unlit ? static_cast<float>(std::numbers::pi * 0.18 / eg) : 0.0f;
+        setVec3(vp.ambient, Eigen::Vector3f::Constant(ambient));
+        glUniform1i(vp.has_sh, grid ? 1 : 0);
+        if (grid) {
+            glActiveTexture(GL_TEXTURE0 + kUnitSh);
+            glBindTexture(GL_TEXTURE_3D, grid->texture);
+            setVec3(vp.bmin, grid->bmin);
+            setVec3(vp.bmax, grid->bmax);
+            setVec3(vp.sh_scale, grid->scale);
+            setVec3(vp.sh_offset, grid->offset);
+        }
+        setMat4(vp.model, *models[i]);
+        glBindVertexArray(virtual_meshes[i].vao);
+        for (const MeshPart& part : virtual_meshes[i].parts) {
+            // A part with the mesh file's own base colour: that, times its texture, is the albedo.
+            const GpuMaterial* material = part.material >= 0 && static_cast<std::size_t>(part.material) < virtual_meshes[i].materials.size()
+                                              ? &virtual_meshes[i].materials[static_cast<std::size_t>(part.material)]
+                                              : nullptr;
+            setVec3(vp.albedo, material ? material->colour : object.material.albedo.cast<float>());
+            glUniform1i(vp.has_texture, material && material->texture != 0 ? 1 : 0);
+            if (material && material->texture != 0) {
+                glActiveTexture(GL_TEXTURE0 + kUnitBaseColour);
+                glBindTexture(GL_TEXTURE_2D, material->texture);
+                glActiveTexture(GL_TEXTURE0);
+            }
+            drawPart(part);
+        }
+    }
+    glActiveTexture(GL_TEXTURE0);
+    if (options.debug == DebugView::kProxyWireframe) drawLines(line_program, true);
+    mark("virtual shading");
+
+    if (layer_samples > 1) {
+        // Step b: the geometry of every sample: the proxies' depth, then the objects.
+        glBindFramebuffer(GL_FRAMEBUFFER, layer_fbo);
+        glClearBufferfv(GL_COLOR, 0, clear);
+        glClear(GL_DEPTH_BUFFER_BIT);
+        glUseProgram(shadow_program.id);
+        setMat4(shadow_program.view_proj, view_proj);
+        drawProxyDepth();
+        glUseProgram(geometry_program.id);
+        setMat4(geometry_program.view_proj, view_proj);
+        glUniform1i(geometry_program.line, 0);
+        drawObjects(geometry_program.model);
+        if (options.debug == DebugView::kProxyWireframe) {
+            glUniform1i(geometry_program.line, 1);
+            drawLines(geometry_program, false);
+        }
+        mark("virtual samples");
+        // Step c: each sample's colour from the best matching shaded pixel; their mean.
+        glDisable(GL_DEPTH_TEST);
+        glBindFramebuffer(GL_FRAMEBUFFER, resolve_fbo);
+        glUseProgram(compose_program);
+        glUniform1i(compose_sample_count, layer_samples);
+        glActiveTexture(GL_TEXTURE0);
+        glBindTexture(GL_TEXTURE_2D, shade_texture);
+        glActiveTexture(GL_TEXTURE1);
+        glBindTexture(GL_TEXTURE_2D, shade_geometry);
+        glActiveTexture(GL_TEXTURE2);
+        glBindTexture(GL_TEXTURE_2D_MULTISAMPLE, layer_samples_texture);
+        glBindVertexArray(empty_vao);
+        glDrawArrays(GL_TRIANGLES, 0, 3);
+        glActiveTexture(GL_TEXTURE0);
+        layer_v = resolve_texture;
+    } else {
+        layer_v = shade_texture;  // one sample: the shaded colour, alpha 1 where an object is, is the layer
+    }
+    glBindVertexArray(0);
+    glDisable(GL_DEPTH_TEST);
+    glDisable(GL_SCISSOR_TEST);
+}
+
+// The frame's noise and blur (CPU), and the blur the virtual layer lacks.
+Result<void> Compositor::Impl::measureCamera(const ImageView& image) {
+    ImageView rgb = image;
+    if (image.format == PixelFormat::kYuyv || image.format == PixelFormat::kNv12) {
+        match_rgb.reshape(PixelFormat::kRgb8, width, height);
+        const int rows = image.format == PixelFormat::kNv12 ? height + height / 2 : height;
+        const cv::Mat src(rows, width, image.format == PixelFormat::kNv12 ? CV_8UC1 : CV_8UC2, const_cast<std::uint8_t*>(image.data),
+                          image.stride);
+        cv::Mat dst(height, width, CV_8UC3, match_rgb.data(), match_rgb.stride());
+        cv::cvtColor(src, dst, image.format == PixelFormat::kNv12 ? cv::COLOR_YUV2RGB_NV12 : cv::COLOR_YUV2RGB_YUYV);
+        rgb = match_rgb.view();
+    }
+    CameraMatch m;
+    CL_TRY(m.noise, estimateNoise(rgb));
+    CL_TRY(m.blur, estimateBlur(rgb, response));
+    // The layer's own PSF: its square pixels (MSAA coverage, 1/12 px^2) and the bilinear read
+    // through the lens warp; the frame's PSF includes its pixels' integration too.
+    m.layer_sigma_px = std::sqrt(1.0 / 12.0 + warp_variance);
+    const double extra = m.blur.edges > 0 ? m.blur.sigma_px * m.blur.sigma_px - m.layer_sigma_px * m.layer_sigma_px : 0.0;
+    m.added_sigma_px = std::min(2.5, std::sqrt(std::max(0.0, extra)));
+    m.frame = frames_drawn;
+    match = m;
+    return {};
+}
+
+// A separable Gaussian of `sigma` pixels over the virtual layer in `rect` (two passes), the result
+// then the layer the final pass reads.
+Result<void> Compositor::Impl::blurLayer(const Rect& rect, double sigma) {
+    if (blur_program == 0) {
+        using shaders::programSource;
+        CL_TRY(blur_program, gl::newProgram("blur", programSource({}, shaders::kFinalVs), programSource({}, shaders::kBlurFs)));
+        blur_direction = loc(blur_program, "u_direction");
+        blur_radius = loc(blur_program, "u_radius");
+        blur_weights = loc(blur_program, "u_weights");
+        blur_rect = loc(blur_program, "u_rect");
+        glUseProgram(blur_program);
+        glUniform1i(loc(blur_program, "u_layer"), 0);
+        for (int k = 0; k < 2; ++k) {
+            blur_fbo[k] = gl::newFramebuffer();
+            glBindFramebuffer(GL_FRAMEBUFFER, blur_fbo[k]);
+            blur_texture[k] = floatTexture(layer_width, layer_height, GL_RGBA16F, GL_RGBA, nullptr, GL_LINEAR);
+            glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, blur_texture[k], 0);
+            if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
+                return fail(ErrorCode::kDevice, "render: the GL cannot make the camera matching's blur framebuffers");
+            }
+        }
+    }
+    const int radius = std::clamp(static_cast<int>(std::ceil(3.0 * sigma)), 1, 8);
+    std::array<float, 9> weights{};
+    float total = 0.0f;
+    for (int k = 0; k <= radius; ++k) {
+        weights[static_cast<std::size_t>(k)] = static_cast<float>(std::exp(-0.5 * k * k / (sigma * sigma)));
+        total += (k == 0 ? 1.0f : 2.0f) * weights[static_cast<std::size_t>(k)];
+    }
+    for (float& w : weights) w /= total;
+    glUseProgram(blur_program);
+    glUniform1i(blur_radius, radius);
+    glUniform1fv(blur_weights, 9, weights.data());
+    glViewport(0, 0, layer_width, layer_height);
+    glEnable(GL_SCISSOR_TEST);
+    rect.scissor();
+    glDisable(GL_DEPTH_TEST);
+    glBindVertexArray(empty_vao);
+    glActiveTexture(GL_TEXTURE0);
+    GLuint input = layer_v;
+    for (int pass = 0; pass < 2; ++pass) {
+        glBindFramebuffer(GL_FRAMEBUFFER, blur_fbo[pass]);
+        glBindTexture(GL_TEXTURE_2D, input);
+        glUniform2i(blur_direction, pass == 0 ? 1 : 0, pass == 0 ? 0 : 1);
+        glUniform4i(blur_rect, rect.x0, rect.y0, rect.x1, rect.y1);
+        glDrawArrays(GL_TRIANGLES, 0, 3);
+        input = blur_texture[pass];
+    }
+    glBindVertexArray(0);
+    glDisable(GL_SCISSOR_TEST);
+    layer_v = blur_texture[1];
+    return {};
+}
+
+void Compositor::Impl::releaseAll() {
+    snapshot_textures.release();
+    gl::deleteTexture(layer_samples_texture);
+    gl::deleteRenderbuffer(layer_depth);
+    gl::deleteFramebuffer(layer_fbo);
+    gl::deleteTexture(resolve_texture);
+    gl::deleteFramebuffer(resolve_fbo);
+    gl::deleteTexture(shade_texture);
+    gl::deleteTexture(shade_geometry);
+    gl::deleteFramebuffer(shade_fbo);
+    gl::deleteTexture(proxy_atlas);
+    gl::deleteRenderbuffer(proxy_depth);
+    gl::deleteFramebuffer(proxy_fbo);
+    gl::deleteTexture(output_texture);
+    gl::deleteFramebuffer(output_fbo);
+    gl::deleteTexture(shadow_maps);
+    gl::deleteFramebuffer(shadow_fbo);
+    for (GpuMesh& m : real_meshes) releaseMesh(m);
+    for (GpuMesh& m : virtual_meshes) releaseMesh(m);
+    gl::deleteVertexArray(empty_vao);
+    gl::deleteTexture(frame_texture);
+    gl::deleteTexture(frame_uv_texture);
+    gl::deleteBuffer(frame_pbo);
+    gl::deleteTexture(undistort_texture);
+    gl::deleteBuffer(to_linear_ubo);
+    gl::deleteBuffer(to_code_ubo);
+    for (GLuint* p : {&shadow_program.id, &line_program.id, &geometry_program.id, &compose_program, &proxy_program.id, &virtual_program.id}) {
+        gl::deleteProgram(*p);
+    }
+    for (auto& [bits, p] : final_programs) gl::deleteProgram(p.id);
+    gl::deleteProgram(blur_program);
+    for (int k = 0; k < 2; ++k) {
+        gl::deleteTexture(blur_texture[k]);
+        gl::deleteFramebuffer(blur_fbo[k]);
+    }
+    gl::deleteProgram(world_program);
+    gl::deleteProgram(warp_program);
+    gl::deleteTexture(world_texture);
+    gl::deleteFramebuffer(world_fbo);
+    gl::deleteTexture(warp_texture);
+    gl::deleteFramebuffer(warp_fbo);
+    final_programs.clear();
 }
 
 Result<std::unique_ptr<Compositor>> Compositor::create(GlContext& context, const Scene& scene, const CameraModel& camera,
@@ -676,68 +930,75 @@ Result<std::unique_ptr<Compositor>> Compositor::create(GlContext& context, const
     d.width = camera.width;
     d.height = camera.height;
     context.makeCurrent();
-    const std::string vs = kSceneVs;
-    CL_TRY(d.shadow_program, gl::newProgram("shadow", kShadowVs, kShadowFs));
-    CL_TRY(d.proxy_program, gl::newProgram("proxy", vs, kProxyFs));
-    CL_TRY(d.virtual_program, gl::newProgram("virtual", vs, kVirtualFs));
-    CL_TRY(d.line_program, gl::newProgram("lines", vs, kLineFs));
-    CL_TRY(d.final_program, gl::newProgram("final", kFinalVs, kFinalFs));
+    d.makeUndistortMap();
+    CL_TRY_VOID(d.makePrograms());
     d.empty_vao = gl::newVertexArray();
-    for (const RealObject& o : scene.real_objects) d.real_meshes.push_back(upload(o.shape));
-    for (const VirtualObject& o : scene.virtual_objects) d.virtual_meshes.push_back(upload(o.shape));
-
-    // The frame, streamed through a pixel buffer.
-    d.frame_texture = gl::newTexture();
-    glBindTexture(GL_TEXTURE_2D, d.frame_texture);
-    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGB8, d.width, d.height, 0, GL_RGB, GL_UNSIGNED_BYTE, nullptr);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    for (const RealObject& o : scene.real_objects) {
+        d.real_meshes.push_back(uploadMesh(o.shape));
+        d.real_models.push_back(toGl(o.world_from_object));
+    }
+    for (const VirtualObject& o : scene.virtual_objects) d.virtual_meshes.push_back(uploadMesh(o.shape));
     d.frame_pbo = gl::newBuffer();
+    d.makeFrameTextures(PixelFormat::kRgb8);
 
-    // The ideal (undistorted) pixel of every camera pixel.
-    std::vector<float> map(static_cast<std::size_t>(d.width) * static_cast<std::size_t>(d.height) * 2);
-    for (int y = 0; y < d.height; ++y) {
-        for (int x = 0; x < d.width; ++x) {
-            const Eigen::Vector2d p(x, y);
-            const Eigen::Vector2d ideal = camera.undistortPixel(p).value_or(p);
-            const std::size_t k = (static_cast<std::size_t>(y) * static_cast<std::size_t>(d.width) + static_cast<std::size_t>(x)) * 2;
-            map[k] = static_cast<float>(ideal.x());
-            map[k + 1] = static_cast<float>(ideal.y());
-        }
-    }
-    d.undistort_texture = floatTexture(d.width, d.height, GL_RG32F, GL_RG, map.data(), GL_NEAREST);
-
-    // The camera's response both ways.
-    std::vector<float> lin(256 * 3), code(kForwardLutSize * 3);
+    // The camera's response both ways, as uniform buffers (llvmpipe gathers from them several
+    // times faster than it fetches texels).
+    std::vector<float> lin(256 * 4, 0.0f), code(kToCodeSize * 4, 0.0f);
     for (int k = 0; k < 256; ++k) {
-        for (int c = 0; c < 3; ++c) lin[static_cast<std::size_t>(3 * k + c)] = response.toLinear(c, static_cast<std::uint8_t>(k));
+        for (int c = 0; c < 3; ++c) lin[static_cast<std::size_t>(4 * k + c)] = response.toLinear(c, static_cast<std::uint8_t>(k));
     }
-    for (int k = 0; k < kForwardLutSize; ++k) {
-        const double s = static_cast<double>(k) / (kForwardLutSize - 1);
-        for (int c = 0; c < 3; ++c) code[static_cast<std::size_t>(3 * k + c)] = response.toEncoded(c, static_cast<float>(s * s));
+    for (int k = 0; k < kToCodeSize; ++k) {
+        const double s = static_cast<double>(k) / (kToCodeSize - 1);
+        for (int c = 0; c < 3; ++c) code[static_cast<std::size_t>(4 * k + c)] = response.toEncoded(c, static_cast<float>(s * s));
     }
-    d.to_linear = floatTexture(256, 1, GL_RGB32F, GL_RGB, lin.data(), GL_NEAREST);
-    d.to_code = floatTexture(kForwardLutSize, 1, GL_RGB32F, GL_RGB, code.data(), GL_NEAREST);
+    d.to_linear_ubo = gl::newBuffer();
+    glBindBuffer(GL_UNIFORM_BUFFER, d.to_linear_ubo);
+    glBufferData(GL_UNIFORM_BUFFER, static_cast<GLsizeiptr>(lin.size() * sizeof(float)), lin.data(), GL_STATIC_DRAW);
+    d.to_code_ubo = gl::newBuffer();
+    glBindBuffer(GL_UNIFORM_BUFFER, d.to_code_ubo);
+    glBufferData(GL_UNIFORM_BUFFER, static_cast<GLsizeiptr>(code.size() * sizeof(float)), code.data(), GL_STATIC_DRAW);
+    glBindBuffer(GL_UNIFORM_BUFFER, 0);
 
-    // Targets: the 3D layer (multisampled), its resolve, the output.
-    CL_TRY_VOID(d.makeTargets());
+    // Targets: the proxies' atlas coordinates, the virtual layer (multisampled) and its resolve, the output.
+    d.proxy_fbo = gl::newFramebuffer();
+    glBindFramebuffer(GL_FRAMEBUFFER, d.proxy_fbo);
+    d.proxy_atlas = byteTexture(d.layer_width, d.layer_height, GL_RGBA8, GL_RGBA);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, d.proxy_atlas, 0);
+    d.proxy_depth = gl::newRenderbuffer();
+    glBindRenderbuffer(GL_RENDERBUFFER, d.proxy_depth);
+    glRenderbufferStorage(GL_RENDERBUFFER, GL_DEPTH_COMPONENT24, d.layer_width, d.layer_height);
+    glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, d.proxy_depth);
+    if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
+        return fail(ErrorCode::kDevice, "render: the GL cannot make the proxies' framebuffer");
+    }
+    d.shade_fbo = gl::newFramebuffer();
+    glBindFramebuffer(GL_FRAMEBUFFER, d.shade_fbo);
+    d.shade_texture = floatTexture(d.layer_width, d.layer_height, GL_RGBA16F, GL_RGBA, nullptr, GL_LINEAR);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, d.shade_texture, 0);
+    d.shade_geometry = floatTexture(d.layer_width, d.layer_height, GL_RGBA16F, GL_RGBA, nullptr, GL_NEAREST);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT1, GL_TEXTURE_2D, d.shade_geometry, 0);
+    const GLenum shade_buffers[2] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1};
+    glDrawBuffers(2, shade_buffers);
+    glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, d.proxy_depth);
+    if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
+        return fail(ErrorCode::kDevice, "render: the GL cannot make the virtual objects' float framebuffer");
+    }
+    CL_TRY_VOID(d.makeLayerTargets());
     d.resolve_fbo = gl::newFramebuffer();
     glBindFramebuffer(GL_FRAMEBUFFER, d.resolve_fbo);
-    for (int i = 0; i < 3; ++i) {
-        d.resolve_tex[i] = floatTexture(d.width, d.height, GL_RGBA16F, GL_RGBA, nullptr, GL_LINEAR);
-        glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0 + static_cast<GLenum>(i), GL_TEXTURE_2D, d.resolve_tex[i], 0);
-    }
+    d.resolve_texture = floatTexture(d.layer_width, d.layer_height, GL_RGBA16F, GL_RGBA, nullptr, GL_LINEAR);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, d.resolve_texture, 0);
     if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
         return fail(ErrorCode::kDevice, "render: the GL cannot make the float resolve framebuffer");
     }
     d.output_fbo = gl::newFramebuffer();
-    d.output_tex = gl::newTexture();
-    glBindTexture(GL_TEXTURE_2D, d.output_tex);
+    d.output_texture = gl::newTexture();
+    glBindTexture(GL_TEXTURE_2D, d.output_texture);
     glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, d.width, d.height, 0, GL_RGBA, GL_UNSIGNED_BYTE, nullptr);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
     glBindFramebuffer(GL_FRAMEBUFFER, d.output_fbo);
-    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, d.output_tex, 0);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, d.output_texture, 0);
     if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
         return fail(ErrorCode::kDevice, "render: the GL cannot make the output framebuffer");
     }
@@ -748,31 +1009,113 @@ Result<std::unique_ptr<Compositor>> Compositor::create(GlContext& context, const
 
 Compositor::~Compositor() {
     if (!impl_ || impl_->context == nullptr) return;
-    Impl& d = *impl_;
-    d.context->makeCurrent();
-    d.releaseSnapshot();
-    d.releaseTargets();
-    for (GpuMesh& m : d.real_meshes) release(m);
-    for (GpuMesh& m : d.virtual_meshes) release(m);
-    gl::deleteVertexArray(d.empty_vao);
-    gl::deleteTexture(d.frame_texture);
-    gl::deleteBuffer(d.frame_pbo);
-    gl::deleteTexture(d.undistort_texture);
-    gl::deleteTexture(d.to_linear);
-    gl::deleteTexture(d.to_code);
-    for (GLuint* p : {&d.shadow_program, &d.proxy_program, &d.virtual_program, &d.line_program, &d.final_program}) gl::deleteProgram(*p);
+    impl_->context->makeCurrent();
+    impl_->releaseAll();
 }
 
 void Compositor::setOptions(const CompositorOptions& options) { impl_->options = options; }
 const CompositorOptions& Compositor::options() const noexcept { return impl_->options; }
+const std::vector<PassTime>& Compositor::passTimes() const noexcept { return impl_->pass_times; }
+const std::optional<CameraMatch>& Compositor::cameraMatch() const noexcept { return impl_->match; }
+
+Result<std::vector<Eigen::Vector4f>> Compositor::surfacePoints(const FrameInput& frame) {
+    Impl& d = *impl_;
+    d.context->makeCurrent();
+    std::vector<Eigen::Vector4f> points(static_cast<std::size_t>(d.width) * static_cast<std::size_t>(d.height), Eigen::Vector4f::Zero());
+    if (!frame.cam_from_world || !frame.cam_from_world->isValid()) return points;
+    if (d.world_program == 0) {
+        using shaders::programSource;
+        CL_TRY(d.world_program, gl::newProgram("world", programSource({}, shaders::kSceneVs), programSource({}, shaders::kWorldFs)));
+        d.world_model = loc(d.world_program, "u_model");
+        d.world_view_proj = loc(d.world_program, "u_view_proj");
+        d.world_surface = loc(d.world_program, "u_surface");
+        CL_TRY(d.warp_program, gl::newProgram("warp", programSource({}, shaders::kFinalVs), programSource({}, shaders::kWarpFs)));
+        glUseProgram(d.warp_program);
+        glUniform1i(loc(d.warp_program, "u_undistort"), 0);
+        glUniform1i(loc(d.warp_program, "u_world"), 1);
+        glUniform2i(loc(d.warp_program, "u_size"), d.layer_width, d.layer_height);
+        d.world_fbo = gl::newFramebuffer();
+        glBindFramebuffer(GL_FRAMEBUFFER, d.world_fbo);
+        d.world_texture = floatTexture(d.layer_width, d.layer_height, GL_RGBA32F, GL_RGBA, nullptr, GL_LINEAR);
+        glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, d.world_texture, 0);
+        glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, d.proxy_depth);
+        d.warp_fbo = gl::newFramebuffer();
+        glBindFramebuffer(GL_FRAMEBUFFER, d.warp_fbo);
+        d.warp_texture = floatTexture(d.width, d.height, GL_RGBA32F, GL_RGBA, nullptr, GL_NEAREST);
+        glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, d.warp_texture, 0);
+        if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
+            return fail(ErrorCode::kDevice, "render: the GL cannot make the RGBA32F framebuffers of surfacePoints");
+        }
+    }
+    // The layer: every proxy and virtual object's world position, depth-tested, with the same
+    // view and projection as draw()'s.
+    Eigen::Matrix4d view = Eigen::Matrix4d::Identity();
+    view.topLeftCorner<3, 3>() = frame.cam_from_world->rotation.toRotationMatrix();
+    view.topRightCorner<3, 1>() = frame.cam_from_world->translation;
+    view.row(1) *= -1.0;
+    view.row(2) *= -1.0;
+    const Eigen::Matrix4f view_proj = (d.layer_camera.glProjection(0.01, 100.0) * view).cast<float>();
+    glBindFramebuffer(GL_FRAMEBUFFER, d.world_fbo);
+    glViewport(0, 0, d.layer_width, d.layer_height);
+    const float none[4] = {0, 0, 0, 0};
+    glClearBufferfv(GL_COLOR, 0, none);
+    glDepthMask(GL_TRUE);
+    glClear(GL_DEPTH_BUFFER_BIT);
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    glDisable(GL_CULL_FACE);
+    glUseProgram(d.world_program);
+    setMat4(d.world_view_proj, view_proj);
+    float surface = 0.0f;
+    const auto draw = [&](const GpuMesh& mesh, const Eigen::Matrix4f& model) {
+        glUniform1f(d.world_surface, surface += 1.0f);
+        setMat4(d.world_model, model);
+        glBindVertexArray(mesh.vao);
+        for (const MeshPart& part : mesh.parts) drawPart(part);
+    };
+    for (std::size_t i = 0; i < d.real_meshes.size(); ++i) draw(d.real_meshes[i], d.real_models[i]);
+    for (std::size_t i = 0; i < d.virtual_meshes.size(); ++i) {
+        std::optional<Rigid3d> pose = i < frame.virtual_poses.size() ? frame.virtual_poses[i]
+                                                                      : worldFromObject(d.scene.virtual_objects[i], d.scene.tags, 0.0);
+        if (pose && pose->isValid()) draw(d.virtual_meshes[i], toGl(*pose));
+    }
+    glDisable(GL_DEPTH_TEST);
+    // The warp at every camera pixel.
+    glBindFramebuffer(GL_FRAMEBUFFER, d.warp_fbo);
+    glViewport(0, 0, d.width, d.height);
+    glUseProgram(d.warp_program);
+    glActiveTexture(GL_TEXTURE0);
+    glBindTexture(GL_TEXTURE_2D, d.undistort_texture);
+    glActiveTexture(GL_TEXTURE1);
+    glBindTexture(GL_TEXTURE_2D, d.world_texture);
+    glBindVertexArray(d.empty_vao);
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+    glBindVertexArray(0);
+    glActiveTexture(GL_TEXTURE0);
+    glPixelStorei(GL_PACK_ALIGNMENT, 4);
+    glReadPixels(0, 0, d.width, d.height, GL_RGBA, GL_FLOAT, points.data());
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    const GLenum error = glGetError();
+    if (error != GL_NO_ERROR) return fail(ErrorCode::kInternal, "render: GL error " + std::to_string(error) + " in surfacePoints");
+    return points;
+}
 
 Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingSnapshot& snapshot) {
     Impl& d = *impl_;
-    if (frame.image.format != PixelFormat::kRgb8 || frame.image.width != d.width || frame.image.height != d.height ||
-        frame.image.data == nullptr) {
-        return fail(ErrorCode::kBadInput, "render: the frame must be RGB8 of " + std::to_string(d.width) + "x" +
-                                              std::to_string(d.height) + " (got " + std::string(pixelFormatName(frame.image.format)) +
-                                              " " + std::to_string(frame.image.width) + "x" + std::to_string(frame.image.height) + ")");
+    const PixelFormat format = frame.image.format;
+    const bool yuv = format == PixelFormat::kYuyv || format == PixelFormat::kNv12;
+    if ((format != PixelFormat::kRgb8 && !yuv) || frame.image.width != d.width || frame.image.height != d.height ||
+        frame.image.data == nullptr || (yuv && (d.width % 2 != 0 || (format == PixelFormat::kNv12 && d.height % 2 != 0)))) {
+        return fail(ErrorCode::kBadInput, "render: the frame must be RGB8, YUYV or NV12 (even sizes) of " + std::to_string(d.width) + "x" +
+                                              std::to_string(d.height) + " (got " + std::string(pixelFormatName(format)) + " " +
+                                              std::to_string(frame.image.width) + "x" + std::to_string(frame.image.height) + ")");
+    }
+    const std::size_t min_stride = minStride(format, d.width);
+    if (frame.image.stride < min_stride || frame.image.size_bytes < imageBytes(format, d.width, d.height, frame.image.stride)) {
+        return fail(ErrorCode::kBadInput, "render: the frame's " + std::to_string(frame.image.size_bytes) + " bytes (stride " +
+                                              std::to_string(frame.image.stride) + ") are too few for " +
+                                              std::string(pixelFormatName(format)) + " " + std::to_string(d.width) + "x" +
+                                              std::to_string(d.height));
     }
     if (!frame.virtual_poses.empty() && frame.virtual_poses.size() != d.scene.virtual_objects.size()) {
         return fail(ErrorCode::kBadInput, "render: " + std::to_string(frame.virtual_poses.size()) + " virtual poses for " +
@@ -781,28 +1124,28 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     d.context->makeCurrent();
     while (glGetError() != GL_NO_ERROR) {
     }  // errors left by others (the check below is for this frame's)
-    CL_TRY_VOID(d.makeTargets());
+    d.pass_times.clear();
+    d.mark(nullptr);
+    CL_TRY_VOID(d.makeLayerTargets());
     const double eg = frame.exposure_gain > 0.0 && std::isfinite(frame.exposure_gain) ? frame.exposure_gain : 1.0;
     const bool posed = frame.cam_from_world && frame.cam_from_world->isValid();
 
-    // Step 1: the frame, through the pixel buffer (rows packed).
-    const std::size_t row = static_cast<std::size_t>(d.width) * 3;
-    glBindBuffer(GL_PIXEL_UNPACK_BUFFER, d.frame_pbo);
-    glBufferData(GL_PIXEL_UNPACK_BUFFER, static_cast<GLsizeiptr>(row * static_cast<std::size_t>(d.height)), nullptr, GL_STREAM_DRAW);
-    if (auto* dst = static_cast<std::uint8_t*>(glMapBuffer(GL_PIXEL_UNPACK_BUFFER, GL_WRITE_ONLY))) {
-        for (int y = 0; y < d.height; ++y) std::memcpy(dst + row * static_cast<std::size_t>(y), frame.image.row(y), row);
-        glUnmapBuffer(GL_PIXEL_UNPACK_BUFFER);
+    // Step 1: the frame, through the pixel buffer, in its own format.
+    d.uploadFrame(frame.image);
+    d.mark("upload frame");
+    if (d.options.camera_matching) {
+        const std::uint64_t interval = static_cast<std::uint64_t>(std::max(1, d.options.matching_interval));
+        if (!d.match || d.frames_drawn - d.match->frame >= interval) CL_TRY_VOID(d.measureCamera(frame.image));
+        d.mark("camera matching");
+    } else {
+        d.match.reset();
     }
-    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-    glBindTexture(GL_TEXTURE_2D, d.frame_texture);
-    glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, d.width, d.height, GL_RGB, GL_UNSIGNED_BYTE, nullptr);
-    glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+    const bool matching = d.options.camera_matching && d.match.has_value();
+    const double added_blur = matching ? d.match->added_sigma_px : 0.0;
+    d.snapshot_textures.update(snapshot, d.scene.virtual_objects.size(), d.options.lighting);
+    d.mark("upload snapshot");
 
-    if (snapshot.version != d.snapshot_version || &snapshot != d.snapshot_address || d.options.lighting != d.snapshot_lighting) {
-        d.uploadSnapshot(snapshot);
-    }
-
-    // The poses of what is drawn.
+    // Step 2: the poses of what is drawn.
     std::vector<std::optional<Eigen::Matrix4f>> virtual_model(d.scene.virtual_objects.size());
     Eigen::Vector3d vmin = Eigen::Vector3d::Constant(1e30), vmax = Eigen::Vector3d::Constant(-1e30);
     for (std::size_t i = 0; i < virtual_model.size(); ++i) {
@@ -820,266 +1163,108 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     }
     const bool any_virtual = vmin.x() <= vmax.x();
 
-    // Step 2: light samples and their shadow maps.
-    std::vector<LightSample> samples;
-    const double scale = snapshot.radiance_scale > 0.0 && std::isfinite(snapshot.radiance_scale) ? snapshot.radiance_scale : 1.0;
-    const int per_area = std::clamp(d.options.area_light_samples, 1, 8);
-    for (const lighting::EstimatedLight& light : snapshot.lights) {
-        if (!light.emission.allFinite() || light.emission.maxCoeff() <= 0.0) continue;
-        const Eigen::Vector3d power = light.emission * scale;
-        const Eigen::Matrix3d r = light.world_from_object.rotation.toRotationMatrix();
-        if (light.kind == lighting::LightKind::kDirectional) {
-            LightSample s;
-            s.kind = 2;
-            s.axis = light.direction.normalized();
-            s.power = power;
-            samples.push_back(s);
-        } else if (light.kind == lighting::LightKind::kPoint) {
-            LightSample s;
-            s.kind = 1;
-            s.position = light.world_from_object.translation;
-            s.power = power;
-            samples.push_back(s);
-        } else {
-            const bool disc = light.kind == lighting::LightKind::kDisc;
-            const double area = disc ? std::numbers::pi * light.radius * light.radius : light.size.x() * light.size.y();
-            const int grid = static_cast<int>(std::ceil(std::sqrt(static_cast<double>(per_area))));
-            for (int k = 0; k < per_area; ++k) {
-                Eigen::Vector3d local = Eigen::Vector3d::Zero();
-                if (disc) {
-                    const double rr = light.radius * std::sqrt((k + 0.5) / per_area);
-                    const double phi = k * 2.399963229728653;  // golden angle
-                    local = Eigen::Vector3d(rr * std::cos(phi), rr * std::sin(phi), 0.0);
-                } else {
-                    const int gx = k % grid, gy = k / grid;
-                    const int rows = (per_area + grid - 1) / grid;
-                    local = Eigen::Vector3d(((gx + 0.5) / grid - 0.5) * light.size.x(), ((gy + 0.5) / rows - 0.5) * light.size.y(), 0.0);
-                }
-                LightSample s;
-                s.kind = 0;
-                s.position = light.world_from_object.rotation * local + light.world_from_object.translation;
-                s.axis = r.col(2);
-                s.power = power * (area / per_area);
-                samples.push_back(s);
-            }
-        }
-        if (static_cast<int>(samples.size()) >= kMaxLightSamples) break;
-    }
-    if (static_cast<int>(samples.size()) > kMaxLightSamples) samples.resize(kMaxLightSamples);
-    const bool shade = posed && any_virtual;
-    int layers = 0;
-    if (shade && !samples.empty()) {
-        const Eigen::Vector3d centre = 0.5 * (vmin + vmax);
-        const double radius = std::max(0.5 * (vmax - vmin).norm(), 1e-3);
-        for (LightSample& s : samples) {
-            Eigen::Matrix4d vp;
-            if (s.kind == 2) {
-                const double back = radius + 10.0;
-                vp = orthographic(radius * 1.05, 0.0, back + radius) * lookAt(centre - s.axis * back, centre);
-            } else {
-                const double dist = (centre - s.position).norm();
-                if (dist > radius * 1.05) {
-                    // The objects' bounding sphere, seen from the light.
-                    const double half = std::asin(std::min(0.99, radius * 1.05 / dist));
-                    vp = perspective(half, std::max(0.01, 0.02 * dist), dist + 2.0 * radius) * lookAt(s.position, centre);
-                } else {
-                    // The light is among the objects: a wide frustum along its axis (area, disc) or
-                    // towards the objects (point).
-                    Eigen::Vector3d axis = s.kind == 0 ? s.axis : (dist > 1e-6 ? Eigen::Vector3d(centre - s.position) : Eigen::Vector3d(-Eigen::Vector3d::UnitZ()));
-                    axis.normalize();
-                    vp = perspective(75.0 * std::numbers::pi / 180.0, 0.01, dist + 2.0 * radius) * lookAt(s.position, s.position + axis);
-                }
-            }
-            s.view_proj = vp.cast<float>();
-            s.layer = layers++;
-        }
-        const int size = std::clamp(d.options.shadow_map_size, 64, 4096);
-        if (layers > d.shadow_layers || size != d.shadow_size) {
-            gl::deleteTexture(d.shadow_maps);
-            d.shadow_maps = gl::newTexture();
-            glBindTexture(GL_TEXTURE_2D_ARRAY, d.shadow_maps);
-            glTexImage3D(GL_TEXTURE_2D_ARRAY, 0, GL_DEPTH_COMPONENT24, size, size, std::max(layers, 1), 0, GL_DEPTH_COMPONENT,
-                         GL_FLOAT, nullptr);
-            glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-            glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-            glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-            glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-            glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_COMPARE_MODE, GL_COMPARE_REF_TO_TEXTURE);
-            glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_COMPARE_FUNC, GL_LEQUAL);
-            d.shadow_layers = std::max(layers, 1);
-            d.shadow_size = size;
-            d.shadow_key.clear();
-        }
-        // The maps depend only on the light samples' views and the virtual objects' poses (the real
-        // proxies do not move): unchanged since the last frame, they are reused.
-        std::vector<float> key;
-        for (const LightSample& s : samples) key.insert(key.end(), s.view_proj.data(), s.view_proj.data() + 16);
-        for (const auto& m : virtual_model) {
-            if (m) key.insert(key.end(), m->data(), m->data() + 16);
-            key.push_back(m ? 1.0f : 0.0f);
-        }
-        key.push_back(static_cast<float>(d.shadow_size));
-        const bool reuse = key == d.shadow_key;
-        d.shadow_key = std::move(key);
-        if (!reuse) {
-        glUseProgram(d.shadow_program);
-        glBindFramebuffer(GL_FRAMEBUFFER, d.shadow_fbo);
-        glDrawBuffer(GL_NONE);
-        glReadBuffer(GL_NONE);
-        glViewport(0, 0, d.shadow_size, d.shadow_size);
-        glEnable(GL_DEPTH_TEST);
-        glDepthFunc(GL_LESS);
-        glDisable(GL_CULL_FACE);
-        glEnable(GL_POLYGON_OFFSET_FILL);
-        glPolygonOffset(2.0f, 4.0f);
-        for (const LightSample& s : samples) {
-            if (s.layer < 0) continue;
-            glFramebufferTextureLayer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, d.shadow_maps, 0, s.layer);
-            glClear(GL_DEPTH_BUFFER_BIT);
-            setMat4(d.shadow_program, "u_view_proj", s.view_proj);
-            for (std::size_t i = 0; i < d.real_meshes.size(); ++i) {
-                d.drawParts(d.shadow_program, d.real_meshes[i], toGl(d.scene.real_objects[i].world_from_object), false, -1);
-            }
-            for (std::size_t i = 0; i < d.virtual_meshes.size(); ++i) {
-                if (virtual_model[i]) d.drawParts(d.shadow_program, d.virtual_meshes[i], *virtual_model[i], false, -1);
-            }
-        }
-        glDisable(GL_POLYGON_OFFSET_FILL);
-        }
-    }
+    // Step 3: light samples and their shadow maps (for shading the virtual objects only).
+    std::vector<LightSample> samples = lightSamples(snapshot, d.options.area_light_samples);
+    if (posed && any_virtual && !samples.empty()) d.renderShadowMaps(samples, virtual_model, vmin, vmax);
+    d.mark("shadow maps");
 
-    // Step 3: the 3D layer in the undistorted image.
-    glBindFramebuffer(GL_FRAMEBUFFER, d.layer_fbo);
-    const GLenum buffers[3] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1, GL_COLOR_ATTACHMENT2};
-    glDrawBuffers(3, buffers);
-    glViewport(0, 0, d.width, d.height);
-    for (int i = 0; i < 3; ++i) glColorMaski(static_cast<GLuint>(i), GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-    glDepthMask(GL_TRUE);
-    const float clear_v[4] = {0, 0, 0, 0}, clear_m[4] = {1, 1, 1, 1}, clear_d[4] = {0, 0, 0, 0};
-    glClearBufferfv(GL_COLOR, 0, clear_v);
-    glClearBufferfv(GL_COLOR, 1, clear_m);
-    glClearBufferfv(GL_COLOR, 2, clear_d);
-    glClear(GL_DEPTH_BUFFER_BIT);
+    // Step 4: the real proxies (atlas coordinates of their modulation) and the virtual layer, in
+    // the undistorted image.
+    const bool modulated = posed && d.snapshot_textures.modulates();
+    Rect layer_rect;
     if (posed) {
         // GL camera: x right, y up, looking along -z.
-        Eigen::Matrix4d view = Eigen::Matrix4d::Identity();
-        view.topLeftCorner<3, 3>() = frame.cam_from_world->rotation.toRotationMatrix();
-        view.topRightCorner<3, 1>() = frame.cam_from_world->translation;
+        Eigen::Matrix4d cam_from_world = Eigen::Matrix4d::Identity();
+        cam_from_world.topLeftCorner<3, 3>() = frame.cam_from_world->rotation.toRotationMatrix();
+        cam_from_world.topRightCorner<3, 1>() = frame.cam_from_world->translation;
+        Eigen::Matrix4d view = cam_from_world;
         view.row(1) *= -1.0;
         view.row(2) *= -1.0;
-        const Eigen::Matrix4f view_proj = (d.camera.glProjection(0.01, 100.0) * view).cast<float>();
+        const Eigen::Matrix4f view_proj = (d.layer_camera.glProjection(0.01, 100.0) * view).cast<float>();
         const Eigen::Vector3f camera_centre = frame.cam_from_world->inverse().translation.cast<float>();
-        glEnable(GL_DEPTH_TEST);
-        glDepthFunc(GL_LESS);
-        glDisable(GL_CULL_FACE);
-        if (d.options.msaa_samples > 1) glEnable(GL_MULTISAMPLE);
-        // Real proxies: depth and the background's modulation.
-        glUseProgram(d.proxy_program);
-        setMat4(d.proxy_program, "u_view_proj", view_proj);
-        glUniform1i(uniform(d.proxy_program, "u_mod_m"), 0);
-        glUniform1i(uniform(d.proxy_program, "u_mod_d"), 1);
-        glUniform1i(uniform(d.proxy_program, "u_mod_o"), 2);
-        glUniform1i(uniform(d.proxy_program, "u_show_original"), d.options.debug == DebugView::kElements ? 1 : 0);
-        for (std::size_t i = 0; i < d.real_meshes.size(); ++i) {
-            d.drawParts(d.proxy_program, d.real_meshes[i], toGl(d.scene.real_objects[i].world_from_object), true, static_cast<int>(i));
+        if (modulated) d.drawProxies(view_proj);
+
+        d.mark("proxies");
+        layer_rect = d.options.debug == DebugView::kProxyWireframe
+                         ? Rect{0, 0, d.layer_width - 1, d.layer_height - 1}
+                         : d.layerRect(virtual_model, cam_from_world, 2.0 + (added_blur > 0.05 ? std::ceil(3.0 * added_blur) : 0.0));
+        if (!layer_rect.empty()) {
+            d.drawVirtualLayer(layer_rect, modulated, view_proj, camera_centre, samples, virtual_model, snapshot, eg);
+            if (added_blur > 0.05) CL_TRY_VOID(d.blurLayer(layer_rect, added_blur));
         }
-        // Virtual objects: only the virtual layer is written (M and D keep the proxies' values
-        // under every sample, so an antialiased edge over a proxy has no halo).
-        glColorMaski(1, GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
-        glColorMaski(2, GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
-        if (any_virtual) {
-            glUseProgram(d.virtual_program);
-            const GLuint vp = d.virtual_program;
-            setMat4(vp, "u_view_proj", view_proj);
-            setVec3(vp, "u_camera_centre", camera_centre);
-            const int n = static_cast<int>(samples.size());
-            glUniform1i(uniform(vp, "u_samples"), n);
-            for (int k = 0; k < n; ++k) {
-                const LightSample& s = samples[static_cast<std::size_t>(k)];
-                const std::string index = "[" + std::to_string(k) + "]";
-                glUniform1i(uniform(vp, ("u_kind" + index).c_str()), s.kind);
-                setVec3(vp, ("u_position" + index).c_str(), s.position.cast<float>());
-                setVec3(vp, ("u_axis" + index).c_str(), s.axis.cast<float>());
-                setVec3(vp, ("u_power" + index).c_str(), s.power.cast<float>());
-                glUniform1i(uniform(vp, ("u_shadow_layer" + index).c_str()), s.layer);
-                setMat4(vp, ("u_shadow_vp" + index).c_str(), s.view_proj);
-            }
-            glActiveTexture(GL_TEXTURE3);
-            glBindTexture(GL_TEXTURE_2D_ARRAY, d.shadow_maps);
-            glUniform1i(uniform(vp, "u_shadow_maps"), 3);
-            glUniform1i(uniform(vp, "u_sh"), 4);
-            for (std::size_t i = 0; i < d.virtual_meshes.size(); ++i) {
-                if (!virtual_model[i]) continue;
-                const VirtualObject& object = d.scene.virtual_objects[i];
-                setVec3(vp, "u_albedo", object.material.albedo.cast<float>());
-                setVec3(vp, "u_emission", (object.emission.value_or(Eigen::Vector3d::Zero()) * scale).cast<float>());
-                const lighting::VirtualIrradiance* irradiance = snapshot.findVirtual(static_cast<int>(i));
-                const GLuint sh = i < d.sh_textures.size() ? d.sh_textures[i] : 0;
-                // With nothing estimated yet (and no light to shade with), a neutral light that
-                // shows the object at mid grey.
-                const bool unlit = sh == 0 && samples.empty();
-                const float ambient = unlit ? static_cast<float>(std::numbers::pi * 0.18 / eg) : 0.0f;
-                setVec3(vp, "u_ambient", Eigen::Vector3f::Constant(ambient));
-                glUniform1i(uniform(vp, "u_has_sh"), sh != 0 ? 1 : 0);
-                if (sh != 0 && irradiance) {
-                    glActiveTexture(GL_TEXTURE4);
-                    glBindTexture(GL_TEXTURE_2D, sh);
-                    glUniform3i(uniform(vp, "u_dims"), irradiance->dims.x(), irradiance->dims.y(), irradiance->dims.z());
-                    setVec3(vp, "u_bmin", irradiance->bounds_min.cast<float>());
-                    setVec3(vp, "u_bmax", irradiance->bounds_max.cast<float>());
-                }
-                d.drawParts(vp, d.virtual_meshes[i], *virtual_model[i], false, -1);
-            }
-        }
-        if (d.options.debug == DebugView::kProxyWireframe) {
-            glUseProgram(d.line_program);
-            setMat4(d.line_program, "u_view_proj", view_proj);
-            setVec3(d.line_program, "u_colour", Eigen::Vector3f(0.1f, 0.9f, 0.2f) / static_cast<float>(eg));
-            glDisable(GL_DEPTH_TEST);
-            glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
-            for (std::size_t i = 0; i < d.real_meshes.size(); ++i) {
-                d.drawParts(d.line_program, d.real_meshes[i], toGl(d.scene.real_objects[i].world_from_object), false, -1);
-            }
-            glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
-        }
-        glColorMaski(1, GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-        glColorMaski(2, GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-        glDisable(GL_DEPTH_TEST);
-    }
-    // Resolve each attachment.
-    for (int i = 0; i < 3; ++i) {
-        glBindFramebuffer(GL_READ_FRAMEBUFFER, d.layer_fbo);
-        glReadBuffer(buffers[i]);
-        glBindFramebuffer(GL_DRAW_FRAMEBUFFER, d.resolve_fbo);
-        glDrawBuffers(1, &buffers[i]);
-        glBlitFramebuffer(0, 0, d.width, d.height, 0, 0, d.width, d.height, GL_COLOR_BUFFER_BIT, GL_NEAREST);
+        d.mark("virtual layer");
     }
 
-    // Step 4: the final pass at each camera pixel.
+    // Step 5: the final pass at each camera pixel, the virtual layer read only where it can show.
+    int bits = format == PixelFormat::kYuyv ? kFinalYuyv : format == PixelFormat::kNv12 ? kFinalNv12 : 0;
+    if (modulated) {
+        bits |= kFinalModulation;
+        if (d.options.debug == DebugView::kElements) bits |= kFinalElements;
+        if (d.options.debug == DebugView::kRatio) bits |= kFinalRatio;
+    }
+    const Rect camera_rect = d.cameraRect(layer_rect);
+    CL_TRY(const FinalProgram* outside, d.finalProgram(bits));
+    const FinalProgram* inside = nullptr;
+    if (!camera_rect.empty()) {
+        CL_TRY(inside, d.finalProgram(bits | kFinalVirtual | (matching ? kFinalNoise : 0)));
+    }
     glBindFramebuffer(GL_FRAMEBUFFER, d.output_fbo);
     const GLenum out0 = GL_COLOR_ATTACHMENT0;
     glDrawBuffers(1, &out0);
     glViewport(0, 0, d.width, d.height);
-    glUseProgram(d.final_program);
-    const GLuint fp = d.final_program;
-    const std::pair<const char*, GLuint> textures[] = {{"u_frame", d.frame_texture}, {"u_undistort", d.undistort_texture},
-                                                       {"u_layer_v", d.resolve_tex[0]}, {"u_layer_m", d.resolve_tex[1]},
-                                                       {"u_layer_d", d.resolve_tex[2]}, {"u_to_linear", d.to_linear},
-                                                       {"u_to_code", d.to_code}};
-    for (int k = 0; k < 7; ++k) {
-        glActiveTexture(GL_TEXTURE0 + static_cast<GLenum>(k));
-        glBindTexture(GL_TEXTURE_2D, textures[k].second);
-        glUniform1i(uniform(fp, textures[k].first), k);
+    const std::pair<int, GLuint> textures[] = {{kUnitFrame, d.frame_texture},       {kUnitFrameUv, d.frame_uv_texture},
+                                               {kUnitUndistort, d.undistort_texture}, {kUnitProxyAtlas, d.proxy_atlas},
+                                               {kUnitAtlasM, d.snapshot_textures.atlasM()}, {kUnitAtlasD, d.snapshot_textures.atlasD()},
+                                               {kUnitAtlasO, d.snapshot_textures.atlasO()}, {kUnitLayerV, d.layer_v}};
+    for (const auto& [unit, texture] : textures) {
+        glActiveTexture(GL_TEXTURE0 + static_cast<GLenum>(unit));
+        glBindTexture(GL_TEXTURE_2D, texture);
     }
-    glUniform1f(uniform(fp, "u_exposure_gain"), static_cast<float>(eg));
-    glUniform2f(uniform(fp, "u_size"), static_cast<float>(d.width), static_cast<float>(d.height));
-    glUniform1i(uniform(fp, "u_view"), d.options.debug == DebugView::kRatio ? 3 : 0);
+    glBindBufferBase(GL_UNIFORM_BUFFER, 0, d.to_linear_ubo);
+    glBindBufferBase(GL_UNIFORM_BUFFER, 1, d.to_code_ubo);
+    const auto setUniforms = [&](const FinalProgram& p) {
+        glUseProgram(p.id);
+        glUniform1f(p.exposure_gain, static_cast<float>(eg));
+        const Eigen::Vector2f atlas = d.snapshot_textures.atlasSize();
+        glUniform2f(p.atlas_size, atlas.x(), atlas.y());
+        // Texel coordinates at which a bilinear read stays inside the drawn rectangle.
+        glUniform4f(p.layer_rect, static_cast<float>(layer_rect.x0) + 0.5f, static_cast<float>(layer_rect.y0) + 0.5f,
+                    static_cast<float>(layer_rect.x1) + 0.5f, static_cast<float>(layer_rect.y1) + 0.5f);
+        if (p.noise >= 0 && matching) {
+            std::array<float, 3 * NoiseProfile::kBins> noise{};
+            for (int b = 0; b < NoiseProfile::kBins; ++b) {
+                for (int c = 0; c < 3; ++c) noise[static_cast<std::size_t>(3 * b + c)] = d.match->noise.sigma[static_cast<std::size_t>(b)][c];
+            }
+            glUniform3fv(p.noise, NoiseProfile::kBins, noise.data());
+            glUniform1ui(p.seed, static_cast<GLuint>(d.frames_drawn & 0xffffffffu));
+        }
+    };
     glBindVertexArray(d.empty_vao);
-    glDrawArrays(GL_TRIANGLES, 0, 3);
+    setUniforms(*outside);
+    if (camera_rect.empty()) {
+        glDrawArrays(GL_TRIANGLES, 0, 3);
+    } else {
+        // Around the rectangle: up to four bands; in it, the variant that reads the virtual layer.
+        glEnable(GL_SCISSOR_TEST);
+        const Rect bands[4] = {{0, 0, d.width - 1, camera_rect.y0 - 1},
+                               {0, camera_rect.y1 + 1, d.width - 1, d.height - 1},
+                               {0, camera_rect.y0, camera_rect.x0 - 1, camera_rect.y1},
+                               {camera_rect.x1 + 1, camera_rect.y0, d.width - 1, camera_rect.y1}};
+        for (const Rect& band : bands) {
+            if (band.empty()) continue;
+            band.scissor();
+            glDrawArrays(GL_TRIANGLES, 0, 3);
+        }
+        setUniforms(*inside);
+        camera_rect.scissor();
+        glDrawArrays(GL_TRIANGLES, 0, 3);
+        glDisable(GL_SCISSOR_TEST);
+    }
     glBindVertexArray(0);
     glActiveTexture(GL_TEXTURE0);
+    d.mark("final pass");
 
-    // In a window: the composite, scaled to the window.
+    // In a window: the composite, scaled to the window (the output's row 0 is the image's top row).
     if (d.context->kind() == ContextKind::kWindow) {
         int w = 0, h = 0;
         d.context->windowSize(w, h);
@@ -1087,9 +1272,11 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
         glReadBuffer(GL_COLOR_ATTACHMENT0);
         glBindFramebuffer(GL_DRAW_FRAMEBUFFER, 0);
         glDrawBuffer(GL_BACK);
-        glBlitFramebuffer(0, 0, d.width, d.height, 0, 0, w, h, GL_COLOR_BUFFER_BIT, GL_LINEAR);
+        glBlitFramebuffer(0, 0, d.width, d.height, 0, h, w, 0, GL_COLOR_BUFFER_BIT, GL_LINEAR);
+        d.mark("window");
     }
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    ++d.frames_drawn;
     const GLenum error = glGetError();
     if (error != GL_NO_ERROR) return fail(ErrorCode::kInternal, "render: GL error " + std::to_string(error) + " while compositing");
     return {};
@@ -1098,23 +1285,15 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
 Result<Image> Compositor::read() const {
     const Impl& d = *impl_;
     d.context->makeCurrent();
-    std::vector<std::uint8_t> rgba(static_cast<std::size_t>(d.width) * static_cast<std::size_t>(d.height) * 4);
+    d.mark(nullptr);
+    Image out(PixelFormat::kRgb8, d.width, d.height);
     glBindFramebuffer(GL_READ_FRAMEBUFFER, d.output_fbo);
     glReadBuffer(GL_COLOR_ATTACHMENT0);
     glPixelStorei(GL_PACK_ALIGNMENT, 1);
-    glReadPixels(0, 0, d.width, d.height, GL_RGBA, GL_UNSIGNED_BYTE, rgba.data());
+    // Rows come out top row first, packed as the image is.
+    glReadPixels(0, 0, d.width, d.height, GL_RGB, GL_UNSIGNED_BYTE, out.data());
     glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
-    Image out(PixelFormat::kRgb8, d.width, d.height);
-    MutableImageView view = out.mutableView();
-    for (int y = 0; y < d.height; ++y) {
-        const std::uint8_t* src = rgba.data() + static_cast<std::size_t>(d.height - 1 - y) * static_cast<std::size_t>(d.width) * 4;
-        std::uint8_t* dst = view.row(y);
-        for (int x = 0; x < d.width; ++x) {
-            dst[3 * x] = src[4 * x];
-            dst[3 * x + 1] = src[4 * x + 1];
-            dst[3 * x + 2] = src[4 * x + 2];
-        }
-    }
+    d.mark("read back");
     return out;
 }
 

@@ -16,6 +16,7 @@
 //      nothing changes keeps its code exactly.
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -27,6 +28,7 @@
 #include "core/result.h"
 #include "core/scene.h"
 #include "lighting/snapshot.h"
+#include "render/camera_matching.h"
 #include "render/gl_context.h"
 
 namespace commonlight::render {
@@ -45,15 +47,39 @@ struct CompositorOptions {
     int msaa_samples = 4;          // 1: none
     bool lighting = true;          // false: no background modulation; virtual objects lit by the snapshot's lights only
     DebugView debug = DebugView::kNone;
-    int shadow_map_size = 1024;
+    int shadow_map_size = 512;     // texels per side of each shadow map (64..4096); the map covers only the virtual objects' bounds
     int area_light_samples = 4;    // shadow maps per area or disc light (1..8)
+    // Camera matching (Klein and Murray, ISMAR 2008; render/camera_matching.h): the frame's sensor
+    // noise (per intensity) and blur are measured on the CPU every `matching_interval` frames, the
+    // virtual layer is blurred to the frame's PSF and gets noise of the frame's deviation in codes.
+    bool camera_matching = false;
+    int matching_interval = 30;  // frames between measurements (>= 1; the first frame is always measured)
+    // Benchmarks and profiling only: glFinish() after each pass and its wall time kept
+    // (Compositor::passTimes()). It serialises the GL's pipelining: never in the live loop.
+    bool profile = false;
+};
+
+// One pass's time in profiling mode (CompositorOptions::profile).
+struct PassTime {
+    const char* name;    // static string
+    double ms = 0.0;     // wall time
+    double cpu_ms = 0.0; // CPU time of the whole process (the GL's threads included) over the same span
 };
 
 struct FrameInput {
-    ImageView image;                  // the camera frame, kRgb8 at the camera's size
+    ImageView image;                  // the camera frame at the camera's size: kRgb8, or kYuyv / kNv12 as the camera sent it (even sizes)
     double exposure_gain = 1.0;       // exposure (s) x analog gain; <= 0 or not finite: 1
     std::optional<Rigid3d> cam_from_world;              // nullopt (no pose): the frame unchanged
     std::vector<std::optional<Rigid3d>> virtual_poses;  // world_from_object per Scene::virtual_objects; nullopt: not drawn
+};
+
+// What camera matching measured and applies (CompositorOptions::camera_matching).
+struct CameraMatch {
+    NoiseProfile noise;            // the frame's noise, codes per intensity bin
+    BlurEstimate blur;             // the frame's PSF (its sigma includes the pixels' own integration)
+    double layer_sigma_px = 0.0;   // the virtual layer's own PSF: square pixels (MSAA) and the lens warp's bilinear read
+    double added_sigma_px = 0.0;   // the Gaussian given to the virtual layer: sqrt(max(0, blur^2 - layer^2)), at most 2.5
+    std::uint64_t frame = 0;       // the draw() it was measured at (0: the first)
 };
 
 // Live GL objects of the render module (created minus deleted), for leak checks.
@@ -76,10 +102,25 @@ public:
 
     // Renders the composite of this frame with this snapshot (into the output framebuffer; in a
     // window also onto the screen, call GlContext::present()). kBadInput: a frame that is not
-    // kRgb8 at the camera's size, or a pose list of the wrong length.
+    // kRgb8, kYuyv or kNv12 at the camera's size (YUYV and NV12: even sizes), with fewer bytes than
+    // its format needs, or a pose list of the wrong length.
     Result<void> draw(const FrameInput& frame, const lighting::LightingSnapshot& snapshot);
     // The last composite, kRgb8, top row first.
     Result<Image> read() const;
+
+    // For tests of the registration: the world point (metres) of the real proxy or virtual object
+    // seen at each camera pixel, row-major, top row first, through the same projection, layer and
+    // lens warp as draw() (the layer's world positions read at each pixel's ideal position,
+    // filtered as the composite's layer is); w = 1 where one surface covers the four layer pixels
+    // the filter reads, 0.5 where several do (an edge: the point is a blend), 0 where there is none
+    // or no pose. The frame's pixels are not used.
+    Result<std::vector<Eigen::Vector4f>> surfacePoints(const FrameInput& frame);
+
+    // The last measurement of camera matching; nullopt when it is off or nothing was measured yet.
+    const std::optional<CameraMatch>& cameraMatch() const noexcept;
+
+    // The passes of the last draw() and read() with their times (profiling mode; empty otherwise).
+    const std::vector<PassTime>& passTimes() const noexcept;
 
     void setOptions(const CompositorOptions& options);
     const CompositorOptions& options() const noexcept;

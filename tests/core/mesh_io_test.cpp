@@ -2,11 +2,13 @@
 
 #include <cstring>
 #include <fstream>
+#include <iterator>
 #include <string>
 #include <vector>
 
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "tests/test_support.h"
 
@@ -227,6 +229,141 @@ TEST(MeshIo, MeshWithoutNormalsHasEmptyNormals) {
     ASSERT_TRUE(mesh) << mesh.error().message;
     EXPECT_TRUE(mesh->normals.empty());
     EXPECT_EQ(mesh->positions.size(), 4u);
+}
+
+// A textured unit quad: positions, normals, TEXCOORD_0 (u along x, v down from the top edge, as
+// glTF has it) and indices in an embedded buffer; one material (baseColorFactor and a base colour
+// texture whose image is `image_uri`), a sampler that clamps.
+std::string texturedQuad(const std::string& image_uri, const std::string& factor = "[0.5, 1.0, 0.25, 1.0]",
+                         const std::string& extra_images = "") {
+    std::vector<std::uint8_t> bytes;
+    append(bytes, std::vector<float>{0, 0, 0, 1, 0, 0, 0, 1, 0, 1, 1, 0});
+    append(bytes, std::vector<float>{0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1});
+    append(bytes, std::vector<float>{0, 1, 1, 1, 0, 0, 1, 0});
+    append(bytes, std::vector<std::uint16_t>{0, 1, 2, 2, 1, 3});
+    return std::string(R"({"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+"meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1, "TEXCOORD_0": 2}, "indices": 3, "material": 0}]}],
+"materials": [{"name": "painted", "pbrMetallicRoughness": {"baseColorFactor": )") + factor + R"(, "baseColorTexture": {"index": 0}}}],
+"textures": [{"source": 0, "sampler": 0}], "samplers": [{"wrapS": 33071, "wrapT": 33071}],
+"images": [{"uri": ")" + image_uri + "\"}" + extra_images + R"(],
+"buffers": [{"byteLength": )" + std::to_string(bytes.size()) + R"(, "uri": "data:application/octet-stream;base64,)" + base64(bytes) + R"("}],
+"bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 48},
+                {"buffer": 0, "byteOffset": 96, "byteLength": 32}, {"buffer": 0, "byteOffset": 128, "byteLength": 12}],
+"accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3"},
+              {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC3"},
+              {"bufferView": 2, "componentType": 5126, "count": 4, "type": "VEC2"},
+              {"bufferView": 3, "componentType": 5123, "count": 6, "type": "SCALAR"}]})";
+}
+
+// A 2 x 2 PNG: top row red, green; bottom row blue, white (RGB).
+void writeCheckerPng(const std::filesystem::path& file) {
+    cv::Mat bgr(2, 2, CV_8UC3);
+    bgr.at<cv::Vec3b>(0, 0) = {0, 0, 255};
+    bgr.at<cv::Vec3b>(0, 1) = {0, 255, 0};
+    bgr.at<cv::Vec3b>(1, 0) = {255, 0, 0};
+    bgr.at<cv::Vec3b>(1, 1) = {255, 255, 255};
+    ASSERT_TRUE(cv::imwrite(file.string(), bgr));
+}
+
+void expectChecker(const MeshMaterial& m) {
+    ASSERT_TRUE(m.texture);
+    ASSERT_EQ(m.texture->format(), PixelFormat::kRgba8);
+    ASSERT_EQ(m.texture->width(), 2);
+    ASSERT_EQ(m.texture->height(), 2);
+    const auto px = [&](int x, int y) {
+        const std::uint8_t* p = m.texture->view().row(y) + 4 * x;
+        return Eigen::Vector4i(p[0], p[1], p[2], p[3]);
+    };
+    EXPECT_EQ(px(0, 0), Eigen::Vector4i(255, 0, 0, 255));  // top row first
+    EXPECT_EQ(px(1, 0), Eigen::Vector4i(0, 255, 0, 255));
+    EXPECT_EQ(px(0, 1), Eigen::Vector4i(0, 0, 255, 255));
+    EXPECT_EQ(px(1, 1), Eigen::Vector4i(255, 255, 255, 255));
+}
+
+TEST(MeshIo, ReadsGltfBaseColourTextureAndFactor) {
+    TempDir dir;
+    writeCheckerPng(dir / "checker.png");
+    // An image no material uses is not decoded: garbage there is no error.
+    writeText(dir / "quad.gltf", texturedQuad("checker.png", "[0.5, 1.0, 0.25, 1.0]", R"(, {"uri": "unused.png"})"));
+    writeText(dir / "unused.png", "not an image");
+    const auto mesh = readMesh(dir / "quad.gltf");
+    ASSERT_TRUE(mesh) << mesh.error().message;
+    ASSERT_EQ(mesh->materials.size(), 1u);
+    const MeshMaterial& m = mesh->materials[0];
+    EXPECT_EQ(m.name, "painted");
+    EXPECT_EQ(m.base_colour, Eigen::Vector4f(0.5f, 1.0f, 0.25f, 1.0f));
+    EXPECT_FALSE(m.repeat_s);
+    EXPECT_FALSE(m.repeat_t);
+    EXPECT_NE(m.texture_file.find("checker.png"), std::string::npos);
+    expectChecker(m);
+    ASSERT_EQ(mesh->texcoords.size(), 4u);
+    EXPECT_EQ(mesh->texcoords[0], Eigen::Vector2f(0, 1));  // the quad's (0, 0, 0) corner samples the image's bottom-left
+    EXPECT_EQ(mesh->texcoords[3], Eigen::Vector2f(1, 0));
+    ASSERT_EQ(mesh->ranges.size(), 1u);
+    EXPECT_EQ(mesh->ranges[0].first, 0u);
+    EXPECT_EQ(mesh->ranges[0].count, 6u);
+    EXPECT_EQ(mesh->ranges[0].material, 0);
+
+    // The same image embedded as a data URI.
+    std::ifstream in(dir / "checker.png", std::ios::binary);
+    const std::vector<std::uint8_t> png((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    writeText(dir / "embedded.gltf", texturedQuad("data:image/png;base64," + base64(png)));
+    const auto embedded = readMesh(dir / "embedded.gltf");
+    ASSERT_TRUE(embedded) << embedded.error().message;
+    ASSERT_EQ(embedded->materials.size(), 1u);
+    expectChecker(embedded->materials[0]);
+    EXPECT_NE(embedded->materials[0].texture_file.find("image 0 of"), std::string::npos);
+
+    // Geometry-only files have no materials, ranges or texture coordinates.
+    const auto plain = readMesh(dataDir() / "quad.gltf");
+    ASSERT_TRUE(plain) << plain.error().message;
+    EXPECT_TRUE(plain->materials.empty());
+    EXPECT_TRUE(plain->ranges.empty());
+    EXPECT_TRUE(plain->texcoords.empty());
+}
+
+TEST(MeshIo, ReadsObjMaterialsKdAndMapKd) {
+    TempDir dir;
+    writeCheckerPng(dir / "checker.png");
+    writeText(dir / "two.mtl", "newmtl plain\nKd 0.2 0.4 0.6\n\nnewmtl painted\nKd 1 1 1\nmap_Kd checker.png\n");
+    // Two quads, the painted one second in the file and first... in material order.
+    writeText(dir / "two.obj",
+              "mtllib two.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+              "usemtl plain\nf 1/1 2/2 3/3 4/4\nusemtl painted\nf 1/1 2/2 3/3 4/4\n");
+    const auto mesh = readMesh(dir / "two.obj");
+    ASSERT_TRUE(mesh) << mesh.error().message;
+    ASSERT_EQ(mesh->materials.size(), 2u);
+    EXPECT_EQ(mesh->materials[0].name, "plain");
+    EXPECT_LT((mesh->materials[0].base_colour - Eigen::Vector4f(0.2f, 0.4f, 0.6f, 1.0f)).norm(), 1e-6f);
+    EXPECT_FALSE(mesh->materials[0].texture);
+    expectChecker(mesh->materials[1]);
+    ASSERT_EQ(mesh->ranges.size(), 2u);
+    EXPECT_EQ(mesh->ranges[0].material, 0);
+    EXPECT_EQ(mesh->ranges[0].count, 6u);
+    EXPECT_EQ(mesh->ranges[1].material, 1);
+    EXPECT_EQ(mesh->ranges[1].first, 6u);
+    ASSERT_EQ(mesh->texcoords.size(), mesh->positions.size());
+    // OBJ's vt (0, 0) is the image's bottom-left corner: v flipped into glTF's convention.
+    for (std::size_t i = 0; i < mesh->positions.size(); ++i) {
+        EXPECT_FLOAT_EQ(mesh->texcoords[i].x(), mesh->positions[i].x());
+        EXPECT_FLOAT_EQ(mesh->texcoords[i].y(), 1.0f - mesh->positions[i].y());
+    }
+}
+
+TEST(MeshIoBadInput, BadTextureNamesItsFile) {
+    TempDir dir;
+    writeText(dir / "missing.gltf", texturedQuad("nowhere.png"));
+    const auto missing = readMesh(dir / "missing.gltf");
+    expectError(missing, dir / "missing.gltf", "nowhere.png' cannot be read");
+    writeText(dir / "garbage.png", "these bytes are not an image");
+    writeText(dir / "garbage.gltf", texturedQuad("garbage.png"));
+    expectError(readMesh(dir / "garbage.gltf"), dir / "garbage.gltf", "garbage.png' cannot be decoded");
+    writeText(dir / "bad.mtl", "newmtl painted\nmap_Kd garbage.png\n");
+    writeText(dir / "bad.obj", "mtllib bad.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nusemtl painted\nf 1/1 2/2 3/3\n");
+    expectError(readMesh(dir / "bad.obj"), dir / "bad.obj", "garbage.png' (map_Kd of material 'painted') cannot be decoded");
+    writeText(dir / "gone.mtl", "newmtl painted\nmap_Kd gone.png\n");
+    writeText(dir / "gone.obj", "mtllib gone.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nusemtl painted\nf 1/1 2/2 3/3\n");
+    expectError(readMesh(dir / "gone.obj"), dir / "gone.obj", "gone.png' (map_Kd of material 'painted') cannot be read");
 }
 
 TEST(MeshIoBadInput, MissingFileIsNotFound) {

@@ -1,0 +1,217 @@
+#include "render/snapshot_textures.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <string>
+
+#include <Eigen/LU>
+
+#include "core/log.h"
+
+namespace commonlight::render {
+
+namespace {
+
+GLuint atlasTexture(int width, int height, const std::vector<float>& rgba, GLenum filter) {
+    const GLuint t = gl::newTexture();
+    glBindTexture(GL_TEXTURE_2D, t);
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA32F, width, height, 0, GL_RGBA, GL_FLOAT, rgba.data());
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, static_cast<GLint>(filter));
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, static_cast<GLint>(filter));
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    return t;
+}
+
+}  // namespace
+
+void SnapshotTextures::release() {
+    gl::deleteTexture(atlas_m_);
+    gl::deleteTexture(atlas_d_);
+    gl::deleteTexture(atlas_o_);
+    faces_.clear();
+    for (ProbeGrid& p : probes_) gl::deleteTexture(p.texture);
+    probes_.clear();
+    version_ = ~0ull;
+    address_ = nullptr;
+}
+
+const FaceInAtlas* SnapshotTextures::face(int object_index, int face) const {
+    const auto it = faces_.find({object_index, face});
+    return it == faces_.end() ? nullptr : &it->second;
+}
+
+const ProbeGrid* SnapshotTextures::probes(std::size_t virtual_index) const {
+    return virtual_index < probes_.size() && probes_[virtual_index].texture != 0 ? &probes_[virtual_index] : nullptr;
+}
+
+void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::size_t virtual_objects, bool lighting) {
+    if (snapshot.version == version_ && &snapshot == address_ && lighting == lighting_) return;
+    release();
+    version_ = snapshot.version;
+    address_ = &snapshot;
+    lighting_ = lighting;
+    if (!lighting) return;
+
+    // Step 1: the faces to pack (a usable size and parametrisation).
+    struct Item {
+        const lighting::FaceModulation* face;
+        FaceInAtlas place;
+        int x = 0, y = 0;  // atlas texel of the frame's corner
+    };
+    std::vector<Item> items;
+    for (const lighting::FaceModulation& f : snapshot.faces) {
+        if (f.width <= 0 || f.height <= 0 || f.corners.size() < 3) continue;
+        const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
+        if (f.ratio.size() != n || f.difference.size() != n || f.original.size() != n) continue;
+        // The face's parametrisation p = c0 + s e1 + t e2 inverted by its dual basis.
+        const Eigen::Vector3d c0 = f.corners[0], e1 = f.corners[1] - c0, e2 = f.corners.back() - c0;
+        Eigen::Matrix2d g;
+        g << e1.dot(e1), e1.dot(e2), e1.dot(e2), e2.dot(e2);
+        if (!(std::abs(g.determinant()) > 1e-18)) continue;  // hard case: a degenerate face
+        const Eigen::Matrix2d gi = g.inverse();
+        Item item;
+        item.face = &f;
+        item.place.c0 = c0.cast<float>();
+        item.place.du = (gi(0, 0) * e1 + gi(0, 1) * e2).cast<float>();
+        item.place.dv = (gi(1, 0) * e1 + gi(1, 1) * e2).cast<float>();
+        items.push_back(item);
+    }
+
+    // Step 2: shelf packing, tallest first; each face framed by one texel.
+    GLint max_size = 4096;
+    glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
+    // The proxies' pass addresses the atlas in sixteenths of a texel in 16 bits (all ones: none).
+    max_size = std::min<GLint>(max_size, 4094);
+    std::vector<std::size_t> order(items.size());
+    std::iota(order.begin(), order.end(), std::size_t{0});
+    std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return items[a].face->height > items[b].face->height; });
+    double area = 0.0;
+    int widest = 1;
+    for (const Item& it : items) {
+        area += static_cast<double>(it.face->width + 2) * (it.face->height + 2);
+        widest = std::max(widest, it.face->width + 2);
+    }
+    const int width = std::min<int>(max_size, std::max(widest, std::max(64, static_cast<int>(std::ceil(std::sqrt(area))))));
+    int x = 0, y = 0, shelf = 0;
+    std::vector<Item> placed;
+    for (std::size_t k : order) {
+        Item& it = items[k];
+        const int w = it.face->width + 2, h = it.face->height + 2;
+        if (w > width) continue;
+        if (x + w > width) {
+            y += shelf;
+            x = 0;
+            shelf = 0;
+        }
+        if (y + h > max_size) {
+            log::warning("render: the snapshot's faces do not fit in a " + std::to_string(max_size) + "-texel atlas; face " +
+                         std::to_string(it.face->face) + " of " + it.face->object + " left unmodulated");
+            continue;
+        }
+        it.x = x;
+        it.y = y;
+        it.place.rect = Eigen::Vector4f(static_cast<float>(x + 1), static_cast<float>(y + 1), static_cast<float>(it.face->width),
+                                        static_cast<float>(it.face->height));
+        x += w;
+        shelf = std::max(shelf, h);
+        placed.push_back(it);
+    }
+    const int height = std::max(1, y + shelf);
+
+    // Step 3: the texels (M, D, B~ with element outlines), the frames copying the edges.
+    if (!placed.empty()) {
+        const std::size_t texels = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
+        std::vector<float> m(4 * texels, 1.0f), d(4 * texels, 0.0f), o(4 * texels, 0.0f);
+        for (const Item& it : placed) {
+            const lighting::FaceModulation& f = *it.face;
+            const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
+            std::vector<float> fm(3 * n), fd(3 * n), fo(3 * n);
+            for (std::size_t k = 0; k < n; ++k) {
+                const float w = lighting::ratioWeight(lighting::luminance(f.original[k]), f.mean_original);
+                for (std::size_t c = 0; c < 3; ++c) {
+                    const float ratio = std::isfinite(f.ratio[k][static_cast<int>(c)]) ? f.ratio[k][static_cast<int>(c)] : 1.0f;
+                    const float diff = std::isfinite(f.difference[k][static_cast<int>(c)]) ? f.difference[k][static_cast<int>(c)] : 0.0f;
+                    const float orig = f.original[k][static_cast<int>(c)];
+                    fm[3 * k + c] = w * ratio + (1.0f - w);
+                    fd[3 * k + c] = (1.0f - w) * diff;
+                    fo[3 * k + c] = std::isfinite(orig) ? orig : 0.0f;
+                }
+            }
+            // Element outlines in the debug view of B~: a darker rim on the texels at element borders.
+            const auto darken = [&](int i, int j) {
+                for (std::size_t c = 0; c < 3; ++c) fo[3 * f.texel(i, j) + c] *= 0.6f;
+            };
+            for (const Eigen::Vector4f& e : f.elements) {
+                const int i0 = std::clamp(static_cast<int>(e[0] * static_cast<float>(f.width)), 0, f.width - 1);
+                const int j0 = std::clamp(static_cast<int>(e[1] * static_cast<float>(f.height)), 0, f.height - 1);
+                const int i1 = std::clamp(static_cast<int>(std::ceil(e[2] * static_cast<float>(f.width))) - 1, 0, f.width - 1);
+                const int j1 = std::clamp(static_cast<int>(std::ceil(e[3] * static_cast<float>(f.height))) - 1, 0, f.height - 1);
+                for (int i = i0; i <= i1; ++i) {
+                    darken(i, j0);
+                    if (j1 != j0) darken(i, j1);
+                }
+                for (int j = j0 + 1; j < j1; ++j) {
+                    darken(i0, j);
+                    if (i1 != i0) darken(i1, j);
+                }
+            }
+            for (int j = 0; j < f.height + 2; ++j) {
+                for (int i = 0; i < f.width + 2; ++i) {
+                    const std::size_t src = f.texel(std::clamp(i - 1, 0, f.width - 1), std::clamp(j - 1, 0, f.height - 1));
+                    const std::size_t dst = static_cast<std::size_t>(it.y + j) * static_cast<std::size_t>(width) + static_cast<std::size_t>(it.x + i);
+                    for (std::size_t c = 0; c < 3; ++c) {
+                        m[4 * dst + c] = fm[3 * src + c];
+                        d[4 * dst + c] = fd[3 * src + c];
+                        o[4 * dst + c] = fo[3 * src + c];
+                    }
+                }
+            }
+            faces_[{f.object_index, f.face}] = it.place;
+        }
+        atlas_m_ = atlasTexture(width, height, m, GL_LINEAR);
+        atlas_d_ = atlasTexture(width, height, d, GL_LINEAR);
+        atlas_o_ = atlasTexture(width, height, o, GL_NEAREST);
+        atlas_size_ = Eigen::Vector2f(static_cast<float>(width), static_cast<float>(height));
+    }
+
+    // Step 4: the probe grids.
+    probes_.assign(virtual_objects, ProbeGrid{});
+    for (const lighting::VirtualIrradiance& v : snapshot.virtual_objects) {
+        if (v.object_index < 0 || static_cast<std::size_t>(v.object_index) >= probes_.size()) continue;
+        if ((v.dims.array() < 1).any()) continue;
+        const std::size_t count = static_cast<std::size_t>(v.dims.prod());
+        if (v.indirect.size() != count) continue;
+        const std::size_t nx = static_cast<std::size_t>(v.dims.x()), ny = static_cast<std::size_t>(v.dims.y());
+        const std::size_t nz = static_cast<std::size_t>(v.dims.z());
+        std::vector<float> data(count * 9 * 3);
+        for (std::size_t p = 0; p < count; ++p) {
+            const std::size_t px = p % nx, py = (p / nx) % ny, pz = p / (nx * ny);
+            for (std::size_t k = 0; k < 9; ++k) {
+                const std::size_t texel = ((k * nz + pz) * ny + py) * nx + px;
+                for (std::size_t c = 0; c < 3; ++c) {
+                    const float value = v.indirect[p][k][static_cast<int>(c)];
+                    data[3 * texel + c] = std::isfinite(value) ? value : 0.0f;
+                }
+            }
+        }
+        ProbeGrid grid;
+        grid.texture = gl::newTexture();
+        glBindTexture(GL_TEXTURE_3D, grid.texture);
+        glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+        glTexImage3D(GL_TEXTURE_3D, 0, GL_RGB32F, v.dims.x(), v.dims.y(), 9 * v.dims.z(), 0, GL_RGB, GL_FLOAT, data.data());
+        glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+        glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+        for (GLenum wrap : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTexParameteri(GL_TEXTURE_3D, wrap, GL_CLAMP_TO_EDGE);
+        grid.bmin = v.bounds_min.cast<float>();
+        grid.bmax = v.bounds_max.cast<float>();
+        const Eigen::Array3f dims = v.dims.cast<float>().array();
+        grid.scale = ((dims - 1.0f) / dims).matrix();
+        grid.offset = (0.5f / dims).matrix();
+        probes_[static_cast<std::size_t>(v.object_index)] = grid;
+    }
+}
+
+}  // namespace commonlight::render

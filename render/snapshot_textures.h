@@ -1,0 +1,64 @@
+// The lighting snapshot on the GPU: every modulated real face's M = w ratio + (1 - w),
+// D = (1 - w)(B - B~) and B~ (debug) packed into three atlases, and each virtual object's probe
+// grid of SH irradiance as a 3D texture (trilinear between probes by the GL's filtering). Internal
+// to render/.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "lighting/snapshot.h"
+#include "render/gl_objects.h"
+
+namespace commonlight::render {
+
+// Where one face's modulation is in the atlas.
+struct FaceInAtlas {
+    // The face's parametrisation p = c0 + s e1 + t e2 inverted: s = (p - c0).du, t = (p - c0).dv.
+    Eigen::Vector3f c0 = Eigen::Vector3f::Zero(), du = Eigen::Vector3f::Zero(), dv = Eigen::Vector3f::Zero();
+    // Atlas texel coordinates of (s, t) = (0, 0), and the face's texels along s and t: (s, t) is at
+    // rect.xy + (s, t) rect.zw. The face's texels are framed by a copy of its edge texels, so
+    // filtering at s or t = 0 or 1 reads the face alone (as clamp-to-edge would).
+    Eigen::Vector4f rect = Eigen::Vector4f::Zero();
+};
+
+// A virtual object's probe grid.
+struct ProbeGrid {
+    GLuint texture = 0;  // RGB32F 3D: dims.x x dims.y x 9 dims.z (coefficient k at depths k dims.z ..)
+    Eigen::Vector3f bmin = Eigen::Vector3f::Zero(), bmax = Eigen::Vector3f::Zero();  // world bounds
+    Eigen::Vector3f scale = Eigen::Vector3f::Zero(), offset = Eigen::Vector3f::Zero();  // texture coordinate = g scale + offset, g in [0, 1]^3
+};
+
+class SnapshotTextures {
+public:
+    // Rebuilds the textures when the snapshot (its address or version) or `lighting` changed:
+    // without lighting nothing is modulated and no probe is used. Non-finite values count as no
+    // change (ratio 1, difference 0, irradiance 0); degenerate faces are left out. The GL context
+    // must be current.
+    void update(const lighting::LightingSnapshot& snapshot, std::size_t virtual_objects, bool lighting);
+    // Deletes every texture (the GL context must be current).
+    void release();
+
+    bool modulates() const noexcept { return !faces_.empty(); }
+    const FaceInAtlas* face(int object_index, int face) const;
+    GLuint atlasM() const noexcept { return atlas_m_; }
+    GLuint atlasD() const noexcept { return atlas_d_; }
+    GLuint atlasO() const noexcept { return atlas_o_; }
+    Eigen::Vector2f atlasSize() const noexcept { return atlas_size_; }
+    const ProbeGrid* probes(std::size_t virtual_index) const;
+
+private:
+    std::uint64_t version_ = ~0ull;
+    const void* address_ = nullptr;
+    bool lighting_ = true;
+    std::map<std::pair<int, int>, FaceInAtlas> faces_;
+    GLuint atlas_m_ = 0, atlas_d_ = 0, atlas_o_ = 0;
+    Eigen::Vector2f atlas_size_ = Eigen::Vector2f::Ones();
+    std::vector<ProbeGrid> probes_;  // by virtual object index (texture 0: none)
+};
+
+}  // namespace commonlight::render
