@@ -39,6 +39,8 @@ namespace commonlight::pipeline {
 struct TrackedFrame {
     FrameMetadata meta;
     Image rgb;                  // RGB8 at the camera's size; empty without lighting and compositor
+    Image raw;                  // the camera's own YUYV or NV12 bytes, for the compositor (it converts
+                                // them in its final pass); empty for other formats or without it
     tracking::FrameTrack track;
     std::vector<std::optional<Rigid3d>> virtual_poses;  // world_from_object per Scene::virtual_objects
     double scene_time_s = 0.0;  // seconds since the runner's first frame, by frame timestamps

@@ -237,6 +237,14 @@ Result<void> FrameRunner::track(const Frame& frame, TrackedFrame& out) {
     } else {
         out.rgb = Image();
     }
+    // YUYV and NV12 go to the compositor as the camera sent them (converted on the GPU, the same
+    // BT.601 conversion as capture::PixelConverter).
+    const PixelFormat format = frame.image.view().format;
+    if (compositor_ && (format == PixelFormat::kYuyv || format == PixelFormat::kNv12)) {
+        out.raw = Image::copyOf(frame.image.view());
+    } else {
+        out.raw = Image();
+    }
     // Step 4: the frame to the lighting thread (sync: its update is published before we go on).
     if (lighting_) {
         std::vector<Rigid3d> lighting_poses;
@@ -268,7 +276,7 @@ Result<void> FrameRunner::draw(const TrackedFrame& frame, const std::vector<std:
     static const lighting::LightingSnapshot kNothing{};
     const lighting::SnapshotPtr snapshot = lighting_ ? lighting_->latest() : nullptr;
     render::FrameInput input;
-    input.image = frame.rgb.view();
+    input.image = frame.raw.view().empty() ? frame.rgb.view() : frame.raw.view();
     input.exposure_gain = exposureGain(frame.meta);
     input.cam_from_world = frame.track.cam_from_world;
     input.virtual_poses = poses;

@@ -7,6 +7,9 @@
 #include <cstdlib>
 #include <thread>
 
+#include <opencv2/imgproc.hpp>
+
+#include "capture/convert.h"
 #include "render/gl_context.h"
 #include "tests/pipeline/sample_source.h"
 
@@ -79,6 +82,109 @@ TEST(FrameRunnerRunGl, RedrawShowsAMovedObjectWithoutCountingAFrame) {
     ASSERT_EQ(stats.composited, 1u);
     EXPECT_GT(differingPixels(before, runner->compositeImage()), 500u);
     EXPECT_EQ(runner->metricsJson()["compositor"]["frames"].get<std::uint64_t>(), 1u);
+}
+
+// A camera that sends YUYV or NV12: the compositor gets the camera's own bytes (converted in its
+// final pass), and the composite matches the one drawn from the same frame converted to RGB on
+// the CPU (the same BT.601 conversion).
+class OneFrameSource final : public FrameSource {
+public:
+    explicit OneFrameSource(Frame frame) : frame_(std::move(frame)) {}
+    Result<std::optional<FrameHandle>> next(std::stop_token) override {
+        if (given_) return std::optional<FrameHandle>();
+        given_ = true;
+        frame_.meta.arrival_ns = monotonicNowNs();
+        return std::optional<FrameHandle>(FrameHandle(&frame_, nullptr));
+    }
+
+private:
+    Frame frame_;
+    bool given_ = false;
+};
+
+// The sample's first frame as RGB8, and as a camera would send it in `format` (YUYV: each row
+// pair's chroma; NV12: the I420 planes, chroma interleaved).
+std::pair<Frame, Frame> firstFrameAs(PixelFormat format) {
+    capture::PixelConverter converter;
+    Image rgb;
+    EXPECT_TRUE(converter.convert(sample().frames[0].image.view(), PixelFormat::kRgb8, rgb));
+    const int w = rgb.width(), h = rgb.height();
+    const cv::Mat rgb_mat(h, w, CV_8UC3, rgb.data(), rgb.stride());
+    cv::Mat i420;
+    cv::cvtColor(rgb_mat, i420, cv::COLOR_RGB2YUV_I420);
+    const std::uint8_t* y = i420.data;
+    const std::uint8_t* u = y + static_cast<std::size_t>(w * h);
+    const std::uint8_t* v = u + static_cast<std::size_t>(w * h / 4);
+    Frame yuv;
+    yuv.image.reshape(format, w, h);
+    for (int r = 0; r < h; ++r) {
+        std::uint8_t* row = yuv.image.data() + static_cast<std::size_t>(r) * yuv.image.stride();
+        for (int x = 0; x < w; x += 2) {
+            const std::size_t p = static_cast<std::size_t>(r * w + x), c = static_cast<std::size_t>((r / 2) * (w / 2) + x / 2);
+            if (format == PixelFormat::kYuyv) {
+                row[2 * x] = y[p];
+                row[2 * x + 1] = u[c];
+                row[2 * x + 2] = y[p + 1];
+                row[2 * x + 3] = v[c];
+            } else {
+                row[x] = y[p];
+                row[x + 1] = y[p + 1];
+                if (r % 2 == 0) {
+                    std::uint8_t* uv = yuv.image.data() + static_cast<std::size_t>(h + r / 2) * yuv.image.stride();
+                    uv[x] = u[c];
+                    uv[x + 1] = v[c];
+                }
+            }
+        }
+    }
+    Frame converted;
+    EXPECT_TRUE(converter.convert(yuv.image.view(), PixelFormat::kRgb8, converted.image));
+    yuv.meta = converted.meta = sample().frames[0].meta;
+    return {std::move(yuv), std::move(converted)};
+}
+
+Image compositeOf(Frame frame, bool expect_raw) {
+    auto runner = makeRunner(/*sync=*/true, /*lighting=*/false, /*composite=*/true);
+    EXPECT_TRUE(runner);
+    if (!runner) return Image();
+    OneFrameSource source(std::move(frame));
+    LoopCallbacks callbacks;
+    callbacks.on_frame = [&](const TrackedFrame& f) {
+        EXPECT_EQ(!f.raw.view().empty(), expect_raw);
+        EXPECT_FALSE(f.rgb.view().empty());  // the lighting and the side by side still get RGB
+        return true;
+    };
+    const LoopStats stats = runner->run(source, callbacks, std::stop_token());
+    EXPECT_FALSE(stats.failure) << (stats.failure ? stats.failure->message : "");
+    EXPECT_EQ(stats.composited, 1u);
+    return runner->compositeImage().clone();
+}
+
+TEST(FrameRunnerRunGl, YuvFramesGoToTheCompositorAsTheCameraSentThem) {
+    skipWithoutGl();
+    ASSERT_FALSE(sample().frames.empty());
+    for (const PixelFormat format : {PixelFormat::kYuyv, PixelFormat::kNv12}) {
+        SCOPED_TRACE(pixelFormatName(format));
+        auto [yuv, rgb] = firstFrameAs(format);
+        const Image from_yuv = compositeOf(std::move(yuv), /*expect_raw=*/true);
+        const Image from_rgb = compositeOf(std::move(rgb), /*expect_raw=*/false);
+        ASSERT_EQ(from_yuv.width(), from_rgb.width());
+        ASSERT_EQ(from_yuv.height(), from_rgb.height());
+        // The GPU's conversion against OpenCV's: the same to a code or two (rounding, and the
+        // chroma sampled bilinearly or by nearest sample).
+        double sum = 0.0;
+        int worse = 0;
+        for (int y = 0; y < from_rgb.height(); ++y) {
+            for (int x = 0; x < 3 * from_rgb.width(); ++x) {
+                const int d = std::abs(int(from_yuv.view().row(y)[x]) - int(from_rgb.view().row(y)[x]));
+                sum += d;
+                worse += d > 8;
+            }
+        }
+        const double pixels = 3.0 * from_rgb.width() * from_rgb.height();
+        EXPECT_LT(sum / pixels, 1.0);
+        EXPECT_LT(worse / pixels, 0.01);
+    }
 }
 
 }  // namespace
