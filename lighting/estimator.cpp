@@ -311,6 +311,11 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     Hierarchy& h = rad.hierarchy();
     const RadiosityOptions& ro = options_.radiosity;
 
+    // A tag's white ring anchors the scale when seen in enough pure pixels, none of them clipped.
+    const auto ringUsable = [&](const RadianceStats& white) {
+        return white.pixels >= static_cast<std::uint32_t>(options_.min_ring_pixels) && white.clipped == 0;
+    };
+
     // Step 1: the virtual objects where they are now.
     if (d.poses_changed) {
         for (std::size_t v = 0; v < d.poses.size(); ++v) rays_->setVirtualPose(static_cast<int>(v), d.poses[v]);
@@ -376,7 +381,8 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     // The real scene's links, with the source oracle fed by an estimate of each leaf's radiance:
     // the fitted lights when there are some, else every light at unit emission (reflectance 0.5).
     const auto build_links = [&](const std::optional<std::vector<Eigen::Vector3d>>& emission) {
-        std::vector<double> radiance(h.elements().size(), 0.0);
+        std::vector<double> radiance(h.elements().size(), 0.0), reflectance(h.elements().size(), 0.0);
+        double mean_direct = 0.0, mean_rho = 0.0, area = 0.0;
         for (int e : rad.leaves(Mode::kReal)) {
             double l = 0.0;
             for (std::size_t k = 0; k < d.sources.size(); ++k) {
@@ -389,6 +395,24 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                              : rho_.size() > static_cast<std::size_t>(e) ? luma(rho_[static_cast<std::size_t>(e)])
                                                                         : 0.5;
             radiance[static_cast<std::size_t>(e)] = r / kPi * l;
+            reflectance[static_cast<std::size_t>(e)] = r;
+            const double a = h[e].area * rad.exposure(e);
+            mean_direct += a * radiance[static_cast<std::size_t>(e)];
+            mean_rho += a * r;
+            area += a;
+        }
+        // Interreflection, as seed 001's ambient term: in an enclosure the surfaces' mean radiance
+        // is the mean reflected direct light over (1 - mean reflectance), and each surface reflects
+        // its share of it. Without it the oracles would take a ceiling lit only indirectly for black.
+        if (area > 0.0) {
+            mean_direct /= area;
+            mean_rho = std::min(mean_rho / area, 0.9);
+            // A sheltered surface (behind a cabinet) gets the unsheltered part of it.
+            rad.measureShelters();
+            for (int e : rad.leaves(Mode::kReal)) {
+                const auto i = static_cast<std::size_t>(e);
+                radiance[i] += (1.0 - rad.shelter(e).mean) * reflectance[i] * mean_direct / (1.0 - mean_rho);
+            }
         }
         rad.setSourceRadiance(radiance);
         {
@@ -486,7 +510,8 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     stats_.leaves_observation = std::max(stats_.leaves_observation, h.leafCount());
     for (int e : rad.leaves(Mode::kReal)) {
         const RadianceStats stats = observations_->aggregate(h[e]);
-        if (stats.pixels >= static_cast<std::uint32_t>(options_.min_pixels) && stats.weight > 0.0) {
+        // An element with saturated or near-black pixels is not measured by the mean of the others.
+        if (stats.pixels >= static_cast<std::uint32_t>(options_.min_pixels) && stats.weight > 0.0 && stats.clipped == 0) {
             observed[static_cast<std::size_t>(e)] = stats.mean();
             weight[static_cast<std::size_t>(e)] = stats.weight;
             observed_leaves.push_back(e);
@@ -543,7 +568,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     d.tag_columns.resize(tags.size());
     d.tag_columns_face.resize(tags.size(), -2);
     for (std::size_t t = 0; t < tags.size(); ++t) {
-        if (tags[t].face < 0 || tags[t].white.pixels < 10) continue;
+        if (tags[t].face < 0 || !ringUsable(tags[t].white)) continue;
         if (d.tag_columns_face[t] == tags[t].face && d.tag_columns[t].size() == d.sources.size()) continue;
         d.tag_columns[t].assign(d.sources.size(), 0.0);
         tbb::parallel_for(std::size_t{0}, d.sources.size(), [&](std::size_t k) {
@@ -599,7 +624,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         double kappa = 0.0;
         double ring_weight = 0.0;
         for (const TagReference& ref : tags) {
-            if (ref.white.pixels < 10) continue;
+            if (!ringUsable(ref.white)) continue;
             const double lw = luma(ref.white.mean());
             if (lw > 0.0) {
                 kappa += ref.white.weight * ref.albedo_white / lw;
@@ -661,7 +686,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                         problem.observations.push_back(std::move(o));
                     }
                     for (std::size_t t = 0; t < tags.size(); ++t) {
-                        if (tags[t].face < 0 || tags[t].white.pixels < 10 || d.tag_columns[t].size() != d.sources.size()) continue;
+                        if (tags[t].face < 0 || !ringUsable(tags[t].white) || d.tag_columns[t].size() != d.sources.size()) continue;
                         FitObservation o;
                         o.radiance = tags[t].white.mean()[channel];
                         o.weight = tags[t].white.weight;
@@ -787,7 +812,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                         rows.weight.push_back(weight[i]);
                     }
                     for (std::size_t t = 0; t < tags.size(); ++t) {
-                        if (tags[t].face < 0 || tags[t].white.pixels < 10 || d.tag_columns[t].size() != d.sources.size()) continue;
+                        if (tags[t].face < 0 || !ringUsable(tags[t].white) || d.tag_columns[t].size() != d.sources.size()) continue;
                         rows.points.push_back(tags[t].ring_points);
                         rows.normals.push_back(tags[t].normal);
                         rows.scale.push_back(tags[t].albedo_white / kPi);
