@@ -50,14 +50,38 @@ Radiosity::Radiosity(std::vector<Face> real_faces, std::vector<Face> virtual_fac
         }
         boxes_.push_back(b);
     }
+    for (std::size_t f = 0; f < real_count_; ++f) {
+        const Face& face = faces_[f];
+        Eigen::Matrix<double, 3, 2> basis;
+        basis.col(0) = face.edge_s;
+        basis.col(1) = face.edge_t;
+        ContactFace c;
+        c.object = face.object_index;
+        c.origin = face.origin;
+        c.normal = face.normal;
+        c.dual = (basis.transpose() * basis).inverse() * basis.transpose();
+        c.triangle = face.triangle;
+        contact_faces_.push_back(c);
+    }
 }
 
-bool Radiosity::insideOtherBox(const Eigen::Vector3d& x, int own_object) const {
+bool Radiosity::insideOtherBox(const Eigen::Vector3d& x, const Eigen::Vector3d& normal, int own_object) const {
     for (const BoxPlanes& b : boxes_) {
         if (b.object == own_object) continue;
         bool in = true;
         for (std::size_t i = 0; i < 6 && in; ++i) in = (x - b.origin[i]).dot(b.normal[i]) < 0.0;
         if (in) return true;
+    }
+    // Pressed against another proxy's face (a cabinet standing on the floor plane, its bottom on
+    // the floor and the floor under it): the two faces look at each other from no distance. `x` is
+    // lifted 4 epsilon off its own surface, so it lies just behind the face it touches.
+    const double contact = 8.0 * rays_->epsilon();
+    for (const ContactFace& c : contact_faces_) {
+        if (c.object == own_object || normal.dot(c.normal) > -0.9) continue;
+        const double height = (x - c.origin).dot(c.normal);
+        if (height > 0.0 || height < -contact) continue;
+        const Eigen::Vector2d ab = c.dual * (x - c.origin);
+        if (insideUnit(ab.x(), ab.y(), c.triangle, 0.0)) return true;
     }
     return false;
 }
@@ -67,7 +91,7 @@ bool Radiosity::hidden(int element, const Eigen::Vector3d& x) const {
     if (!(el.exposed >= 0.0f && el.exposed < 1.0f) || isVirtualFace(el.face)) return false;
     // Lifted off the surface: a point of the floor under a cabinet lies on the cabinet's bottom plane.
     const Face& f = faces_[static_cast<std::size_t>(el.face)];
-    return insideOtherBox(x + 4.0 * rays_->epsilon() * f.normal, f.object_index);
+    return insideOtherBox(x + 4.0 * rays_->epsilon() * f.normal, f.normal, f.object_index);
 }
 
 double Radiosity::exposure(int element) const {
@@ -150,7 +174,7 @@ void Radiosity::markBuried() {
     for (std::size_t e = 0; e < hierarchy_.elements().size(); ++e) {
         const Element& el = hierarchy_.elements()[e];
         if (!el.leaf() || el.exposed >= 0.0f) continue;
-        if (isVirtualFace(el.face) || el.buried || boxes_.empty()) {
+        if (isVirtualFace(el.face) || el.buried || (boxes_.empty() && contact_faces_.size() < 2)) {
             hierarchy_.setExposed(static_cast<int>(e), el.buried ? 0.0f : 1.0f);
             continue;
         }
@@ -167,7 +191,7 @@ void Radiosity::markBuried() {
             for (int i = 0; i < kGrid; ++i) {
                 const double a = (i + 0.5) / kGrid, b = (j + 0.5) / kGrid;
                 if (g.triangle && a + b > 1.0) continue;
-                inside_count += insideOtherBox(g.corner + a * g.edge_s + b * g.edge_t + lift * g.normal, f.object_index) ? 1 : 0;
+                inside_count += insideOtherBox(g.corner + a * g.edge_s + b * g.edge_t + lift * g.normal, g.normal, f.object_index) ? 1 : 0;
                 ++probes;
             }
         }

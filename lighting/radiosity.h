@@ -49,7 +49,7 @@ struct RadiosityOptions {
     double min_element_size = 0.01;  // metres: elements are not split below this (shadows, observations)
     double min_link_size = 0.15;     // metres: link refinement creates no element smaller than this
                                      // (it descends into existing smaller ones) ...
-    double gap_resolution = 1.0;     // ... except between facing parallel elements closer than that
+    double gap_resolution = 2.0;     // ... except between facing parallel elements closer than that
                                      // (narrow gaps): down to this times their separation
     // Shelter: the fraction of a point's (cosine-weighted) hemisphere that meets a real surface within
     // shelter_distance metres (the wall behind a cabinet: nearly 1; an open floor: 0). A receiver
@@ -124,9 +124,10 @@ public:
     // for virtual spheres, whose facets lie inside the exact sphere).
     Eigen::Vector3d onSurface(int element, const Eigen::Vector3d& x) const;
     const RayScene& rays() const noexcept { return *rays_; }
-    // Whether a point of an element lies inside another real box (under a cabinet standing on the
-    // floor element, under the books lying on the desk element): no surface there. Always false
-    // for elements markBuried() found wholly exposed, and for virtual elements.
+    // Whether a point of an element lies inside another real box or is pressed against another
+    // real face (under a cabinet standing on the floor, under the books lying on the desk, the
+    // bottom of a leg standing on the floor plane): no surface there. Always false for elements
+    // markBuried() found wholly exposed, and for virtual elements.
     bool hidden(int element, const Eigen::Vector3d& x) const;
     // The fraction of an element's area outside other boxes (1 until markBuried() measured it).
     double exposure(int element) const;
@@ -201,12 +202,22 @@ private:
         std::array<Eigen::Vector3d, 6> origin;
         std::array<Eigen::Vector3d, 6> normal;
     };
-    bool insideOtherBox(const Eigen::Vector3d& x, int own_object) const;
+    // Real faces for contact tests (a box standing on a plane).
+    struct ContactFace {
+        int object = -1;
+        Eigen::Vector3d origin;
+        Eigen::Vector3d normal;
+        Eigen::Matrix<double, 2, 3> dual;  // world offset -> face (s, t)
+        bool triangle = false;
+    };
+    // Inside another real box, or pressed against another real face (normal opposite, no distance).
+    bool insideOtherBox(const Eigen::Vector3d& x, const Eigen::Vector3d& normal, int own_object) const;
 
     Shelter measureShelter(int element) const;
     void enforceConsistency();
 
     std::vector<BoxPlanes> boxes_;
+    std::vector<ContactFace> contact_faces_;
     std::vector<Shelter> shelter_;  // by element
     std::vector<Face> faces_;  // real (world) then virtual (object frame)
     std::vector<Face> posed_;  // real then virtual (world)
