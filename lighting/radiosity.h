@@ -57,6 +57,7 @@ struct RadiosityOptions {
     // pushes its irradiance down as uniform, and would light the sheltered part like the open one.
     double shelter_distance = 0.25;
     double shelter_epsilon = 0.5;
+    double shelter_resolution = 0.1;  // metres: such receivers may be split below min_link_size, down to this
     // Consistency of the links: a leaf gathers through its own links and its ancestors'; the sum
     // of their F x V is the fraction of its hemisphere that meets real faces, which shelter rays
     // measure. Where the two differ by more than this (a link at a coarse level pushes down a
