@@ -4,16 +4,19 @@
 //
 // Cases:
 //   solver    the radiosity solve alone (true lights and albedos) on the room and the desk: element
-//             radiance against the path tracer's on the same element, for several element counts,
-//             hierarchical against the uniform-grid gather (time against RMS error, table and plot)
+//             radiance against the path tracer's average over the same element, for several element
+//             counts, hierarchical against the uniform-grid gather (setup and solve time against RMS
+//             error, table and plot; the speed-up at equal error; --solver-csv: per-element figures)
 //   known     known light geometry, unknown emission (the desk): emission error per light and
 //             reflectance error, at sensor noise 0, 1, 3% and after 1, 10, 60 frames
-//   distant   an unknown distant light (the sunlit scene): dominant direction error and the sun's
-//             irradiance error, same noise levels and frame counts
-//   nothing   no light in the scene (the desk): how well the real scene alone reproduces what was
-//             observed, and the ratio
-//   ratio     the predicted ratio B/B~ against the simulator's frames with and without the virtual
-//             objects, over masks/changed (RMS and mean signed error), desk and room
+//   distant   an unknown distant light (the sunlit scene): dominant direction error, the sun's
+//             irradiance error and the sun + sky irradiance on an open horizontal surface, same
+//             noise levels and frame counts
+//   nothing   no light in the scene (the desk): every surface emits; the ratio
+//   ratio     the predicted ratio B/B~ against the simulator's with/without frames over
+//             masks/changed (RMS and mean signed error), desk and room, against a reference
+//             rendered at 8x the sequence's spp over the changed region (and against the frames)
+//   shading   light direction from a known sphere's shading against seed 002's Tables 1-3
 #pragma once
 
 #include <filesystem>
@@ -35,6 +38,7 @@ struct BenchLightingOptions {
     int frames = 60;   // frames of the moving camera (the estimate is reported after 1, 10 and this many)
     std::string json;
     std::string plot;
+    std::filesystem::path solver_csv;  // the solver case's per-element errors, one CSV per configuration
 };
 
 std::vector<std::string> benchLightingCaseNames();

@@ -63,6 +63,8 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
         ->capture_default_str();
     lighting->add_option("--data", lighting_options->data_dir, "Where rendered sequences are kept between runs")
         ->capture_default_str();
+    lighting->add_option("--solver-csv", lighting_options->solver_csv,
+                         "Write the solver case's per-element truth and model radiance (direct and total) as CSV files in this folder");
     lighting->add_option("--source", lighting_options->source_dir, "The repository (for data/); default: . or $COMMONLIGHT_SOURCE_DIR");
     lighting->footer("Cases: solver (radiosity against the path tracer, hierarchical against uniform), known (desk: "
                      "emissions, reflectances), distant (sunlit: direction), nothing (no light in the scene), ratio "

@@ -70,7 +70,9 @@ bool insideOtherBox(const Scene& scene, int own, const Eigen::Vector3d& p) {
 
 Result<std::vector<Eigen::Vector3d>> truthOfLeaves(const Scene& truth, const lighting::Estimator& estimator,
                                                    const std::vector<int>& leaves, bool with_virtual, int points,
-                                                   int samples, std::uint64_t seed) {
+                                                   int samples, std::uint64_t seed, int max_depth) {
+    mocks::sim::IntegratorOptions integrator;
+    integrator.max_depth = max_depth;
     mocks::sim::SimSceneOptions scene_options;
     scene_options.include_virtual = with_virtual;
     CL_TRY(mocks::sim::SimScene sim, mocks::sim::SimScene::build(truth, scene_options));
@@ -95,7 +97,7 @@ Result<std::vector<Eigen::Vector3d>> truthOfLeaves(const Scene& truth, const lig
             // Only the visible surface: a point inside another proxy (under a box resting on the
             // element) is no part of what a camera or the model sees.
             if (insideOtherBox(truth, face.object_index, x + 1e-4 * g.normal)) continue;
-            sum += mocks::sim::estimateIrradiance(sim, x, g.normal, samples, lighting::hashCombine(seed, k * 131 + p));
+            sum += mocks::sim::estimateIrradiance(sim, x, g.normal, samples, lighting::hashCombine(seed, k * 131 + p), integrator);
             ++used;
         }
         out[k] = used > 0 ? Eigen::Vector3d(albedo.cwiseProduct(sum) / (used * std::numbers::pi)) : Eigen::Vector3d::Zero();

@@ -53,7 +53,7 @@ double radianceScale(const mocks::sim::SensorParams& sensor);
 // estimateIrradiance with `samples` paths. `with_virtual`: the virtual objects in the scene too.
 Result<std::vector<Eigen::Vector3d>> truthOfLeaves(const Scene& truth, const lighting::Estimator& estimator,
                                                    const std::vector<int>& leaves, bool with_virtual, int points,
-                                                   int samples, std::uint64_t seed);
+                                                   int samples, std::uint64_t seed, int max_depth = 32);
 
 // Camera poses on an orbit around `target` (the sim's orbit convention: azimuth 0 on the -y side).
 std::vector<Rigid3d> orbitPoses(const Eigen::Vector3d& target, double radius, double height, double from_deg,

@@ -38,6 +38,7 @@ struct EstimatorOptions {
     int fit_iterations = 2;             // outer passes of (fit, reflectances, solve)
     bool refine_distant = true;         // continuous refinement of the dominant distant direction
     int min_pixels = 3;                 // an element counts as observed from this many pixels
+    int min_ring_pixels = 4;            // a tag's white ring anchors the scale from this many pure pixels
     bool refine_by_light = true;        // split leaves where direct light varies (shadow boundaries)
     bool refine_unobserved = false;     // ... also where no frame has looked (benchmarks of the solver)
     bool refine_by_observation = true;  // split observed leaves whose radiance varies

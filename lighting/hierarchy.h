@@ -31,6 +31,9 @@ struct Element {
     double size_s = 0.0;      // metres along ds
     double size_t_ = 0.0;     // metres along dt
     bool buried = false;      // inside another proxy (a box's bottom on a table): takes no part in transport
+    // Fraction of the area outside other proxies (a floor element under a cabinet's edge: the part
+    // under the cabinet is no surface). Negative until Radiosity::markBuried() has measured it.
+    float exposed = -1.0f;
 
     bool leaf() const { return child_count == 0; }
 };
@@ -70,6 +73,8 @@ public:
     void leavesUnder(int element, std::vector<int>& out) const;
     // Marks an element and everything under it buried (or not).
     void setBuried(int element, bool buried);
+    // Sets an element's exposed fraction (Radiosity::markBuried()).
+    void setExposed(int element, float exposed) { elements_[static_cast<std::size_t>(element)].exposed = exposed; }
 
 private:
     std::vector<Element> elements_;

@@ -113,6 +113,33 @@ const RadianceStats& Observations::cell(int face, int i, int j) const {
     return g.cells[static_cast<std::size_t>(j) * static_cast<std::size_t>(g.ns) + static_cast<std::size_t>(i)];
 }
 
+bool Observations::pixelOnRing(const TagFrame& tf, const Eigen::Vector2d& pixel, const Eigen::Matrix3d& world_from_cam_rotation,
+                               const Eigen::Vector3d& camera_origin, const Eigen::Vector3d& centre_in_tag) const {
+    // The side of the ring the pixel's centre is on: the strip |a| in (half_black, half_black +
+    // cell), |b| < half_black + cell, with a the dominant tag axis.
+    const int axis = std::abs(centre_in_tag.x()) >= std::abs(centre_in_tag.y()) ? 0 : 1;
+    const double sign = centre_in_tag[axis] >= 0.0 ? 1.0 : -1.0;
+    // A small guard for the sub-pixel error of the pose and of the lens model: 5% of a cell.
+    const double guard = 0.05 * tf.cell;
+    const double outer = tf.half_black + tf.cell;
+    const Eigen::Matrix3d r = tf.tag_from_world.rotationMatrix();
+    const Eigen::Vector3d o = tf.tag_from_world * camera_origin;
+    for (const Eigen::Vector2d& corner : {Eigen::Vector2d(-0.5, -0.5), Eigen::Vector2d(0.5, -0.5), Eigen::Vector2d(-0.5, 0.5),
+                                         Eigen::Vector2d(0.5, 0.5)}) {
+        const auto ray = camera_.unproject(pixel + corner);
+        if (!ray) return false;
+        const Eigen::Vector3d d = r * (world_from_cam_rotation * ray->normalized());
+        // Hard case: a corner ray parallel to the tag's plane (or leaving it) never meets it.
+        if (!(std::abs(d.z()) > 1e-9)) return false;
+        const double t = -o.z() / d.z();
+        if (!(t > 0.0)) return false;
+        const Eigen::Vector3d q = o + t * d;
+        const double a = sign * q[axis], b = std::abs(q[1 - axis]);
+        if (!(a > tf.half_black + guard && a < outer - guard && b < outer - guard)) return false;
+    }
+    return true;
+}
+
 Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d& cam_from_world, double exposure_s,
                                            double gain, const RayScene& rays, const Eigen::Vector3d& illuminant) {
     if (rgb8.format != PixelFormat::kRgb8 || rgb8.width != camera_.width || rgb8.height != camera_.height) {
@@ -165,12 +192,14 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
                 const double m = std::max(std::abs(q.x()), std::abs(q.y()));
                 if (m > tf.half_total) continue;
                 s.tag = static_cast<int>(t);
-                // The white ring, away from its edges by the pixel's footprint on the tag: a pixel
-                // that also covers the black square or the background reads darker than white.
-                const double cos_view = std::max(0.2, std::abs(f.normal.dot(dir)));
-                const double footprint = hit.distance / (std::min(camera_.fx, camera_.fy) * cos_view);
-                const double margin = std::max(0.2 * tf.cell, 0.75 * footprint);
-                s.ring = tf.white_ring && m > tf.half_black + margin && m < tf.half_black + tf.cell - margin;
+                // The white ring: a pixel whose whole footprint on the tag (its square's four
+                // corners through the lens, met with the tag's plane: a sensor integrates over the
+                // pixel) lies in one side's strip of the ring. A pixel that also covers the black
+                // square or the background reads darker than white. The footprint is long along
+                // the viewing direction and short across it, so at a grazing view the ring's sides
+                // across it still give pure pixels where a round margin would give none.
+                s.ring = tf.white_ring && m > tf.half_black && m < tf.half_black + tf.cell &&
+                         pixelOnRing(tf, Eigen::Vector2d(px, py), rotation, origin, q);
                 break;
             }
             if (c[0] >= 250 || c[1] >= 250 || c[2] >= 250) {
@@ -285,6 +314,14 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
     for (std::size_t k = 0; k < samples.size(); ++k) {
         Sample& s = samples[k];
         if (s.face < 0) continue;
+        if (s.excluded && (s.reason == 1 || s.reason == 2)) {
+            if (s.tag >= 0 && s.ring) {
+                ++tags_[static_cast<std::size_t>(s.tag)].white.clipped;
+            } else if (s.tag < 0 && s.cell >= 0) {
+                ++grids_[static_cast<std::size_t>(s.face)].cells[static_cast<std::size_t>(s.cell)].clipped;
+            }
+            continue;
+        }
         if (s.tag >= 0 && s.ring && !s.excluded) {
             const int i = static_cast<int>(k % samples_x_), j = static_cast<int>(k / samples_x_);
             if (face_at(i - 1, j) == s.face && face_at(i + 1, j) == s.face && face_at(i, j - 1) == s.face &&
@@ -385,6 +422,7 @@ RadianceStats Observations::aggregate(const Element& element) const {
         out.sum = c.sum * fraction;
         out.sum_sq = c.sum_sq * fraction;
         out.pixels = c.pixels;
+        out.clipped = c.clipped;
     }
     return out;
 }

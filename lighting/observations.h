@@ -42,6 +42,10 @@ struct RadianceStats {
     Eigen::Vector3d sum = Eigen::Vector3d::Zero();       // sum of w L
     Eigen::Vector3d sum_sq = Eigen::Vector3d::Zero();    // sum of w L^2
     std::uint32_t pixels = 0;
+    // Pixels left out as saturated or near black. Their neighbours' mean is censored (the brightest
+    // of a lamp's pool, the darkest of a shadow, are missing from it): a surface with any is not
+    // measured by its mean.
+    std::uint32_t clipped = 0;
 
     void add(const Eigen::Vector3d& radiance, double w) {
         weight += w;
@@ -54,6 +58,7 @@ struct RadianceStats {
         sum += o.sum;
         sum_sq += o.sum_sq;
         pixels += o.pixels;
+        clipped += o.clipped;
     }
     Eigen::Vector3d mean() const { return weight > 0.0 ? Eigen::Vector3d(sum / weight) : Eigen::Vector3d::Zero(); }
     // Weighted variance of the pixels (not of the mean), per channel; zero with one pixel.
@@ -133,6 +138,11 @@ private:
         double cell = 0.0;        // one tag cell, metres
         bool white_ring = false;  // the ring outside the black square is plain white
     };
+
+    // Whether a pixel's whole footprint lies on one side of a tag's white ring (`centre_in_tag`:
+    // where its centre's ray meets the tag, tag frame).
+    bool pixelOnRing(const TagFrame& tf, const Eigen::Vector2d& pixel, const Eigen::Matrix3d& world_from_cam_rotation,
+                     const Eigen::Vector3d& camera_origin, const Eigen::Vector3d& centre_in_tag) const;
 
     std::vector<Face> faces_;
     std::vector<Grid> grids_;

@@ -16,6 +16,7 @@
 // virtual elements reflect and emit, and block) gives B. Each link keeps both visibilities.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -24,6 +25,7 @@
 
 #include "core/pose.h"
 #include "core/result.h"
+#include "lighting/form_factor.h"
 #include "lighting/hierarchy.h"
 #include "lighting/proxy_geometry.h"
 #include "lighting/ray_scene.h"
@@ -33,7 +35,8 @@ namespace commonlight::lighting {
 
 struct RadiosityOptions {
     // Link refinement (directed: a receiver gathers from a source). A receiver is split while the
-    // point form factor to the source varies over it by more than this (the gathered irradiance is
+    // point form factor to the source varies over it by more than this, times the source's largest
+    // radiance relative to the scene's largest (setSourceRadiance(); the gathered irradiance is
     // pushed down as if uniform). Smaller: more links, more accuracy.
     double link_epsilon = 0.01;
     // A source is split while (its form factor from the receiver) x (the spread of its radiance,
@@ -45,7 +48,23 @@ struct RadiosityOptions {
     double partial_visibility_factor = 1.0;
     double min_element_size = 0.01;  // metres: elements are not split below this (shadows, observations)
     double min_link_size = 0.15;     // metres: link refinement creates no element smaller than this
-                                     // (it descends into existing smaller ones)
+                                     // (it descends into existing smaller ones) ...
+    double gap_resolution = 2.0;     // ... except between facing parallel elements closer than that
+                                     // (narrow gaps): down to this times their separation
+    // Shelter: the fraction of a point's (cosine-weighted) hemisphere that meets a real surface within
+    // shelter_distance metres (the wall behind a cabinet: nearly 1; an open floor: 0). A receiver
+    // whose points' shelter varies by more than shelter_epsilon takes no link (it is split): a link
+    // pushes its irradiance down as uniform, and would light the sheltered part like the open one.
+    double shelter_distance = 0.25;
+    double shelter_epsilon = 0.5;
+    double shelter_resolution = 0.1;  // metres: such receivers may be split below min_link_size, down to this
+    // Consistency of the links: a leaf gathers through its own links and its ancestors'; the sum
+    // of their F x V is the fraction of its hemisphere that meets real faces, which shelter rays
+    // measure. Where the two differ by more than this (a link at a coarse level pushes down a
+    // visibility its leaf does not have), the ancestors' links are moved one level down, up to
+    // consistency_rounds times.
+    double consistency_tolerance = 0.1;
+    int consistency_rounds = 8;
     int max_elements = 8000;         // leaf budget
     int visibility_rays = 4;         // jittered rays per link (16 for near pairs)
     bool hierarchical = true;        // false: every pair of leaves linked (the uniform-grid gather baseline)
@@ -106,18 +125,46 @@ public:
     // for virtual spheres, whose facets lie inside the exact sphere).
     Eigen::Vector3d onSurface(int element, const Eigen::Vector3d& x) const;
     const RayScene& rays() const noexcept { return *rays_; }
+    // Whether a point of an element lies inside another real box or is pressed against another
+    // real face (under a cabinet standing on the floor, under the books lying on the desk, the
+    // bottom of a leg standing on the floor plane): no surface there. Always false for elements
+    // markBuried() found wholly exposed, and for virtual elements.
+    bool hidden(int element, const Eigen::Vector3d& x) const;
+    // The fraction of an element's area outside other boxes (1 until markBuried() measured it).
+    double exposure(int element) const;
+    // An element's shelter (RadiosityOptions::shelter_distance): its mean, and the lowest and
+    // highest over its points (over its leaves' points for a parent). Measured on first use (16
+    // points x 8 rays per leaf) and kept: geometry does not change.
+    struct Shelter {
+        float mean = -1.0f;
+        float lo = -1.0f;
+        float hi = -1.0f;
+        float hit = -1.0f;  // the fraction of the hemisphere that meets a real face at any distance
+        bool known() const { return mean >= 0.0f; }
+    };
+    Shelter shelter(int element);
+    // Measures the shelter of every real leaf not yet measured (in parallel).
+    void measureShelters();
+    // A Gauss rule over the element's exposed part: of the given order for an element wholly
+    // exposed; for one partly inside a box the order-8 rule with its hidden points dropped and the
+    // weights renormalised (hard case: if every point is hidden, the plain order-8 rule).
+    std::vector<QuadraturePoint> exposedRule(int element, int order) const;
 
     // Step 1: the initial mesh: real faces split until no element is larger than `size` metres
     // (within the budget); virtual faces once to `virtual_size`.
     void subdivideTo(double size, double virtual_size);
-    // Marks leaves whose centre lies inside another real box (a box resting on a table: its bottom
-    // and the table under it) as buried: they neither receive nor send light. Call after
+    // Measures how much of each new leaf lies inside another real box (a box resting on a table:
+    // its bottom and the table under it). A leaf wholly inside is buried: it neither receives nor
+    // sends light; one partly inside keeps its exposed fraction, and its light is that of its
+    // exposed part (form factors, visibility and direct light are integrated over the exposed part
+    // alone, and its radiance counts by its exposed area when pulled up the hierarchy). Call after
     // subdividing; buried leaves stay buried.
     void markBuried();
 
     // An estimate of each leaf's radiance (direct light x a nominal reflectance is enough) for the
-    // source oracle: each node's spread of radiance, relative to the largest. Call before
-    // buildRealLinks(); elements created later count as uniform.
+    // oracles: each node's largest radiance and spread of radiance, relative to the scene's
+    // largest (virtual elements count as the brightest). Call before buildRealLinks(); elements
+    // created later take their parent's values.
     void setSourceRadiance(const std::vector<double>& radiance);
 
     // Step 2: links among real elements (F, V_real) by the refinement oracle. Clears every link.
@@ -143,12 +190,36 @@ public:
 
 private:
     void refine(int receiver, int source, int depth);
+    double sourceStat(const std::vector<double>& stat, int element) const;
     void addLink(int receiver, int source);
     std::vector<Link> takePendingLinks();  // computes F and V of the pending pairs
     void computeLink(Link& link, bool virtual_only) const;
     bool facing(int a, int b) const;
     void sortLinks();
 
+    // Real boxes (six parallelogram faces) as inward half-spaces, for hidden().
+    struct BoxPlanes {
+        int object = -1;
+        std::array<Eigen::Vector3d, 6> origin;
+        std::array<Eigen::Vector3d, 6> normal;
+    };
+    // Real faces for contact tests (a box standing on a plane).
+    struct ContactFace {
+        int object = -1;
+        Eigen::Vector3d origin;
+        Eigen::Vector3d normal;
+        Eigen::Matrix<double, 2, 3> dual;  // world offset -> face (s, t)
+        bool triangle = false;
+    };
+    // Inside another real box, or pressed against another real face (normal opposite, no distance).
+    bool insideOtherBox(const Eigen::Vector3d& x, const Eigen::Vector3d& normal, int own_object) const;
+
+    Shelter measureShelter(int element) const;
+    void enforceConsistency();
+
+    std::vector<BoxPlanes> boxes_;
+    std::vector<ContactFace> contact_faces_;
+    std::vector<Shelter> shelter_;  // by element
     std::vector<Face> faces_;  // real (world) then virtual (object frame)
     std::vector<Face> posed_;  // real then virtual (world)
     std::vector<double> sphere_radius_;  // per virtual object; 0: not a sphere
@@ -162,6 +233,7 @@ private:
     bool virtual_links_dirty_ = true;
     std::vector<std::pair<int, int>> pending_pairs_;  // during refinement
     std::vector<double> source_range_;                // per element: radiance spread / scene maximum
+    std::vector<double> source_peak_;                 // per element: largest radiance under it / scene maximum
 };
 
 }  // namespace commonlight::lighting

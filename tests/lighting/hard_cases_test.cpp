@@ -3,6 +3,7 @@
 // pixels, a frame without a usable view.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 
@@ -69,9 +70,12 @@ TEST(HardCases, DegenerateProxiesAreErrorsNamingTheObject) {
         };
         o.shape = size_of();
         scene.real_objects.push_back(o);
-        auto est = Estimator::create(scene, camera(64, 48), {});
+        // Through the factory play and live use: a bad-input error, which the command line
+        // reports with exit code 3.
+        auto est = SceneLighting::create(scene, camera(64, 48), {});
         ASSERT_FALSE(est) << c.yaml;
         EXPECT_EQ(est.error().code, ErrorCode::kBadInput);
+        EXPECT_EQ(exitCodeFor(est.error().code), 3);
         EXPECT_NE(est.error().message.find(c.name), std::string::npos) << est.error().message;
     }
     // A mesh whose triangles all have zero area.
@@ -83,8 +87,9 @@ TEST(HardCases, DegenerateProxiesAreErrorsNamingTheObject) {
     mesh->indices = {0, 1, 2};
     o.shape = MeshShape{"sliver.obj", mesh};
     scene.real_objects.push_back(o);
-    auto est = Estimator::create(scene, camera(64, 48), {});
+    auto est = SceneLighting::create(scene, camera(64, 48), {});
     ASSERT_FALSE(est);
+    EXPECT_EQ(exitCodeFor(est.error().code), 3);
     EXPECT_NE(est.error().message.find("sliver"), std::string::npos) << est.error().message;
     EXPECT_NE(est.error().message.find("degenerate"), std::string::npos) << est.error().message;
 }
@@ -248,6 +253,17 @@ TEST(HardCases, SaturatedDarkAndHighlightPixelsNeverEnterTheCells) {
     EXPECT_EQ(added->saturated, 10u * static_cast<unsigned>(cam.height));
     EXPECT_EQ(added->dark, 10u * static_cast<unsigned>(cam.height));
     EXPECT_EQ(added->highlight, 9u);
+    // The cells those pixels fell on say so: a surface with clipped pixels is not measured by the
+    // mean of the others (a censored mean: the brightest or darkest of it missing).
+    const Element whole = Hierarchy(faces)[0];
+    EXPECT_EQ(obs.aggregate(whole).clipped, 20u * static_cast<unsigned>(cam.height));
+    // The half of the wall away from those columns is measured cleanly.
+    Element first_half = whole, second_half = whole;
+    first_half.ds = second_half.ds = Eigen::Vector2d(0.5, 0.0);
+    second_half.st = Eigen::Vector2d(0.5, 0.0);
+    const RadianceStats a = obs.aggregate(first_half), b = obs.aggregate(second_half);
+    EXPECT_EQ(std::min(a.clipped, b.clipped), 0u);
+    EXPECT_GT(a.clipped == 0 ? a.pixels : b.pixels, 100u);
     // No cell holds a saturated or dark value: every mean is the red's radiance or the brighter red's.
     const double red_luma = 0.2126 * srgbToLinear(150 / 255.0f) + 0.7152 * srgbToLinear(40 / 255.0f) + 0.0722 * srgbToLinear(30 / 255.0f);
     for (int j = 0; j < obs.gridT(0); ++j) {
