@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <sstream>
 
@@ -237,6 +238,7 @@ void V4l2Camera::queryControls() {
     query(exposure_auto_, V4L2_CID_EXPOSURE_AUTO);
     if (!query(gain_, V4L2_CID_ANALOGUE_GAIN)) query(gain_, V4L2_CID_GAIN);
     query(awb_, V4L2_CID_AUTO_WHITE_BALANCE);
+    query(gamma_, V4L2_CID_GAMMA);
     if (exposure_auto_.present) {
         if (auto value = readControl(exposure_auto_)) auto_exposure_on_ = *value != V4L2_EXPOSURE_MANUAL;
     }
@@ -655,6 +657,21 @@ Result<void> V4l2Camera::doSetControl(Control which, double value) {
     if (which == Control::kAnalogGain) analog_gain_ = now;
     if (which == Control::kAutoExposure) auto_exposure_on_ = now != V4L2_EXPOSURE_MANUAL;
     return {};
+}
+
+// The gamma control (UVC: gamma x 100) has no absolute meaning across devices: at its default the
+// webcam's ISP applies its own curve, which is sRGB's in practice; moved away from the default,
+// the encoding exponent is sRGB's 2.2 scaled by value / default (a user who turned gamma from 100
+// to 150 made the curve 1.5x as steep). A device without the control: sRGB, the webcam default.
+// `--response` overrides either.
+std::string V4l2Camera::doResponseSpec() const {
+    if (!gamma_.present) return "srgb";
+    auto value = readControl(gamma_);
+    if (!value || *value == gamma_.default_value || gamma_.default_value <= 0 || *value <= 0) return "srgb";
+    const double g = std::clamp(2.2 * static_cast<double>(*value) / static_cast<double>(gamma_.default_value), 0.2, 5.0);
+    char spec[32];
+    std::snprintf(spec, sizeof spec, "gamma:%.4g", g);
+    return spec;
 }
 
 Result<double> V4l2Camera::doGetControl(Control which) const {

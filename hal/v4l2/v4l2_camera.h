@@ -93,6 +93,7 @@ private:
     std::vector<ControlInfo> doControls() const override;
     Result<void> doSetControl(Control control, double value) override;
     Result<double> doGetControl(Control control) const override;
+    std::string doResponseSpec() const override;
 
     System& system_;
     std::string path_;
@@ -108,6 +109,7 @@ private:
     DeviceControl exposure_auto_{};  // V4L2_CID_EXPOSURE_AUTO (menu)
     DeviceControl gain_{};           // V4L2_CID_ANALOGUE_GAIN, else V4L2_CID_GAIN
     DeviceControl awb_{};            // V4L2_CID_AUTO_WHITE_BALANCE
+    DeviceControl gamma_{};          // V4L2_CID_GAMMA (UVC: gamma x 100)
 
     // The configured format as the driver set it.
     std::uint32_t fourcc_ = 0;

@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include "capture/capture_session.h"
+#include "core/response.h"
 #include "hal/registry.h"
 #include "hal/v4l2/v4l2_backend.h"
 #include "hal/v4l2/v4l2_camera.h"
@@ -603,6 +604,29 @@ TEST(V4l2Controls, AnalogueGainIsPreferredAndMissingControlsAreUnsupported) {
         auto get = camera->getControl(c);
         ASSERT_FALSE(get);
         EXPECT_EQ(get.error().code, ErrorCode::kUnsupported);
+    }
+}
+
+TEST(V4l2Controls, TheResponseFollowsTheGammaControl) {
+    struct Case {
+        std::optional<mocks::FakeV4l2Control> gamma;
+        std::string spec;
+    };
+    const std::vector<Case> cases = {
+        {std::nullopt, "srgb"},                                 // no control: a webcam's sRGB
+        {mocks::FakeV4l2Control{V4L2_CID_GAMMA, 72, 500, 1, 100, 100}, "srgb"},  // at its default
+        {mocks::FakeV4l2Control{V4L2_CID_GAMMA, 72, 500, 1, 100, 150}, "gamma:3.3"},
+        {mocks::FakeV4l2Control{V4L2_CID_GAMMA, 1, 500, 1, 220, 110}, "gamma:1.1"},
+    };
+    for (const Case& c : cases) {
+        FakeV4l2System system;
+        FakeV4l2Config config = FakeV4l2Config::webcam();
+        if (c.gamma) config.controls.push_back(*c.gamma);
+        system.add("/dev/video0", config);
+        auto camera = openCamera(system);
+        ASSERT_TRUE(camera);
+        EXPECT_EQ(camera->responseSpec(), c.spec);
+        EXPECT_TRUE(ResponseCurve::parse(camera->responseSpec(), "."));
     }
 }
 
