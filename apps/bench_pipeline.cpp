@@ -319,7 +319,8 @@ Result<nlohmann::json> benchMatching(const Loaded& l, std::shared_ptr<const ligh
     const cv::Mat mask = cv::imread((l.sequence.root / "groundtruth/masks/virtual" / (stem + ".png")).string(), cv::IMREAD_GRAYSCALE);
     cv::Mat truth_bgr;
     for (const char* ext : {".png", ".jpg"}) {
-        if (truth_bgr.empty()) truth_bgr = cv::imread((l.sequence.root / "groundtruth/composite" / (stem + ext)).string());
+        const std::filesystem::path path = l.sequence.root / "groundtruth/composite" / (stem + ext);
+        if (truth_bgr.empty() && std::filesystem::exists(path)) truth_bgr = cv::imread(path.string());
     }
     std::optional<Rigid3d> world_from_cam = l.truth ? l.truth->atTimestamp(f.timestamp_ns) : std::nullopt;
     if (bgr.empty() || mask.empty() || truth_bgr.empty() || !world_from_cam) {
