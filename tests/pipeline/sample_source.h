@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <cstdio>
+#include <cstdlib>
 #include <atomic>
 #include <optional>
 #include <thread>
@@ -15,6 +17,7 @@
 #include "core/sequence_io.h"
 #include "pipeline/frame_loop.h"
 #include "pipeline/runner.h"
+#include "render/gl_context.h"
 #include "tests/test_support.h"
 
 namespace commonlight::pipeline {
@@ -87,6 +90,15 @@ private:
     std::array<Frame, 2> frames_;  // the loop gives a frame's slot back before it asks for the next
     std::atomic<std::thread::id> thread_{};
 };
+
+// Without any GL context (no EGL, no display) the test exits 77 (skip).
+inline void skipWithoutGl() {
+    auto context = render::GlContext::create({});
+    if (!context) {
+        std::fprintf(stderr, "skipped: no offscreen GL context: %s\n", context.error().message.c_str());
+        std::exit(77);
+    }
+}
 
 inline std::unique_ptr<FrameRunner> makeRunner(bool sync, bool lighting, bool composite = false) {
     if (sample().frames.empty() || !sample().sequence.sensor.camera) return nullptr;
