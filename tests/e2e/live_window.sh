@@ -22,8 +22,11 @@ xdotool key --window "$wid" s
 wait_for_log "screenshot: $TMP/screenshot-0.png" "$TMP/live.err"
 xdotool key --window "$wid" Tab Right Right Right Up d
 wait_for_log "view: proxies (wireframe)" "$TMP/live.err"
-xdotool key --window "$wid" d d d
-wait_for_log "view: tag detections" "$TMP/live.err"
+# One key at a time, each waited for.
+for view in "view: elements" "view: ratio" "view: tag detections"; do
+    xdotool key --window "$wid" d
+    wait_for_log "$view" "$TMP/live.err"
+done
 sleep 1
 xdotool key --window "$wid" s
 wait_for_log "screenshot: $TMP/screenshot-1.png" "$TMP/live.err"
