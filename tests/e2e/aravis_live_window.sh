@@ -20,12 +20,7 @@ wid=$(find_window "$pid") || { cat "$TMP/live.err"; fail "no commonlight window 
 wait_for_title "$wid" "| tracked |*| lighting v[1-9]" 240
 xdotool key --window "$wid" s
 wait_for_log "screenshot: $TMP/screenshot-0.png" "$TMP/live.err"
-kill -INT "$pid"
-set +e
-wait "$pid"
-code=$?
-set -e
-[[ $code == 130 ]] || { cat "$TMP/live.err"; fail "live ended with $code after Ctrl-C (expected 130)"; }
+ctrl_c_live "$pid"
 frames=$(json_get "$TMP/out/metrics.json" frames)
 (( $(json_get "$TMP/out/metrics.json" frames_with_pose) == frames )) || fail "not every frame tracked"
 [[ $(json_get "$TMP/out/metrics.json" frames_without_truth) == 0 ]] || fail "served frames that are not the recording's"

@@ -104,6 +104,18 @@ wait_for_log() {
     fail "waited $limit s for '$1' in $2"
 }
 
+# ctrl_c_live PID: Ctrl-C to a running `live` (started with its stderr in $TMP/live.err); it
+# must end with exit 130 (its metrics and recordings written).
+ctrl_c_live() {
+    kill -INT "$1"
+    local code
+    set +e
+    wait "$1"
+    code=$?
+    set -e
+    [[ $code == 130 ]] || { cat "$TMP/live.err"; fail "live ended with $code after Ctrl-C (expected 130)"; }
+}
+
 # count_of NAME COUNTS: the count named NAME in pngcheck.py's output COUNTS.
 count_of() { awk -v n="$1" '$1 == n {print $2}' <<<"$2"; }
 

@@ -18,12 +18,7 @@ xdotool key --window "$wid" s
 wait_for_log "screenshot: $TMP/screenshot-0.png" "$TMP/live.err"
 # No --frames (a fixed count could run out before the key is handled under load): Ctrl-C once the
 # screenshot is taken.
-kill -INT "$pid"
-set +e
-wait "$pid"
-code=$?
-set -e
-[[ $code == 130 ]] || { cat "$TMP/live.err"; fail "live ended with $code after Ctrl-C (expected 130)"; }
+ctrl_c_live "$pid"
 frames=$(json_get "$TMP/out/metrics.json" frames)
 (( frames >= 1 )) || fail "no frame taken"
 (( $(json_get "$TMP/out/metrics.json" frames_with_pose) >= frames - 1 )) || fail "simulated frames not tracked"

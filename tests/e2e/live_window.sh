@@ -40,12 +40,7 @@ for _ in $(seq 1 900); do
     [[ -f "$TMP/rec-2/cam0/data.csv" ]] && (( $(rows "$TMP/rec-2/cam0/data.csv") > 0 )) && break
     sleep 0.1
 done
-kill -INT "$pid"
-set +e
-wait "$pid"
-code=$?
-set -e
-[[ $code == 130 ]] || { cat "$TMP/live.err"; fail "live ended with $code after Ctrl-C (expected 130)"; }
+ctrl_c_live "$pid"
 expect_text "selected: " "$TMP/live.err"
 
 # screenshot-0: the composite view. The green virtual cube is there; the overlay's panel (white

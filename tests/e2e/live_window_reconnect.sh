@@ -36,12 +36,7 @@ for _ in $(seq 1 300); do
     (( $(rows "$TMP/out/poses.csv") > rows_before + 3 )) && break
     sleep 0.1
 done
-kill -INT "$pid"
-set +e
-wait "$pid"
-code=$?
-set -e
-[[ $code == 130 ]] || { cat "$TMP/live.err"; fail "live ended with $code after Ctrl-C (expected 130)"; }
+ctrl_c_live "$pid"
 (( $(rows "$TMP/out/poses.csv") > rows_before + 3 )) || fail "no frames after the reconnection"
 (( $(json_get "$TMP/out/metrics.json" reconnects) >= 1 )) || fail "no reconnection counted"
 expect_text "camera lost: replay:$TMP/seq" "$TMP/live.err"
