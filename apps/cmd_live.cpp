@@ -52,6 +52,7 @@ struct LiveOptions {
     double timeout_s = 5.0;
     bool edges = false;
     bool no_lighting = false;
+    bool full_frame = false;
     bool composite = false;    // --composite: headless runs composite offscreen too
     std::string screenshots;   // where key s writes (default: --out, else the current folder)
     std::string response;  // --response: overrides what the camera reports
@@ -146,6 +147,7 @@ int runLive(const LiveOptions& options) {
     runner_options.tracker.edges = options.edges;
     runner_options.ground_truth = truth ? &*truth : nullptr;
     runner_options.lighting = !options.no_lighting;
+    runner_options.tracker.tracking_mode = !options.full_frame;
     {
         const std::string spec = options.response.empty() ? (*camera)->responseSpec() : options.response;
         auto response = ResponseCurve::parse(spec, fs::current_path());
@@ -295,6 +297,7 @@ void addLiveCommand(CLI::App& app, Runner& runner) {
         ->capture_default_str();
     sub->add_flag("--edges", options->edges, "Refine the pose with the edges of the scene's proxy geometry");
     sub->add_flag("--no-lighting", options->no_lighting, "Track only; no lighting thread");
+    sub->add_flag("--full-frame", options->full_frame, "Detect tags over the whole of every frame (default: around the predicted tags, whole frame every 15)");
     sub->add_option("--response", options->response,
                     "The camera's response: srgb, linear, gamma:G or a response file (default: what the camera reports)");
     sub->footer("Exit codes: 0 ok, 2 usage, 3 bad input, 4 device error (after the reconnection attempts), 130 Ctrl-C");

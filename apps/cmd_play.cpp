@@ -40,6 +40,7 @@ struct PlayOptions {
     bool sync = false;
     bool no_track = false;
     bool no_lighting = false;
+    bool full_frame = false;
     std::string response;  // --response: overrides sensor.yaml's
     std::size_t slots = 4;
 };
@@ -109,6 +110,7 @@ int runPlay(const PlayOptions& options) {
         pipeline::RunnerOptions runner_options;
         runner_options.sync = options.sync;
         runner_options.lighting = !options.no_lighting;
+        runner_options.tracker.tracking_mode = !options.full_frame;
         runner_options.ground_truth = truth ? &*truth : nullptr;
         runner_options.sequence = &camera->sequence();
         runner_options.response = *response;
@@ -254,6 +256,7 @@ void addPlayCommand(CLI::App& app, Runner& runner) {
                   "Process every frame in order as fast as possible (deterministic), instead of at the recorded rate");
     sub->add_flag("--no-track", options->no_track, "Capture and convert only; no tracking (and so no lighting)");
     sub->add_flag("--no-lighting", options->no_lighting, "Track only; no lighting thread");
+    sub->add_flag("--full-frame", options->full_frame, "Detect tags over the whole of every frame (default: around the predicted tags, whole frame every 15)");
     sub->add_option("--response", options->response,
                     "The camera's response: srgb, linear, gamma:G or a response file (default: sensor.yaml's)");
     sub->add_option("--slots", options->slots, "Frame pool slots")->check(CLI::Range(3, 64))->capture_default_str();
