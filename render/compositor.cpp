@@ -53,7 +53,7 @@ constexpr float kNoIdeal = -1e6f;   // a camera pixel with no ideal position ins
 
 // Texture units of the final pass and of the virtual objects' program.
 enum FinalUnit : int { kUnitFrame = 0, kUnitFrameUv, kUnitUndistort, kUnitProxyAtlas, kUnitAtlasM, kUnitAtlasD, kUnitAtlasO, kUnitLayerV };
-enum VirtualUnit : int { kUnitShadowMaps = 3, kUnitSh = 4, kUnitBaseColour = 5 };
+enum VirtualUnit : int { kUnitShadowMaps = 3, kUnitSh = 4, kUnitBaseColour = 5, kUnitStaticShadowMaps = 6 };
 
 GLuint floatTexture(int width, int height, GLenum internal, GLenum format, const float* data, GLenum filter) {
     const GLuint t = gl::newTexture();
@@ -90,6 +90,58 @@ struct Rect {
     void scissor() const { glScissor(x0, y0, x1 - x0 + 1, y1 - y0 + 1); }
 };
 
+// The smallest rectangle around both.
+Rect unite(const Rect& a, const Rect& b) {
+    if (a.empty()) return b;
+    if (b.empty()) return a;
+    return Rect{std::min(a.x0, b.x0), std::min(a.y0, b.y0), std::max(a.x1, b.x1), std::max(a.y1, b.y1)};
+}
+
+// Shadow maps as tiles of one depth texture, drawn in one pass (llvmpipe flushes its work at every
+// change of render target).
+struct ShadowAtlas {
+    GLuint fbo = 0, texture = 0;
+    int tiles = 0, cols = 0, rows = 0, size = 0;
+    std::vector<float> key;  // what the maps were drawn for (views, poses); empty: nothing
+
+    // Room for `n` maps of `size` texels per side (reallocated, and so to be drawn, when it grows).
+    void ensure(int n, int map_size) {
+        if (n <= tiles && map_size == size) return;
+        rows = std::max(1, static_cast<int>(std::floor(std::sqrt(static_cast<double>(n)))));
+        cols = (n + rows - 1) / rows;  // 8 maps: 4 x 2
+        tiles = rows * cols;
+        size = map_size;
+        gl::deleteTexture(texture);
+        texture = gl::newTexture();
+        glBindTexture(GL_TEXTURE_2D, texture);
+        glTexImage2D(GL_TEXTURE_2D, 0, GL_DEPTH_COMPONENT24, cols * size, rows * size, 0, GL_DEPTH_COMPONENT, GL_FLOAT, nullptr);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_COMPARE_MODE, GL_COMPARE_REF_TO_TEXTURE);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_COMPARE_FUNC, GL_LEQUAL);
+        glBindTexture(GL_TEXTURE_2D, 0);
+        if (fbo == 0) fbo = gl::newFramebuffer();
+        glBindFramebuffer(GL_FRAMEBUFFER, fbo);
+        glFramebufferTexture2D(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_TEXTURE_2D, texture, 0);
+        glDrawBuffer(GL_NONE);
+        glReadBuffer(GL_NONE);
+        key.clear();
+    }
+    // Map `layer`'s tile in texture coordinates: offset, scale.
+    Eigen::Vector4f tile(int layer) const {
+        if (cols == 0) return Eigen::Vector4f::Zero();
+        return Eigen::Vector4f(static_cast<float>(layer % cols) / static_cast<float>(cols), static_cast<float>(layer / cols) / static_cast<float>(rows),
+                               1.0f / static_cast<float>(cols), 1.0f / static_cast<float>(rows));
+    }
+    void release() {
+        gl::deleteTexture(texture);
+        gl::deleteFramebuffer(fbo);
+        *this = ShadowAtlas{};
+    }
+};
+
 struct SceneProgram {  // shadow (depth only) and line programs
     GLuint id = 0;
     GLint model = -1, view_proj = -1, colour = -1, line = -1;
@@ -103,7 +155,7 @@ struct ProxyProgram {
 struct VirtualProgram {
     GLuint id = 0;
     GLint model = -1, view_proj = -1, albedo = -1, emission = -1, ambient = -1, camera_centre = -1, samples = -1;
-    GLint kind = -1, position = -1, axis = -1, power = -1, shadow_layer = -1, shadow_vp = -1;
+    GLint kind = -1, position = -1, axis = -1, power = -1, shadow_layer = -1, shadow_vp = -1, static_vp = -1, shadow_tile = -1, shadow_inset = -1;
     GLint has_sh = -1, bmin = -1, bmax = -1, sh_scale = -1, sh_offset = -1, sh_depth = -1, has_texture = -1;
 };
 
@@ -168,9 +220,14 @@ struct Compositor::Impl {
     GLuint resolve_fbo = 0, resolve_texture = 0;
     GLuint layer_v = 0;  // what the final pass reads as the virtual layer this frame
     GLuint output_fbo = 0, output_texture = 0;
-    GLuint shadow_fbo = 0, shadow_maps = 0;
-    int shadow_layers = 0, shadow_size = 0;
-    std::vector<float> shadow_key;  // what the shadow maps were rendered for (light views, object poses)
+    // The shadow maps as tiles of one depth texture (drawn in one pass: llvmpipe flushes at every
+    // change of render target, which cost more than the drawing when each map was a layer).
+    // Two sets: the virtual objects' (fitted to their bounds, drawn again when they move) and the
+    // real proxies' (which do not move: fitted to a sphere around the objects' 1.5 times as large,
+    // kept while they move inside it).
+    ShadowAtlas virtual_shadows, real_shadows;
+    Eigen::Vector3d real_shadow_centre = Eigen::Vector3d::Zero();
+    double real_shadow_radius = 0.0;
     SnapshotTextures snapshot_textures;
 
     // Camera matching: the last measurement, the frame as RGB8 when it came as YUV, the blur passes.
@@ -211,9 +268,11 @@ struct Compositor::Impl {
     void makeUndistortMap();
     Rect layerRect(const std::vector<std::optional<Eigen::Matrix4f>>& models, const Eigen::Matrix4d& cam_from_world, double margin) const;
     Rect cameraRect(const Rect& layer) const;
+    Rect layerRectOfCamera(const Rect& camera) const;
+    Rect influenceRect(const Eigen::Matrix4d& cam_from_world) const;
     void renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
                           const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax);
-    void drawProxies(const Eigen::Matrix4f& view_proj);
+    void drawProxies(const Eigen::Matrix4f& view_proj, const Rect& rect);
     void drawProxyDepth();
     void drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn, const Eigen::Matrix4f& view_proj, const Eigen::Vector3f& camera_centre,
                           const std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
@@ -274,6 +333,9 @@ Result<void> Compositor::Impl::makePrograms() {
     vp.power = loc(vp.id, "u_power");
     vp.shadow_layer = loc(vp.id, "u_shadow_layer");
     vp.shadow_vp = loc(vp.id, "u_shadow_vp");
+    vp.static_vp = loc(vp.id, "u_static_vp");
+    vp.shadow_tile = loc(vp.id, "u_shadow_tile");
+    vp.shadow_inset = loc(vp.id, "u_shadow_inset");
     vp.has_sh = loc(vp.id, "u_has_sh");
     vp.bmin = loc(vp.id, "u_bmin");
     vp.bmax = loc(vp.id, "u_bmax");
@@ -283,6 +345,7 @@ Result<void> Compositor::Impl::makePrograms() {
     vp.has_texture = loc(vp.id, "u_has_texture");
     glUseProgram(vp.id);
     glUniform1i(loc(vp.id, "u_shadow_maps"), kUnitShadowMaps);
+    glUniform1i(loc(vp.id, "u_static_maps"), kUnitStaticShadowMaps);
     glUniform1i(loc(vp.id, "u_sh"), kUnitSh);
     glUniform1i(loc(vp.id, "u_base_colour"), kUnitBaseColour);
     glUniform1f(vp.sh_depth, 1.0f / 9.0f);
@@ -499,6 +562,68 @@ Rect Compositor::Impl::layerRect(const std::vector<std::optional<Eigen::Matrix4f
     return r;
 }
 
+// The layer pixels (GL rows) that the final pass can read for the camera pixels of `pixels`
+// (whole blocks): their ideal positions, and the neighbours the filtering reads, 2 pixels around.
+Rect Compositor::Impl::layerRectOfCamera(const Rect& pixels) const {
+    Rect r{1 << 30, 1 << 30, -1, -1};
+    if (pixels.empty()) return Rect{};
+    for (int by = std::max(0, pixels.y0 / kBlock); by <= std::min(blocks_y - 1, pixels.y1 / kBlock); ++by) {
+        for (int bx = std::max(0, pixels.x0 / kBlock); bx <= std::min(blocks_x - 1, pixels.x1 / kBlock); ++bx) {
+            const Eigen::Vector4f& b = block_bounds[static_cast<std::size_t>(by * blocks_x + bx)];
+            if (b[0] > b[2]) continue;  // no pixel of the block has an ideal position
+            r.x0 = std::min(r.x0, static_cast<int>(std::floor(b[0])) - 2);
+            r.y0 = std::min(r.y0, static_cast<int>(std::floor(b[1])) - 2);
+            r.x1 = std::max(r.x1, static_cast<int>(std::floor(b[2])) + 2);
+            r.y1 = std::max(r.y1, static_cast<int>(std::floor(b[3])) + 2);
+        }
+    }
+    if (r.x1 < 0) return Rect{};
+    return Rect{std::max(0, r.x0), std::max(0, r.y0), std::min(layer_width - 1, r.x1), std::min(layer_height - 1, r.y1)};
+}
+
+// The layer pixels (GL rows) where the snapshot's modulation can change the frame: the influenced
+// part of every face (SnapshotTextures), clipped at the camera's near plane and projected, with 2
+// pixels for the filtering. Empty when the snapshot changes nothing.
+Rect Compositor::Impl::influenceRect(const Eigen::Matrix4d& cam_from_world) const {
+    constexpr double kNear = 0.01;
+    double x0 = 1e30, y0 = 1e30, x1 = -1e30, y1 = -1e30;
+    for (const auto& [key, face] : snapshot_textures.faces()) {
+        const Eigen::Vector4f& in = face.influence;
+        if (in[0] > in[2] || in[1] > in[3]) continue;
+        const Eigen::Vector2f st[4] = {{in[0], in[1]}, {in[2], in[1]}, {in[2], in[3]}, {in[0], in[3]}};
+        std::array<Eigen::Vector3d, 4> c;
+        for (int k = 0; k < 4; ++k) {
+            const Eigen::Vector3f w = face.c0 + st[k].x() * face.e1 + st[k].y() * face.e2;
+            c[static_cast<std::size_t>(k)] = (cam_from_world * Eigen::Vector4d(w.x(), w.y(), w.z(), 1.0)).head<3>();
+        }
+        // The quad's part in front of the near plane (Sutherland-Hodgman against one plane).
+        std::vector<Eigen::Vector3d> kept;
+        for (std::size_t k = 0; k < 4; ++k) {
+            const Eigen::Vector3d& a = c[k];
+            const Eigen::Vector3d& b = c[(k + 1) % 4];
+            if (a.z() >= kNear) kept.push_back(a);
+            if ((a.z() >= kNear) != (b.z() >= kNear)) kept.push_back(a + (b - a) * ((kNear - a.z()) / (b.z() - a.z())));
+        }
+        for (const Eigen::Vector3d& p : kept) {
+            const double u = layer_camera.fx * p.x() / p.z() + layer_camera.cx;
+            const double v = layer_camera.fy * p.y() / p.z() + layer_camera.cy;
+            if (!std::isfinite(u) || !std::isfinite(v)) return Rect{0, 0, layer_width - 1, layer_height - 1};
+            x0 = std::min(x0, u);
+            x1 = std::max(x1, u);
+            y0 = std::min(y0, v);
+            y1 = std::max(y1, v);
+        }
+    }
+    if (x0 > x1) return Rect{};
+    // Image rows (down) to GL rows (up).
+    Rect r;
+    r.x0 = static_cast<int>(std::max(0.0, std::floor(std::max(-1.0, x0) - 2.0)));
+    r.x1 = static_cast<int>(std::min(layer_width - 1.0, std::ceil(std::min(1e6, x1) + 2.0)));
+    r.y0 = static_cast<int>(std::max(0.0, std::floor(layer_height - 1.0 - std::min(1e6, y1) - 2.0)));
+    r.y1 = static_cast<int>(std::min(layer_height - 1.0, std::ceil(layer_height - 1.0 - std::max(-1.0, y0) + 2.0)));
+    return r;
+}
+
 // The camera pixels whose ideal positions can fall in a layer rectangle (whole blocks; output
 // rows are image rows).
 Rect Compositor::Impl::cameraRect(const Rect& layer) const {
@@ -522,68 +647,82 @@ Rect Compositor::Impl::cameraRect(const Rect& layer) const {
 void Compositor::Impl::renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
                                         const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax) {
     fitShadowViews(samples, vmin, vmax);
-    const int layers = static_cast<int>(samples.size());
+    const Eigen::Vector3d centre = 0.5 * (vmin + vmax);
+    const double radius = std::max(0.5 * (vmax - vmin).norm(), 1e-3);
+    // The real proxies' maps: refitted when the objects leave their sphere, or have become so much
+    // smaller that its texels are too coarse for them.
+    if (!(real_shadow_radius > 0.0) || (centre - real_shadow_centre).norm() + radius > real_shadow_radius || radius < real_shadow_radius / 3.0) {
+        real_shadow_centre = centre;
+        real_shadow_radius = 1.5 * radius;
+    }
+    for (LightSample& s : samples) s.static_view_proj = shadowView(s, real_shadow_centre, real_shadow_radius);
+    const int n = std::max(static_cast<int>(samples.size()), 1);
     const int size = std::clamp(options.shadow_map_size, 64, 4096);
-    if (layers > shadow_layers || size != shadow_size) {
-        gl::deleteTexture(shadow_maps);
-        shadow_maps = gl::newTexture();
-        glBindTexture(GL_TEXTURE_2D_ARRAY, shadow_maps);
-        glTexImage3D(GL_TEXTURE_2D_ARRAY, 0, GL_DEPTH_COMPONENT24, size, size, std::max(layers, 1), 0, GL_DEPTH_COMPONENT, GL_FLOAT, nullptr);
-        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_COMPARE_MODE, GL_COMPARE_REF_TO_TEXTURE);
-        glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_COMPARE_FUNC, GL_LEQUAL);
-        shadow_layers = std::max(layers, 1);
-        shadow_size = size;
-        shadow_key.clear();
-    }
-    // The maps depend only on the light samples' views and the virtual objects' poses (the real
-    // proxies do not move): unchanged since the last frame, they are reused.
-    std::vector<float> key;
-    for (const LightSample& s : samples) key.insert(key.end(), s.view_proj.data(), s.view_proj.data() + 16);
-    for (const auto& m : models) {
-        if (m) key.insert(key.end(), m->data(), m->data() + 16);
-        key.push_back(m ? 1.0f : 0.0f);
-    }
-    key.push_back(static_cast<float>(shadow_size));
-    if (key == shadow_key) return;
-    shadow_key = std::move(key);
-    glUseProgram(shadow_program.id);
-    glBindFramebuffer(GL_FRAMEBUFFER, shadow_fbo);
-    glDrawBuffer(GL_NONE);
-    glReadBuffer(GL_NONE);
-    glViewport(0, 0, shadow_size, shadow_size);
-    glEnable(GL_DEPTH_TEST);
-    glDepthFunc(GL_LESS);
-    glDepthMask(GL_TRUE);
-    glDisable(GL_CULL_FACE);
-    glEnable(GL_POLYGON_OFFSET_FILL);
-    glPolygonOffset(2.0f, 4.0f);
+    real_shadows.ensure(n, size);
+    virtual_shadows.ensure(n, size);
+    std::vector<float> real_key, virtual_key;
     for (const LightSample& s : samples) {
-        glFramebufferTextureLayer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, shadow_maps, 0, s.layer);
-        glClear(GL_DEPTH_BUFFER_BIT);
-        setMat4(shadow_program.view_proj, s.view_proj);
-        const auto draw = [&](const GpuMesh& mesh, const Eigen::Matrix4f& model) {
-            setMat4(shadow_program.model, model);
-            glBindVertexArray(mesh.vao);
-            for (const MeshPart& part : mesh.parts) drawPart(part);
-        };
-        for (std::size_t i = 0; i < real_meshes.size(); ++i) draw(real_meshes[i], real_models[i]);
-        for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
-            if (models[i]) draw(virtual_meshes[i], *models[i]);
-        }
+        real_key.insert(real_key.end(), s.static_view_proj.data(), s.static_view_proj.data() + 16);
+        virtual_key.insert(virtual_key.end(), s.view_proj.data(), s.view_proj.data() + 16);
     }
-    glBindVertexArray(0);
-    glDisable(GL_POLYGON_OFFSET_FILL);
+    for (const auto& m : models) {
+        if (m) virtual_key.insert(virtual_key.end(), m->data(), m->data() + 16);
+        virtual_key.push_back(m ? 1.0f : 0.0f);
+    }
+    real_key.push_back(static_cast<float>(size));
+    virtual_key.push_back(static_cast<float>(size));
+    const auto draw = [&](ShadowAtlas& atlas, bool real) {
+        glUseProgram(shadow_program.id);
+        glBindFramebuffer(GL_FRAMEBUFFER, atlas.fbo);
+        glViewport(0, 0, atlas.cols * atlas.size, atlas.rows * atlas.size);
+        glDisable(GL_SCISSOR_TEST);
+        glDepthMask(GL_TRUE);
+        glClear(GL_DEPTH_BUFFER_BIT);
+        glEnable(GL_SCISSOR_TEST);
+        glEnable(GL_DEPTH_TEST);
+        glDepthFunc(GL_LESS);
+        glDisable(GL_CULL_FACE);
+        glEnable(GL_POLYGON_OFFSET_FILL);
+        glPolygonOffset(2.0f, 4.0f);
+        for (const LightSample& s : samples) {
+            const int x = (s.layer % atlas.cols) * atlas.size, y = (s.layer / atlas.cols) * atlas.size;
+            glViewport(x, y, atlas.size, atlas.size);
+            glScissor(x, y, atlas.size, atlas.size);
+            setMat4(shadow_program.view_proj, real ? s.static_view_proj : s.view_proj);
+            const auto drawMesh = [&](const GpuMesh& mesh, const Eigen::Matrix4f& model) {
+                setMat4(shadow_program.model, model);
+                glBindVertexArray(mesh.vao);
+                for (const MeshPart& part : mesh.shadow_parts.empty() ? mesh.parts : mesh.shadow_parts) drawPart(part);
+            };
+            if (real) {
+                for (std::size_t i = 0; i < real_meshes.size(); ++i) drawMesh(real_meshes[i], real_models[i]);
+            } else {
+                for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
+                    if (models[i]) drawMesh(virtual_meshes[i], *models[i]);
+                }
+            }
+        }
+        glBindVertexArray(0);
+        glDisable(GL_POLYGON_OFFSET_FILL);
+        glDisable(GL_SCISSOR_TEST);
+    };
+    if (real_key != real_shadows.key) {
+        real_shadows.key = std::move(real_key);
+        draw(real_shadows, true);
+    }
+    if (virtual_key != virtual_shadows.key) {
+        virtual_shadows.key = std::move(virtual_key);
+        draw(virtual_shadows, false);
+    }
 }
 
 // The real proxies, single-sampled over the whole layer: each pixel gets the atlas coordinates of
 // the modulation of the surface it sees (depth-tested among the proxies).
-void Compositor::Impl::drawProxies(const Eigen::Matrix4f& view_proj) {
+void Compositor::Impl::drawProxies(const Eigen::Matrix4f& view_proj, const Rect& rect) {
     glBindFramebuffer(GL_FRAMEBUFFER, proxy_fbo);
     glViewport(0, 0, layer_width, layer_height);
+    glEnable(GL_SCISSOR_TEST);
+    rect.scissor();
     const float none[4] = {1.0f, 1.0f, 1.0f, 1.0f};
     glClearBufferfv(GL_COLOR, 0, none);
     glDepthMask(GL_TRUE);
@@ -616,6 +755,7 @@ void Compositor::Impl::drawProxies(const Eigen::Matrix4f& view_proj) {
     }
     glBindVertexArray(0);
     glDisable(GL_DEPTH_TEST);
+    glDisable(GL_SCISSOR_TEST);
 }
 
 // The proxies' depth (only) in the bound framebuffer, for real objects to hide virtual ones.
@@ -710,9 +850,23 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
         glUniform3fv(vp.axis, n, axes.data());
         glUniform3fv(vp.power, n, powers.data());
         glUniformMatrix4fv(vp.shadow_vp, n, GL_FALSE, matrices.data());
+        // The real proxies' views, and each sample's tile (the same in both atlases).
+        std::array<float, 4 * kMaxLightSamples> tiles{};
+        for (int k = 0; k < n; ++k) {
+            const LightSample& s = samples[static_cast<std::size_t>(k)];
+            const std::size_t i = static_cast<std::size_t>(k);
+            std::copy(s.static_view_proj.data(), s.static_view_proj.data() + 16, matrices.begin() + static_cast<std::ptrdiff_t>(16 * i));
+            const Eigen::Vector4f t = s.layer >= 0 ? virtual_shadows.tile(s.layer) : Eigen::Vector4f::Zero();
+            std::copy(t.data(), t.data() + 4, tiles.begin() + static_cast<std::ptrdiff_t>(4 * i));
+        }
+        glUniformMatrix4fv(vp.static_vp, n, GL_FALSE, matrices.data());
+        glUniform4fv(vp.shadow_tile, n, tiles.data());
+        glUniform1f(vp.shadow_inset, virtual_shadows.size > 0 ? 0.5f / static_cast<float>(virtual_shadows.size) : 0.0f);
     }
+    glActiveTexture(GL_TEXTURE0 + kUnitStaticShadowMaps);
+    glBindTexture(GL_TEXTURE_2D, real_shadows.texture);
     glActiveTexture(GL_TEXTURE0 + kUnitShadowMaps);
-    glBindTexture(GL_TEXTURE_2D_ARRAY, shadow_maps);
+    glBindTexture(GL_TEXTURE_2D, virtual_shadows.texture);
     const double scale = snapshot.radiance_scale > 0.0 && std::isfinite(snapshot.radiance_scale) ? snapshot.radiance_scale : 1.0;
     for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
         if (!models[i]) continue;
@@ -888,8 +1042,8 @@ void Compositor::Impl::releaseAll() {
     gl::deleteFramebuffer(proxy_fbo);
     gl::deleteTexture(output_texture);
     gl::deleteFramebuffer(output_fbo);
-    gl::deleteTexture(shadow_maps);
-    gl::deleteFramebuffer(shadow_fbo);
+    virtual_shadows.release();
+    real_shadows.release();
     for (GpuMesh& m : real_meshes) releaseMesh(m);
     for (GpuMesh& m : virtual_meshes) releaseMesh(m);
     gl::deleteVertexArray(empty_vao);
@@ -1002,7 +1156,6 @@ Result<std::unique_ptr<Compositor>> Compositor::create(GlContext& context, const
     if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
         return fail(ErrorCode::kDevice, "render: the GL cannot make the output framebuffer");
     }
-    d.shadow_fbo = gl::newFramebuffer();
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
     return compositor;
 }
@@ -1171,7 +1324,9 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     // Step 4: the real proxies (atlas coordinates of their modulation) and the virtual layer, in
     // the undistorted image.
     const bool modulated = posed && d.snapshot_textures.modulates();
-    Rect layer_rect;
+    const bool debug_modulation = d.options.debug == DebugView::kElements || d.options.debug == DebugView::kRatio;
+    Rect layer_rect, camera_rect, virtual_camera_rect;
+    bool proxies_drawn = false;
     if (posed) {
         // GL camera: x right, y up, looking along -z.
         Eigen::Matrix4d cam_from_world = Eigen::Matrix4d::Identity();
@@ -1182,31 +1337,46 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
         view.row(2) *= -1.0;
         const Eigen::Matrix4f view_proj = (d.layer_camera.glProjection(0.01, 100.0) * view).cast<float>();
         const Eigen::Vector3f camera_centre = frame.cam_from_world->inverse().translation.cast<float>();
-        if (modulated) d.drawProxies(view_proj);
-
-        d.mark("proxies");
+        const Rect full_layer{0, 0, d.layer_width - 1, d.layer_height - 1};
         layer_rect = d.options.debug == DebugView::kProxyWireframe
-                         ? Rect{0, 0, d.layer_width - 1, d.layer_height - 1}
+                         ? full_layer
                          : d.layerRect(virtual_model, cam_from_world, 2.0 + (added_blur > 0.05 ? std::ceil(3.0 * added_blur) : 0.0));
+        // The modulation only where the snapshot changes something (the debug views show it all);
+        // elsewhere the final pass copies the frame's codes. The proxies are drawn where the final
+        // pass reads them and under the virtual objects (their depth hides them).
+        Rect modulation_rect;
+        if (modulated) modulation_rect = debug_modulation ? full_layer : d.influenceRect(cam_from_world);
+        virtual_camera_rect = d.cameraRect(layer_rect);
+        camera_rect = unite(virtual_camera_rect, d.cameraRect(modulation_rect));
+        const Rect proxy_rect = unite(unite(d.layerRectOfCamera(camera_rect), layer_rect), modulation_rect);
+        proxies_drawn = modulated && !camera_rect.empty() && !proxy_rect.empty();
+        if (proxies_drawn) d.drawProxies(view_proj, proxy_rect);
+        d.mark("proxies");
         if (!layer_rect.empty()) {
-            d.drawVirtualLayer(layer_rect, modulated, view_proj, camera_centre, samples, virtual_model, snapshot, eg);
+            d.drawVirtualLayer(layer_rect, proxies_drawn, view_proj, camera_centre, samples, virtual_model, snapshot, eg);
             if (added_blur > 0.05) CL_TRY_VOID(d.blurLayer(layer_rect, added_blur));
         }
         d.mark("virtual layer");
     }
 
     // Step 5: the final pass at each camera pixel, the virtual layer read only where it can show.
-    int bits = format == PixelFormat::kYuyv ? kFinalYuyv : format == PixelFormat::kNv12 ? kFinalNv12 : 0;
-    if (modulated) {
-        bits |= kFinalModulation;
-        if (d.options.debug == DebugView::kElements) bits |= kFinalElements;
-        if (d.options.debug == DebugView::kRatio) bits |= kFinalRatio;
+    // Three nested regions: outside `camera_rect` the frame's codes as they are (converted from
+    // YUV); in it, the modulation (where the proxies were drawn); in `virtual_camera_rect`, also
+    // the virtual layer. Each program reads only what its region needs.
+    const int bits = format == PixelFormat::kYuyv ? kFinalYuyv : format == PixelFormat::kNv12 ? kFinalNv12 : 0;
+    int modulation_bits = bits;
+    if (proxies_drawn) {
+        modulation_bits |= kFinalModulation;
+        if (d.options.debug == DebugView::kElements) modulation_bits |= kFinalElements;
+        if (d.options.debug == DebugView::kRatio) modulation_bits |= kFinalRatio;
     }
-    const Rect camera_rect = d.cameraRect(layer_rect);
-    CL_TRY(const FinalProgram* outside, d.finalProgram(bits));
-    const FinalProgram* inside = nullptr;
-    if (!camera_rect.empty()) {
-        CL_TRY(inside, d.finalProgram(bits | kFinalVirtual | (matching ? kFinalNoise : 0)));
+    const int virtual_bits = modulation_bits | kFinalVirtual | (matching ? kFinalNoise : 0);
+    if (layer_rect.empty()) virtual_camera_rect = Rect{};
+    CL_TRY(const FinalProgram* plain, d.finalProgram(bits));
+    CL_TRY(const FinalProgram* modulating, d.finalProgram(modulation_bits));
+    const FinalProgram* with_virtual = nullptr;
+    if (!virtual_camera_rect.empty()) {
+        CL_TRY(with_virtual, d.finalProgram(virtual_bits));
     }
     glBindFramebuffer(GL_FRAMEBUFFER, d.output_fbo);
     const GLenum out0 = GL_COLOR_ATTACHMENT0;
@@ -1239,27 +1409,39 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
             glUniform1ui(p.seed, static_cast<GLuint>(d.frames_drawn & 0xffffffffu));
         }
     };
-    glBindVertexArray(d.empty_vao);
-    setUniforms(*outside);
-    if (camera_rect.empty()) {
-        glDrawArrays(GL_TRIANGLES, 0, 3);
-    } else {
-        // Around the rectangle: up to four bands; in it, the variant that reads the virtual layer.
-        glEnable(GL_SCISSOR_TEST);
-        const Rect bands[4] = {{0, 0, d.width - 1, camera_rect.y0 - 1},
-                               {0, camera_rect.y1 + 1, d.width - 1, d.height - 1},
-                               {0, camera_rect.y0, camera_rect.x0 - 1, camera_rect.y1},
-                               {camera_rect.x1 + 1, camera_rect.y0, d.width - 1, camera_rect.y1}};
+    // `outer` less `inner` (inside it, or empty) as up to four bands.
+    const auto drawAround = [](const Rect& outer, const Rect& inner) {
+        if (outer.empty()) return;
+        if (inner.empty()) {
+            outer.scissor();
+            glDrawArrays(GL_TRIANGLES, 0, 3);
+            return;
+        }
+        const Rect bands[4] = {{outer.x0, outer.y0, outer.x1, inner.y0 - 1},
+                               {outer.x0, inner.y1 + 1, outer.x1, outer.y1},
+                               {outer.x0, inner.y0, inner.x0 - 1, inner.y1},
+                               {inner.x1 + 1, inner.y0, outer.x1, inner.y1}};
         for (const Rect& band : bands) {
             if (band.empty()) continue;
             band.scissor();
             glDrawArrays(GL_TRIANGLES, 0, 3);
         }
-        setUniforms(*inside);
-        camera_rect.scissor();
-        glDrawArrays(GL_TRIANGLES, 0, 3);
-        glDisable(GL_SCISSOR_TEST);
+    };
+    glBindVertexArray(d.empty_vao);
+    glEnable(GL_SCISSOR_TEST);
+    const Rect frame_rect{0, 0, d.width - 1, d.height - 1};
+    const Rect modulation_camera_rect = modulation_bits != bits ? unite(camera_rect, virtual_camera_rect) : virtual_camera_rect;
+    setUniforms(*plain);
+    drawAround(frame_rect, modulation_camera_rect);
+    if (modulation_bits != bits) {
+        setUniforms(*modulating);
+        drawAround(modulation_camera_rect, virtual_camera_rect);
     }
+    if (with_virtual) {
+        setUniforms(*with_virtual);
+        drawAround(virtual_camera_rect, Rect{});
+    }
+    glDisable(GL_SCISSOR_TEST);
     glBindVertexArray(0);
     glActiveTexture(GL_TEXTURE0);
     d.mark("final pass");

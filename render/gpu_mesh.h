@@ -36,6 +36,7 @@ struct GpuMaterial {
 struct GpuMesh {
     GLuint vao = 0, vbo = 0, ebo = 0;
     std::vector<MeshPart> parts;
+    std::vector<MeshPart> shadow_parts;  // what shadow maps draw instead of `parts` (empty: `parts`)
     std::vector<GpuMaterial> materials;
     Eigen::Vector3d bmin = Eigen::Vector3d::Constant(1e30), bmax = Eigen::Vector3d::Constant(-1e30);  // object frame
     int index_count = 0;

@@ -104,31 +104,36 @@ std::vector<LightSample> lightSamples(const lighting::LightingSnapshot& snapshot
     return samples;
 }
 
+Eigen::Matrix4f shadowView(const LightSample& s, const Eigen::Vector3d& centre, double radius) {
+    radius = std::max(radius, 1e-3);
+    Eigen::Matrix4d vp;
+    if (s.kind == 2) {
+        const double back = radius + 10.0;
+        vp = orthographic(radius * 1.05, 0.0, back + radius * 1.05) * lookAt(centre - s.axis * back, centre);
+    } else {
+        const double dist = (centre - s.position).norm();
+        if (dist > radius * 1.05) {
+            // The sphere, seen from the light; nothing beyond its far side can shadow it.
+            const double half = std::asin(std::min(0.99, radius * 1.05 / dist));
+            vp = perspective(half, std::max(0.01, 0.02 * dist), dist + 1.05 * radius) * lookAt(s.position, centre);
+        } else {
+            // Hard case: the light is among the objects. A wide frustum along its axis (area,
+            // disc) or towards the objects (point).
+            Eigen::Vector3d axis = s.kind == 0 ? s.axis
+                                               : (dist > 1e-6 ? Eigen::Vector3d(centre - s.position) : Eigen::Vector3d(-Eigen::Vector3d::UnitZ()));
+            axis.normalize();
+            vp = perspective(75.0 * std::numbers::pi / 180.0, 0.01, dist + 2.0 * radius) * lookAt(s.position, s.position + axis);
+        }
+    }
+    return vp.cast<float>();
+}
+
 void fitShadowViews(std::vector<LightSample>& samples, const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax) {
     const Eigen::Vector3d centre = 0.5 * (vmin + vmax);
     const double radius = std::max(0.5 * (vmax - vmin).norm(), 1e-3);
     int layers = 0;
     for (LightSample& s : samples) {
-        Eigen::Matrix4d vp;
-        if (s.kind == 2) {
-            const double back = radius + 10.0;
-            vp = orthographic(radius * 1.05, 0.0, back + radius) * lookAt(centre - s.axis * back, centre);
-        } else {
-            const double dist = (centre - s.position).norm();
-            if (dist > radius * 1.05) {
-                // The objects' bounding sphere, seen from the light.
-                const double half = std::asin(std::min(0.99, radius * 1.05 / dist));
-                vp = perspective(half, std::max(0.01, 0.02 * dist), dist + 2.0 * radius) * lookAt(s.position, centre);
-            } else {
-                // Hard case: the light is among the objects. A wide frustum along its axis (area,
-                // disc) or towards the objects (point).
-                Eigen::Vector3d axis = s.kind == 0 ? s.axis
-                                                   : (dist > 1e-6 ? Eigen::Vector3d(centre - s.position) : Eigen::Vector3d(-Eigen::Vector3d::UnitZ()));
-                axis.normalize();
-                vp = perspective(75.0 * std::numbers::pi / 180.0, 0.01, dist + 2.0 * radius) * lookAt(s.position, s.position + axis);
-            }
-        }
-        s.view_proj = vp.cast<float>();
+        s.view_proj = shadowView(s, centre, radius);
         s.layer = layers++;
     }
 }

@@ -19,7 +19,8 @@ struct LightSample {
     Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();     // 0: the emitting normal; 2: the direction light travels
     Eigen::Vector3d power = Eigen::Vector3d::Zero();     // relative: L A / n (area), I (point), E (directional)
     int layer = -1;                                      // shadow map layer, -1: none
-    Eigen::Matrix4f view_proj = Eigen::Matrix4f::Identity();  // world -> the shadow map's clip space
+    Eigen::Matrix4f view_proj = Eigen::Matrix4f::Identity();  // world -> the shadow map's clip space (virtual objects)
+    Eigen::Matrix4f static_view_proj = Eigen::Matrix4f::Identity();  // world -> the real proxies' shadow map's clip space
 };
 
 // The snapshot's lights with a positive finite emission, scaled by its radiance_scale to relative
@@ -31,6 +32,10 @@ std::vector<LightSample> lightSamples(const lighting::LightingSnapshot& snapshot
 // [vmin, vmax] (world): a perspective frustum around their bounding sphere, an orthographic box for
 // directional light, or, for a light among the objects, a 150-degree frustum along its axis.
 void fitShadowViews(std::vector<LightSample>& samples, const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax);
+
+// The view of one sample's shadow map that covers the sphere (centre, radius): up to its far side
+// (what lies beyond cannot shadow anything in it).
+Eigen::Matrix4f shadowView(const LightSample& sample, const Eigen::Vector3d& centre, double radius);
 
 // A pose as a GL model matrix (column vectors).
 Eigen::Matrix4f toGl(const Rigid3d& pose);

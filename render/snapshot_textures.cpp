@@ -75,6 +75,8 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
         Item item;
         item.face = &f;
         item.place.c0 = c0.cast<float>();
+        item.place.e1 = e1.cast<float>();
+        item.place.e2 = e2.cast<float>();
         item.place.du = (gi(0, 0) * e1 + gi(0, 1) * e2).cast<float>();
         item.place.dv = (gi(1, 0) * e1 + gi(1, 1) * e2).cast<float>();
         items.push_back(item);
@@ -129,6 +131,7 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
             const lighting::FaceModulation& f = *it.face;
             const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
             std::vector<float> fm(3 * n), fd(3 * n), fo(3 * n);
+            int in_i0 = f.width, in_j0 = f.height, in_i1 = -1, in_j1 = -1;  // the influenced texels' bounds
             for (std::size_t k = 0; k < n; ++k) {
                 const float w = lighting::ratioWeight(lighting::luminance(f.original[k]), f.mean_original);
                 for (std::size_t c = 0; c < 3; ++c) {
@@ -139,6 +142,23 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
                     fd[3 * k + c] = (1.0f - w) * diff;
                     fo[3 * k + c] = std::isfinite(orig) ? orig : 0.0f;
                 }
+                bool influenced = false;
+                for (std::size_t c = 0; c < 3; ++c) {
+                    influenced = influenced || std::abs(fm[3 * k + c] - 1.0f) > kModulationEpsilon || fd[3 * k + c] != 0.0f;
+                }
+                if (influenced) {
+                    const int i = static_cast<int>(k % static_cast<std::size_t>(f.width)), j = static_cast<int>(k / static_cast<std::size_t>(f.width));
+                    in_i0 = std::min(in_i0, i);
+                    in_j0 = std::min(in_j0, j);
+                    in_i1 = std::max(in_i1, i);
+                    in_j1 = std::max(in_j1, j);
+                }
+            }
+            FaceInAtlas place = it.place;
+            if (in_i1 >= 0) {
+                const float fw = static_cast<float>(f.width), fh = static_cast<float>(f.height);
+                place.influence = Eigen::Vector4f(std::max(0.0f, static_cast<float>(in_i0 - 1) / fw), std::max(0.0f, static_cast<float>(in_j0 - 1) / fh),
+                                                  std::min(1.0f, static_cast<float>(in_i1 + 2) / fw), std::min(1.0f, static_cast<float>(in_j1 + 2) / fh));
             }
             // Element outlines in the debug view of B~: a darker rim on the texels at element borders.
             const auto darken = [&](int i, int j) {
@@ -169,7 +189,7 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
                     }
                 }
             }
-            faces_[{f.object_index, f.face}] = it.place;
+            faces_[{f.object_index, f.face}] = place;
         }
         atlas_m_ = atlasTexture(width, height, m, GL_LINEAR);
         atlas_d_ = atlasTexture(width, height, d, GL_LINEAR);

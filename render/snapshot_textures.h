@@ -24,7 +24,17 @@ struct FaceInAtlas {
     // rect.xy + (s, t) rect.zw. The face's texels are framed by a copy of its edge texels, so
     // filtering at s or t = 0 or 1 reads the face alone (as clamp-to-edge would).
     Eigen::Vector4f rect = Eigen::Vector4f::Zero();
+    // The face's edges: p = c0 + s e1 + t e2, (s, t) in [0, 1]^2 (e2 = e1 on a triangle's degenerate side).
+    Eigen::Vector3f e1 = Eigen::Vector3f::Zero(), e2 = Eigen::Vector3f::Zero();
+    // Where the snapshot changes what the camera sees of the face: (s0, t0, s1, t1) around every
+    // texel whose M is more than kModulationEpsilon from 1 or whose D is not zero, one texel wider
+    // for the filtering (s0 > s1: nowhere). Elsewhere the final pass leaves the frame's codes.
+    Eigen::Vector4f influence = Eigen::Vector4f(1.0f, 1.0f, 0.0f, 0.0f);
 };
+
+// A modulation M within this of 1 changes no code: at most 0.26 of a code at any level for any
+// concave response (the code moves by at most E'(L) L |M - 1| <= 255 |M - 1|).
+inline constexpr float kModulationEpsilon = 1e-3f;
 
 // A virtual object's probe grid.
 struct ProbeGrid {
@@ -45,6 +55,7 @@ public:
 
     bool modulates() const noexcept { return !faces_.empty(); }
     const FaceInAtlas* face(int object_index, int face) const;
+    const std::map<std::pair<int, int>, FaceInAtlas>& faces() const noexcept { return faces_; }
     GLuint atlasM() const noexcept { return atlas_m_; }
     GLuint atlasD() const noexcept { return atlas_d_; }
     GLuint atlasO() const noexcept { return atlas_o_; }

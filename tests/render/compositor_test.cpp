@@ -267,6 +267,93 @@ TEST_F(CompositorTest, TheRatioDarkensAndTheDifferenceBrightensTheBackground) {
     EXPECT_NEAR(at(0.6, 0.75), in_linear + 0.1, 0.02 * (in_linear + 0.1));  // B~ = 0: + (B - B~)
 }
 
+// The final pass modulates only where the snapshot changes something: a 2 x 2 texel patch of
+// ratio 0.5 near a corner of a strongly distorted view halves the frame there, every texel of it
+// (the modulated region is not cut short), while every pixel away from it and from the virtual
+// ball keeps its code byte for byte, also where a texel's ratio is 1.0005 (below the thousandth
+// that moves no code).
+TEST_F(CompositorTest, TheModulationIsDrawnWhereTheSnapshotChangesSomethingAndOnlyThere) {
+    Scene scene;
+    scene.real_objects.push_back(floorPlane(4.0));
+    scene.virtual_objects.push_back(sphere("ball", 0.1, Eigen::Vector3d(-0.3, 0.0, 0.1), Eigen::Vector3d(0.5, 0.5, 0.5)));
+    CameraModel camera = smallCamera();
+    camera.distortion.k1 = -0.25;
+    camera.distortion.k2 = 0.08;
+    const ResponseCurve response = ResponseCurve::srgb();
+    lighting::LightingSnapshot snapshot;
+    snapshot.version = 1;
+    lighting::FaceModulation f;
+    f.object_index = 0;
+    f.face = 0;
+    f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
+    f.width = f.height = 32;  // 0.125 m a texel
+    for (int j = 0; j < 32; ++j) {
+        for (int i = 0; i < 32; ++i) {
+            const bool patch = (i == 22 || i == 23) && (j == 20 || j == 21);  // x in [0.75, 1], y in [0.5, 0.75]
+            const bool faint = i == 10 && j == 12;
+            f.ratio.push_back(lighting::Rgb::Constant(patch ? 0.5f : faint ? 1.0005f : 1.0f));
+            f.original.push_back(lighting::Rgb::Constant(1.0f));
+            f.difference.push_back(lighting::Rgb::Constant(patch ? -0.5f : 0.0f));
+            f.reflectance.push_back(lighting::Rgb::Constant(0.5f));
+        }
+    }
+    f.mean_original = 1.0f;
+    snapshot.faces.push_back(f);
+    auto c = make(scene, camera, response);
+    ASSERT_TRUE(c);
+    const Image frame = noiseFrame(camera.width, camera.height, 11);
+    const Image out = render(*c, frame.view(), lookingDown(), snapshot, {});
+    // The pixel of a floor point, and the bounding box of a world rectangle's outline (sampled).
+    const auto pixelOf = [&](double x, double y) {
+        return *camera.project(lookingDown().rotation * Eigen::Vector3d(x, y, 0) + lookingDown().translation);
+    };
+    const auto box = [&](double x0, double y0, double x1, double y1) {
+        Eigen::AlignedBox2d b;
+        for (int k = 0; k <= 40; ++k) {
+            const double t = k / 40.0;
+            for (const Eigen::Vector2d& w : {Eigen::Vector2d(x0 + t * (x1 - x0), y0), Eigen::Vector2d(x0 + t * (x1 - x0), y1),
+                                             Eigen::Vector2d(x0, y0 + t * (y1 - y0)), Eigen::Vector2d(x1, y0 + t * (y1 - y0))}) {
+                b.extend(pixelOf(w.x(), w.y()));
+            }
+        }
+        return b;
+    };
+    // Where the bilinear read of the patch can reach (one texel around it), and the ball's reach.
+    const Eigen::AlignedBox2d reach = box(0.625, 0.375, 1.125, 0.875);
+    const Eigen::AlignedBox2d ball = box(-0.45, -0.15, -0.15, 0.15);
+    // Where it reads 0.5 alone: between the patch texels' centres.
+    const Eigen::AlignedBox2d inner = box(0.8125, 0.5625, 0.9375, 0.6875);
+    int unchanged_checked = 0, unchanged_differing = 0, halved_checked = 0, halved_wrong = 0;
+    for (int y = 0; y < camera.height; ++y) {
+        for (int x = 0; x < camera.width; ++x) {
+            const Eigen::Vector2d p(x, y);
+            const Eigen::Vector2d margin(2.0, 2.0);
+            const bool near_patch = Eigen::AlignedBox2d(reach.min() - margin, reach.max() + margin).contains(p);
+            const bool near_ball = Eigen::AlignedBox2d(ball.min() - margin, ball.max() + margin).contains(p);
+            const std::uint8_t* in_px = frame.view().row(y) + 3 * x;
+            const std::uint8_t* out_px = out.view().row(y) + 3 * x;
+            if (!near_patch && !near_ball) {
+                ++unchanged_checked;
+                unchanged_differing += std::memcmp(in_px, out_px, 3) != 0 ? 1 : 0;
+            }
+            if (Eigen::AlignedBox2d(inner.min() + margin, inner.max() - margin).contains(p)) {
+                ++halved_checked;
+                for (int ch = 0; ch < 3; ++ch) {
+                    const double expected = 0.5 * response.toLinear(ch, in_px[ch]);
+                    const double got = response.toLinear(ch, out_px[ch]);
+                    // One code of rounding at the expected level.
+                    const double code_step = response.toLinear(ch, std::uint8_t{255}) / 255.0 * 4.0;
+                    halved_wrong += std::abs(got - expected) > std::max(0.02 * expected, code_step) ? 1 : 0;
+                }
+            }
+        }
+    }
+    EXPECT_GT(unchanged_checked, camera.width * camera.height / 2);
+    EXPECT_EQ(unchanged_differing, 0) << "of " << unchanged_checked;
+    EXPECT_GT(halved_checked, 4);
+    EXPECT_EQ(halved_wrong, 0) << "of " << 3 * halved_checked;
+}
+
 // Registration measured directly: the world point the composite shows at each camera pixel (its
 // surface's interpolated world position, read through the same layer and lens warp as the
 // composite, surfacePoints()) projects with CameraModel::project onto that pixel's centre, within
@@ -347,7 +434,8 @@ TEST_F(CompositorTest, PointsLandWhereTheCameraModelProjectsThemThroughDistortio
     const double half = 0.05;
     for (std::size_t i = 0; i < points.size(); ++i) {
         VirtualObject v;
-        v.name = "p" + std::to_string(i);
+        v.name = "p";
+        v.name += std::to_string(i);  // ("p" + to_string: GCC 12's -Wrestrict false positive at -O3)
         v.shape = PlaneShape{Eigen::Vector2d(2 * half, 2 * half)};
         v.material.albedo = Eigen::Vector3d::Zero();
         v.emission = Eigen::Vector3d::Ones();
@@ -639,6 +727,63 @@ TEST_F(CompositorTest, ShadowMapsHaveRealAndVirtualOccluders) {
     EXPECT_GT(open, 20);
     EXPECT_LT(under_virtual, 0.2 * open_side);
     EXPECT_LT(under_real, 0.2 * open_side);
+}
+
+// The real proxies' shadow maps cover a sphere around the virtual objects and are kept while the
+// objects move inside it (fitted again when they leave it or shrink in it): a virtual tile sliding
+// under a real block, in steps of 5 cm over 1.2 m, shows the block's shadow as a compositor drawing
+// that pose for the first time does, at every step.
+TEST_F(CompositorTest, RealShadowsFollowAVirtualObjectThatMoves) {
+    Scene scene;
+    VirtualObject tile;
+    tile.name = "tile";
+    tile.shape = PlaneShape{Eigen::Vector2d(0.4, 0.4)};
+    tile.material.albedo = Eigen::Vector3d::Constant(0.8);
+    scene.virtual_objects.push_back(tile);
+    RealObject block;
+    block.name = "block";
+    block.shape = BoxShape{Eigen::Vector3d(0.1, 0.1, 0.1)};
+    block.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.0, 0.0, 0.45));
+    scene.real_objects.push_back(block);
+    lighting::LightingSnapshot snapshot;
+    snapshot.version = 1;
+    lighting::EstimatedLight lamp;
+    lamp.name = "lamp";
+    lamp.kind = lighting::LightKind::kPoint;
+    lamp.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 1.2));
+    lamp.emission = Eigen::Vector3d::Constant(0.8);
+    snapshot.lights.push_back(lamp);
+    const CameraModel camera = smallCamera(200, 150);
+    auto moving = make(scene, camera, ResponseCurve::linear());
+    ASSERT_TRUE(moving);
+    const Image frame = constantFrame(camera.width, camera.height, 0);
+    int shadowed_steps = 0;
+    for (int step = 0; step <= 24; ++step) {
+        const double x = -0.6 + 0.05 * step;
+        const std::vector<std::optional<Rigid3d>> poses = {Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, 0.0, 0.0))};
+        const Image out = render(*moving, frame.view(), lookingDown(), snapshot, poses);
+        auto fresh = make(scene, camera, ResponseCurve::linear());
+        ASSERT_TRUE(fresh);
+        const Image expected = render(*fresh, frame.view(), lookingDown(), snapshot, poses);
+        int differing = 0;
+        for (int y = 0; y < camera.height; ++y) {
+            for (int k = 0; k < 3 * camera.width; ++k) differing += std::abs(out.view().row(y)[k] - expected.view().row(y)[k]) > 8 ? 1 : 0;
+        }
+        // Only texels along the shadow's edge may differ (the two maps' texels lie differently).
+        EXPECT_LT(differing, 3 * 40) << "step " << step;
+        // Under the block (x = 0, the lamp straight above), when the tile is there: in shadow.
+        if (std::abs(x) < 0.15) {
+            const Eigen::Vector2d p = *camera.project(lookingDown().rotation * Eigen::Vector3d(0.0, 0.0, 0.0) + lookingDown().translation);
+            const Eigen::Vector2d q = *camera.project(lookingDown().rotation * Eigen::Vector3d(x + 0.15 * (x > 0 ? -1 : 1), 0.15, 0.0) +
+                                                      lookingDown().translation);
+            const int under = out.view().row(static_cast<int>(std::lround(p.y())))[3 * static_cast<int>(std::lround(p.x())) + 1];
+            const int lit = out.view().row(static_cast<int>(std::lround(q.y())))[3 * static_cast<int>(std::lround(q.x())) + 1];
+            EXPECT_GT(lit, 20) << "step " << step;
+            EXPECT_LT(under, 0.2 * lit) << "step " << step;
+            ++shadowed_steps;
+        }
+    }
+    EXPECT_GE(shadowed_steps, 5);
 }
 
 // Camera matching (off by default): a frame with 4 codes of sensor noise; the virtual ball's
