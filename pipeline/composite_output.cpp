@@ -4,6 +4,8 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <cmath>
 
@@ -194,6 +196,25 @@ Result<void> writeSideBySide(const fs::path& file, const ImageView& frame, const
         ok = false;
     }
     if (!ok) return fail(ErrorCode::kIo, file.string() + ": cannot write the side-by-side picture");
+    return {};
+}
+
+Result<void> checkImagePath(const std::filesystem::path& file, const std::string& what) {
+    const std::filesystem::path folder = file.has_parent_path() ? file.parent_path() : std::filesystem::path(".");
+    std::error_code ec;
+    if (!std::filesystem::is_directory(folder, ec)) {
+        return fail(ErrorCode::kIo, file.string() + ": cannot write the " + what + ": the folder " + folder.string() + " does not exist");
+    }
+    if (::access(folder.c_str(), W_OK) != 0) {
+        return fail(ErrorCode::kIo, file.string() + ": cannot write the " + what + ": the folder " + folder.string() + " is not writable");
+    }
+    bool writer = false;
+    try {
+        writer = cv::haveImageWriter(file.string());
+    } catch (const cv::Exception&) {
+        writer = false;
+    }
+    if (!writer) return fail(ErrorCode::kIo, file.string() + ": cannot write the " + what + ": no image writer for that extension (use .png or .jpg)");
     return {};
 }
 

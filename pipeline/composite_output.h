@@ -76,6 +76,10 @@ private:
 Result<void> writePng(const std::filesystem::path& file, const ImageView& rgb8);
 
 // Frame | composite | ground truth (when given) side by side with a caption strip, as one PNG.
+// Whether an image can be written at `file` (checked before any work): its folder exists and is
+// writable and OpenCV has a writer for its extension. kIo naming the file and what is wrong.
+Result<void> checkImagePath(const std::filesystem::path& file, const std::string& what);
+
 Result<void> writeSideBySide(const std::filesystem::path& file, const ImageView& frame_rgb8, const ImageView& composite_rgb8,
                              const ImageView* truth_rgb8);
 

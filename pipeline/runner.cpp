@@ -53,6 +53,7 @@ Result<std::unique_ptr<FrameRunner>> FrameRunner::create(const Scene& scene, con
         CL_TRY(runner->context_, render::GlContext::create(context_options));
         CL_TRY(runner->compositor_, render::Compositor::create(*runner->context_, runner->scene_, camera, options.response,
                                                                options.compositor));
+        if (!options.side_by_side.empty()) CL_TRY_VOID(checkImagePath(options.side_by_side, "side-by-side picture"));
         if (!options.frames_dir.empty() || !options.video.empty()) {
             CL_TRY(runner->writer_, CompositeWriter::open(options.frames_dir, options.video, camera.width, camera.height, options.fps));
         }

@@ -48,6 +48,12 @@ PY
 expect_exit 3 "$COMMONLIGHT" play "$SAMPLE" --sync --video "$TMP/missing/dir/x.mp4"
 expect_text "x.mp4" "$TMP/err"
 [[ ! -e "$TMP/missing" ]] || fail "a folder was made for the unwritable video"
+# A side-by-side picture that cannot be written: exit 3 naming it, before any frame is played.
+expect_exit 3 "$COMMONLIGHT" play "$SAMPLE" --sync --side-by-side "$TMP/missing/dir/sbs.png"
+expect_text "sbs.png" "$TMP/err"
+expect_text "does not exist" "$TMP/err"
+expect_exit 3 "$COMMONLIGHT" play "$SAMPLE" --sync --side-by-side "$TMP/sbs.unknown-format"
+expect_text "no image writer" "$TMP/err"
 expect_exit 4 env -u DISPLAY -u WAYLAND_DISPLAY "$COMMONLIGHT" play "$SAMPLE" --sync --window
 expect_text "DISPLAY" "$TMP/err"
 echo PASS
