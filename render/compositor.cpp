@@ -97,6 +97,18 @@ Rect unite(const Rect& a, const Rect& b) {
     return Rect{std::min(a.x0, b.x0), std::min(a.y0, b.y0), std::max(a.x1, b.x1), std::max(a.y1, b.y1)};
 }
 
+// A closed mesh's faces turned away from the camera are hidden by its own front: not drawn (their
+// fragments would be shaded and then overwritten). Open surfaces are drawn from both sides.
+void cullBackFaces(const GpuMesh& mesh) {
+    if (mesh.closed) {
+        glEnable(GL_CULL_FACE);
+        glCullFace(GL_BACK);
+        glFrontFace(GL_CCW);
+    } else {
+        glDisable(GL_CULL_FACE);
+    }
+}
+
 // Shadow maps as tiles of one depth texture, drawn in one pass (llvmpipe flushes its work at every
 // change of render target).
 struct ShadowAtlas {
@@ -784,9 +796,11 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
         for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
             if (!models[i]) continue;
             setMat4(model_location, *models[i]);
+            cullBackFaces(virtual_meshes[i]);
             glBindVertexArray(virtual_meshes[i].vao);
             for (const MeshPart& part : virtual_meshes[i].parts) drawPart(part);
         }
+        glDisable(GL_CULL_FACE);
     };
     const auto drawLines = [&](const SceneProgram& program, bool colour) {
         glUseProgram(program.id);
@@ -888,6 +902,7 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
             setVec3(vp.sh_offset, grid->offset);
         }
         setMat4(vp.model, *models[i]);
+        cullBackFaces(virtual_meshes[i]);
         glBindVertexArray(virtual_meshes[i].vao);
         for (const MeshPart& part : virtual_meshes[i].parts) {
             // A part with the mesh file's own base colour: that, times its texture, is the albedo.
@@ -905,6 +920,7 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
         }
     }
     glActiveTexture(GL_TEXTURE0);
+    glDisable(GL_CULL_FACE);
     if (options.debug == DebugView::kProxyWireframe) drawLines(line_program, true);
     mark("virtual shading");
 

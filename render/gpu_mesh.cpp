@@ -118,6 +118,7 @@ GpuMesh uploadMesh(const Shape& shape) {
         mesh.bmax = mesh.bmax.cwiseMax(p);
     }
     mesh.index_count = static_cast<int>(idx.size());
+    mesh.closed = std::holds_alternative<SphereShape>(shape) || std::holds_alternative<BoxShape>(shape);
     if (const auto* sphere = std::get_if<SphereShape>(&shape)) {
         // Shadow maps: a coarser sphere (inscribed, so the fine surface never shadows itself
         // through it); a shadow map's texel is coarser than the camera's pixel, and llvmpipe's

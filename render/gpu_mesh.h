@@ -37,6 +37,7 @@ struct GpuMesh {
     GLuint vao = 0, vbo = 0, ebo = 0;
     std::vector<MeshPart> parts;
     std::vector<MeshPart> shadow_parts;  // what shadow maps draw instead of `parts` (empty: `parts`)
+    bool closed = false;  // a closed surface, counter-clockwise from outside (box, sphere): back faces can be culled
     std::vector<GpuMaterial> materials;
     Eigen::Vector3d bmin = Eigen::Vector3d::Constant(1e30), bmax = Eigen::Vector3d::Constant(-1e30);  // object frame
     int index_count = 0;
