@@ -159,7 +159,8 @@ Result<std::shared_ptr<const lighting::LightingSnapshot>> sampleSnapshot(const L
 
 // Case compositor: draw + read back of frame 30 with the sample's snapshot at two sizes, MSAA 4
 // and 1; "static" draws the same frame again (the shadow maps are reused), "moving" moves the
-// virtual objects by a tenth of a millimetre every draw (the shadow maps are re-rendered). Wall
+// virtual objects by 5 mm every draw, back and forth over 20 cm (their shadow maps are drawn again
+// every draw, the real proxies' when the objects leave the sphere those cover). Wall
 // time (p50, p95) and CPU time of the process (all of llvmpipe's threads) per frame; then the
 // same draws in profiling mode (glFinish after each pass): the mean wall/CPU time of each pass.
 // CPU time is what to compare between runs on a machine shared with other work.
@@ -222,8 +223,12 @@ Result<nlohmann::json> benchCompositor(const Loaded& l, const BenchPipelineOptio
         const auto drawOnce = [&](int k) -> Result<void> {
             in.virtual_poses = poses;
             if (moving) {
+                // 5 mm a draw (15 cm/s at 30 fps), back and forth over 20 cm: the real proxies'
+                // shadow maps are fitted again when the objects leave their sphere.
+                const int phase = k % 80;
+                const double offset = 5e-3 * (phase < 40 ? phase : 80 - phase);
                 for (auto& p : in.virtual_poses) {
-                    if (p) p->translation.x() += 1e-4 * (k % 2);
+                    if (p) p->translation.x() += offset;
                 }
             }
             CL_TRY_VOID(c->draw(in, snapshot ? *snapshot : empty));
