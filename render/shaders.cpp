@@ -455,9 +455,11 @@ void main() {
     vec2 other = wx >= wy ? qx : qy;
     bool other_on = in_layer && other.x < 65535.0;
     vec2 atlas_uv = at / 16.0 / u_atlas_size;
-    vec2 other_uv = other / 16.0 / u_atlas_size;
-    m = mix(on_face ? texture(u_atlas_m, atlas_uv).rgb : vec3(1.0), other_on ? texture(u_atlas_m, other_uv).rgb : vec3(1.0), max(wx, wy));
-    d = mix(on_face ? texture(u_atlas_d, atlas_uv).rgb : vec3(0.0), other_on ? texture(u_atlas_d, other_uv).rgb : vec3(0.0), max(wx, wy));
+    // (The other surface's texel is fetched, not filtered: it only weighs at an edge, and a
+    // filtered read of a float texture costs llvmpipe four.)
+    ivec2 other_texel = ivec2(other / 16.0);
+    m = mix(on_face ? texture(u_atlas_m, atlas_uv).rgb : vec3(1.0), other_on ? texelFetch(u_atlas_m, other_texel, 0).rgb : vec3(1.0), max(wx, wy));
+    d = mix(on_face ? texture(u_atlas_d, atlas_uv).rgb : vec3(0.0), other_on ? texelFetch(u_atlas_d, other_texel, 0).rgb : vec3(0.0), max(wx, wy));
 #if defined(VIEW_ELEMENTS)
     original = on_face ? texelFetch(u_atlas_o, ivec2(q / 16.0), 0).rgb : vec3(0.0);
 #endif
