@@ -117,6 +117,7 @@ int runTrack(TrackCommandOptions& options) {
     options.tracker.default_tag_size = options.tag_size;
     options.tracker.tracking_mode = options.tracking_mode && !input->independentFrames();
     options.tracker.filter = !options.no_filter && !input->independentFrames();
+    options.tracker.independent_frames = input->independentFrames();
     options.tracker.edges = options.edges;
     if (options.edges && !scene) return reportError(Error{ErrorCode::kUsage, "--edges needs --scene"});
     const TagSet no_tags;

@@ -74,6 +74,9 @@ Result<void> TrackerOptions::validate() const {
     if (!(default_tag_size >= 0) || !std::isfinite(default_tag_size)) {
         return fail(ErrorCode::kUsage, "the tag size must be a positive number of metres");
     }
+    if (independent_frames && (filter || tracking_mode)) {
+        return fail(ErrorCode::kUsage, "independent frames have no filter and no tracking mode (each frame is tracked alone)");
+    }
     if (filter) CL_TRY_VOID(filter_options.validate());
     if (edges) CL_TRY_VOID(edge_options.validate());
     return {};
@@ -102,6 +105,7 @@ struct Tracker::State {
         : camera(c), tags(t), options(o), detector(std::move(d)), patterns(o.detector.family), filter(o.filter_options) {}
 
     std::optional<Rigid3d> prediction(std::int64_t timestamp_ns) const {
+        if (options.independent_frames) return std::nullopt;
         if (options.filter) {
             if (auto p = filter.predict(timestamp_ns)) return p->cam_from_world;
             return std::nullopt;
@@ -211,7 +215,7 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
             std::optional<Rigid3d> predicted_cam_from_tag;
             if (item && predicted) {
                 predicted_cam_from_tag = *predicted * item->world_from_tag;
-            } else if (auto it = s.last_cam_from_tag.find(d.id); it != s.last_cam_from_tag.end()) {
+            } else if (auto it = s.last_cam_from_tag.find(d.id); !s.options.independent_frames && it != s.last_cam_from_tag.end()) {
                 predicted_cam_from_tag = it->second;
             }
             auto pose = solveTagPose(d.id, tag.detection.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);

@@ -50,6 +50,10 @@ struct TrackerOptions {
     // 0: only the scene's tags get a single-tag pose.
     double default_tag_size = 0.0;
     bool filter = true;
+    // Independent images (a folder of photos): nothing is carried from one frame to the next (no
+    // prediction, no previous pose choosing between a tag's two candidate poses), so each gives
+    // what it gives alone, whatever the order. Excludes `filter` and `tracking_mode`.
+    bool independent_frames = false;
     PoseFilterOptions filter_options;
     bool edges = false;  // needs the scene's proxy geometry
     EdgeRefineOptions edge_options;

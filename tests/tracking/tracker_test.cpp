@@ -107,6 +107,35 @@ TEST(Tracker, TrackingModeDetectsInWindowsWithTheSamePoses) {
     EXPECT_LT(worst, 0.05) << "windowed detection should find the same corners";
 }
 
+// A folder of photos: each image gives what it gives alone, in any order (nothing carried over).
+TEST(Tracker, IndependentFramesGiveWhatEachGivesAlone) {
+    const Sample& s = sample();
+    TrackerOptions options;
+    options.filter = false;
+    options.independent_frames = true;
+    Tracker together = makeTracker(options);
+    for (const std::size_t i : {std::size_t{50}, std::size_t{10}, std::size_t{30}, std::size_t{11}}) {
+        auto t = together.process(s.grey[i].view(), 0);
+        ASSERT_TRUE(t && t->cam_from_world) << "image " << i;
+        EXPECT_FALSE(together.predict(0)) << "nothing is predicted from the images before";
+        Tracker alone = makeTracker(options);
+        auto a = alone.process(s.grey[i].view(), 0);
+        ASSERT_TRUE(a && a->cam_from_world) << "image " << i;
+        EXPECT_EQ(t->cam_from_world->translation, a->cam_from_world->translation) << "image " << i;
+        EXPECT_EQ(t->cam_from_world->rotation.coeffs(), a->cam_from_world->rotation.coeffs()) << "image " << i;
+        ASSERT_EQ(t->tags.size(), a->tags.size());
+        for (std::size_t k = 0; k < t->tags.size(); ++k) {
+            ASSERT_EQ(t->tags[k].pose.has_value(), a->tags[k].pose.has_value());
+            if (t->tags[k].pose) {
+                EXPECT_EQ(t->tags[k].pose->cam_from_tag.translation, a->tags[k].pose->cam_from_tag.translation);
+            }
+        }
+    }
+    // With a filter or tracking mode the option is a usage error.
+    options.filter = true;
+    EXPECT_FALSE(Tracker::create(*s.seq.sensor.camera, s.scene.tags, &s.scene, options));
+}
+
 TEST(Tracker, FramesWithoutTagsArePredictedThenLost) {
     const Sample& s = sample();
     Tracker tracker = makeTracker({});
