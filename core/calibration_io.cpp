@@ -1,6 +1,7 @@
 #include "core/calibration_io.h"
 
 #include <cmath>
+#include <cstdint>
 #include <sstream>
 #include <utility>
 
@@ -51,11 +52,16 @@ Result<Matrix> readMatrix(const std::string& file, const YAML::Node& root, const
                                        "element type '" + dt + "' is not a single-channel number type (d or f)"));
         }
     }
-    m.data_node = std::as_const(m.node)["data"];  // const lookup: never inserts
+    // Checked before the lookup below: without `data` the const lookup gives a node that yaml-cpp
+    // refuses to assign (it throws YAML::InvalidNode).
     CL_TRY(m.data, yaml::getDoubles(file, m.node, key + ".data"));
-    if (static_cast<std::size_t>(m.rows) * static_cast<std::size_t>(m.cols) != m.data.size()) {
+    m.data_node = yaml::lookup(m.node, "data");
+    // rows and cols are ints from the file: their product is formed in 64 bits (two ints cannot
+    // overflow it), never as int.
+    const std::int64_t entries = std::int64_t{m.rows} * std::int64_t{m.cols};
+    if (static_cast<std::uint64_t>(entries) != m.data.size()) {
         std::ostringstream msg;
-        msg << "rows x cols = " << m.rows << " x " << m.cols << " = " << m.rows * m.cols << " but data has "
+        msg << "rows x cols = " << m.rows << " x " << m.cols << " = " << entries << " but data has "
             << m.data.size() << " numbers";
         return fail(yaml::keyError(file, m.data_node, key + ".data", msg.str()));
     }

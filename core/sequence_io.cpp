@@ -21,6 +21,8 @@ std::optional<fs::path> Sequence::scenePath() const {
 
 namespace {
 
+constexpr int kMaxImageSide = 65535;
+
 std::string formatDouble(double value) {
     char buf[32];
     std::snprintf(buf, sizeof(buf), "%.17g", value);
@@ -62,11 +64,17 @@ Result<SensorInfo> readSensorYaml(const fs::path& file) {
     if (!root.IsMap()) return fail(ErrorCode::kBadInput, name + ": expected a map of sensor keys");
     SensorInfo info;
     CL_TRY(const auto resolution, yaml::getDoubles(name, root, "resolution", 2));
+    // Checked before the cast: a double outside int's range (1e10) has no int value (undefined
+    // behaviour). 65535 is the largest size any frame format here can hold (V4L2, PNG, OpenCV).
+    for (const double v : resolution) {
+        if (!(v >= 1.0 && v <= kMaxImageSide && v == std::floor(v))) {
+            return fail(yaml::keyError(name, yaml::lookup(root, "resolution"), "resolution",
+                                       "expected two whole numbers from 1 to " + std::to_string(kMaxImageSide) +
+                                           ", found " + yaml::formatNumber(v)));
+        }
+    }
     info.width = static_cast<int>(resolution[0]);
     info.height = static_cast<int>(resolution[1]);
-    if (info.width <= 0 || info.height <= 0 || info.width != resolution[0] || info.height != resolution[1]) {
-        return fail(yaml::keyError(name, root["resolution"], "resolution", "expected two positive integers"));
-    }
     if (root["rate_hz"]) {
         CL_TRY(info.rate_hz, yaml::getDouble(name, root, "rate_hz"));
         if (info.rate_hz < 0) return fail(yaml::keyError(name, root["rate_hz"], "rate_hz", "must not be negative"));
