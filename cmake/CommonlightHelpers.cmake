@@ -27,9 +27,11 @@ if(COMMONLIGHT_FUZZ)
   # harness executables add -fsanitize=fuzzer (its main). libstdc++ 12 declares std::expected
   # (core/result.h) only when __cpp_concepts >= 202002, which clang 16 does not announce although
   # it implements what the header needs: say so (the macro is the compiler's, hence the warning
-  # switched off).
+  # switched off). COMMONLIGHT_FUZZ_STRICT_READERS: an exception reaching a reader's border
+  # aborts (core/reader_guard.h), so the fuzzer finds where a reader leaned on that net.
   add_compile_options(-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=undefined
-                      -fno-omit-frame-pointer -g -D__cpp_concepts=202002L -Wno-macro-redefined)
+                      -fno-omit-frame-pointer -g -D__cpp_concepts=202002L -Wno-macro-redefined
+                      -DCOMMONLIGHT_FUZZ_STRICT_READERS)
   add_link_options(-fsanitize=address,undefined)
 endif()
 if(COMMONLIGHT_TSAN)

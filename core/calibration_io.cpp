@@ -7,6 +7,7 @@
 
 #include "core/file_util.h"
 #include "core/yaml_util.h"
+#include "core/reader_guard.h"
 
 namespace commonlight {
 
@@ -208,20 +209,22 @@ Result<void> checkWritable(const std::filesystem::path& file, const CameraModel&
 }  // namespace
 
 Result<CameraModel> parseCalibration(const std::string& text, const std::string& name) {
-    CL_TRY(const YAML::Node root, yaml::loadString(text, name));
-    if (!root.IsMap()) {
-        return fail(ErrorCode::kBadInput, yaml::where(name, root) +
-                                              ": expected a calibration (a map with image_width, image_height, "
-                                              "camera_matrix, distortion_coefficients)");
-    }
-    const Format format = detectFormat(root);
-    CameraModel model;
-    CL_TRY(model.width, readImageSize(name, root, "image_width"));
-    CL_TRY(model.height, readImageSize(name, root, "image_height"));
-    CL_TRY_VOID(readCameraMatrix(name, root, format, model));
-    CL_TRY_VOID(readDistortion(name, root, format, model));
-    if (auto valid = model.validate(); !valid) return fail(valid.error().prepend(name));
-    return model;
+    return guardReader(name, [&]() -> Result<CameraModel> {
+        CL_TRY(const YAML::Node root, yaml::loadString(text, name));
+        if (!root.IsMap()) {
+            return fail(ErrorCode::kBadInput, yaml::where(name, root) +
+                                                  ": expected a calibration (a map with image_width, image_height, "
+                                                  "camera_matrix, distortion_coefficients)");
+        }
+        const Format format = detectFormat(root);
+        CameraModel model;
+        CL_TRY(model.width, readImageSize(name, root, "image_width"));
+        CL_TRY(model.height, readImageSize(name, root, "image_height"));
+        CL_TRY_VOID(readCameraMatrix(name, root, format, model));
+        CL_TRY_VOID(readDistortion(name, root, format, model));
+        if (auto valid = model.validate(); !valid) return fail(valid.error().prepend(name));
+        return model;
+    });
 }
 
 Result<CameraModel> readCalibration(const std::filesystem::path& file) {

@@ -21,6 +21,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "core/reader_guard.h"
+
 namespace commonlight {
 
 namespace {
@@ -448,163 +450,167 @@ std::string lowerExtension(const std::filesystem::path& file) {
 }  // namespace
 
 Result<Mesh> readGltfMesh(const std::filesystem::path& file, bool binary) {
-    CL_TRY_VOID(checkExists(file));
-    tinygltf::TinyGLTF loader;
-    loader.SetImageLoader(&keepImageBytes, nullptr);
-    tinygltf::Model model;
-    std::string err;
-    std::string warn;
-    const bool ok = binary ? loader.LoadBinaryFromFile(&model, &err, &warn, file.string())
-                           : loader.LoadASCIIFromFile(&model, &err, &warn, file.string());
-    if (!ok) return fail(meshError(file, "not a valid glTF 2.0 file: " + oneLine(err)));
-    return GltfReader(file, model).read();
+    return guardReader(file, [&]() -> Result<Mesh> {
+        CL_TRY_VOID(checkExists(file));
+        tinygltf::TinyGLTF loader;
+        loader.SetImageLoader(&keepImageBytes, nullptr);
+        tinygltf::Model model;
+        std::string err;
+        std::string warn;
+        const bool ok = binary ? loader.LoadBinaryFromFile(&model, &err, &warn, file.string())
+                               : loader.LoadASCIIFromFile(&model, &err, &warn, file.string());
+        if (!ok) return fail(meshError(file, "not a valid glTF 2.0 file: " + oneLine(err)));
+        return GltfReader(file, model).read();
+    });
 }
 
 Result<Mesh> readObjMesh(const std::filesystem::path& file) {
-    CL_TRY_VOID(checkExists(file));
-    tinyobj::ObjReaderConfig config;
-    config.triangulate = true;
-    config.vertex_color = false;
-    tinyobj::ObjReader reader;
-    if (!reader.ParseFromFile(file.string(), config)) {
-        return fail(meshError(file, "not a valid OBJ file: " + oneLine(reader.Error())));
-    }
-    const tinyobj::attrib_t& attrib = reader.GetAttrib();
-    const std::size_t vertex_count = attrib.vertices.size() / 3;
-    const std::size_t normal_count = attrib.normals.size() / 3;
-    const auto position = [&](std::size_t i) {
-        return Eigen::Vector3f(attrib.vertices[3 * i], attrib.vertices[3 * i + 1], attrib.vertices[3 * i + 2]);
-    };
+    return guardReader(file, [&]() -> Result<Mesh> {
+        CL_TRY_VOID(checkExists(file));
+        tinyobj::ObjReaderConfig config;
+        config.triangulate = true;
+        config.vertex_color = false;
+        tinyobj::ObjReader reader;
+        if (!reader.ParseFromFile(file.string(), config)) {
+            return fail(meshError(file, "not a valid OBJ file: " + oneLine(reader.Error())));
+        }
+        const tinyobj::attrib_t& attrib = reader.GetAttrib();
+        const std::size_t vertex_count = attrib.vertices.size() / 3;
+        const std::size_t normal_count = attrib.normals.size() / 3;
+        const auto position = [&](std::size_t i) {
+            return Eigen::Vector3f(attrib.vertices[3 * i], attrib.vertices[3 * i + 1], attrib.vertices[3 * i + 2]);
+        };
 
-    // Step 1: every corner, checked against the vertex, normal and texture coordinate lists; the
-    // material of every triangle.
-    const std::vector<tinyobj::material_t>& obj_materials = reader.GetMaterials();
-    const std::size_t texcoord_count = attrib.texcoords.size() / 2;
-    std::vector<tinyobj::index_t> corners;
-    std::vector<int> triangle_material;
-    bool all_have_normals = true;
-    bool all_have_texcoords = true;
-    for (const tinyobj::shape_t& shape : reader.GetShapes()) {
-        const std::string shape_name = shape.name.empty() ? std::string("shape") : "shape '" + shape.name + "'";
-        const auto& faces = shape.mesh.num_face_vertices;
-        std::size_t offset = 0;
-        for (std::size_t f = 0; f < faces.size(); ++f) {
-            if (faces[f] != 3) {
-                return fail(meshError(file, shape_name + " face " + std::to_string(f) + " has " +
-                                                std::to_string(faces[f]) + " vertices after triangulation"));
+        // Step 1: every corner, checked against the vertex, normal and texture coordinate lists; the
+        // material of every triangle.
+        const std::vector<tinyobj::material_t>& obj_materials = reader.GetMaterials();
+        const std::size_t texcoord_count = attrib.texcoords.size() / 2;
+        std::vector<tinyobj::index_t> corners;
+        std::vector<int> triangle_material;
+        bool all_have_normals = true;
+        bool all_have_texcoords = true;
+        for (const tinyobj::shape_t& shape : reader.GetShapes()) {
+            const std::string shape_name = shape.name.empty() ? std::string("shape") : "shape '" + shape.name + "'";
+            const auto& faces = shape.mesh.num_face_vertices;
+            std::size_t offset = 0;
+            for (std::size_t f = 0; f < faces.size(); ++f) {
+                if (faces[f] != 3) {
+                    return fail(meshError(file, shape_name + " face " + std::to_string(f) + " has " +
+                                                    std::to_string(faces[f]) + " vertices after triangulation"));
+                }
+                for (std::size_t k = 0; k < 3; ++k) {
+                    if (offset + k >= shape.mesh.indices.size()) {
+                        return fail(meshError(file, shape_name + " has fewer indices than its faces need"));
+                    }
+                    const tinyobj::index_t corner = shape.mesh.indices[offset + k];
+                    if (corner.vertex_index < 0 || static_cast<std::size_t>(corner.vertex_index) >= vertex_count) {
+                        return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to vertex " +
+                                                        std::to_string(corner.vertex_index + 1) + ", but the file has " +
+                                                        std::to_string(vertex_count)));
+                    }
+                    if (corner.normal_index < 0) {
+                        all_have_normals = false;
+                    } else if (static_cast<std::size_t>(corner.normal_index) >= normal_count) {
+                        return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to normal " +
+                                                        std::to_string(corner.normal_index + 1) + ", but the file has " +
+                                                        std::to_string(normal_count)));
+                    }
+                    if (corner.texcoord_index < 0) {
+                        all_have_texcoords = false;
+                    } else if (static_cast<std::size_t>(corner.texcoord_index) >= texcoord_count) {
+                        return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to texture coordinate " +
+                                                        std::to_string(corner.texcoord_index + 1) + ", but the file has " +
+                                                        std::to_string(texcoord_count)));
+                    }
+                    corners.push_back(corner);
+                }
+                const int id = f < shape.mesh.material_ids.size() ? shape.mesh.material_ids[f] : -1;
+                triangle_material.push_back(id >= 0 && static_cast<std::size_t>(id) < obj_materials.size() ? id : -1);
+                offset += 3;
             }
-            for (std::size_t k = 0; k < 3; ++k) {
-                if (offset + k >= shape.mesh.indices.size()) {
-                    return fail(meshError(file, shape_name + " has fewer indices than its faces need"));
-                }
-                const tinyobj::index_t corner = shape.mesh.indices[offset + k];
-                if (corner.vertex_index < 0 || static_cast<std::size_t>(corner.vertex_index) >= vertex_count) {
-                    return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to vertex " +
-                                                    std::to_string(corner.vertex_index + 1) + ", but the file has " +
-                                                    std::to_string(vertex_count)));
-                }
-                if (corner.normal_index < 0) {
-                    all_have_normals = false;
-                } else if (static_cast<std::size_t>(corner.normal_index) >= normal_count) {
-                    return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to normal " +
-                                                    std::to_string(corner.normal_index + 1) + ", but the file has " +
-                                                    std::to_string(normal_count)));
-                }
-                if (corner.texcoord_index < 0) {
-                    all_have_texcoords = false;
-                } else if (static_cast<std::size_t>(corner.texcoord_index) >= texcoord_count) {
-                    return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to texture coordinate " +
-                                                    std::to_string(corner.texcoord_index + 1) + ", but the file has " +
-                                                    std::to_string(texcoord_count)));
-                }
-                corners.push_back(corner);
+        }
+        if (corners.empty()) return fail(meshError(file, "contains no triangles"));
+        if (vertex_count > std::numeric_limits<std::uint32_t>::max() / 2) {
+            return fail(meshError(file, "has more vertices than 32-bit indices can address"));
+        }
+
+        // Step 2: the materials the triangles use (Kd, map_Kd relative to the .mtl's folder, which is the
+        // OBJ's).
+        Mesh mesh;
+        std::vector<int> material_of(obj_materials.size(), -1);
+        bool textured = false;
+        for (const int id : triangle_material) {
+            if (id < 0 || material_of[static_cast<std::size_t>(id)] >= 0) continue;
+            const tinyobj::material_t& m = obj_materials[static_cast<std::size_t>(id)];
+            MeshMaterial out;
+            out.name = m.name;
+            out.base_colour = Eigen::Vector4f(static_cast<float>(m.diffuse[0]), static_cast<float>(m.diffuse[1]),
+                                              static_cast<float>(m.diffuse[2]), 1.0f);
+            if (!out.base_colour.allFinite() || (out.base_colour.array() < 0.0f).any()) {
+                return fail(meshError(file, "material '" + m.name + "': Kd must be finite and not negative"));
             }
-            const int id = f < shape.mesh.material_ids.size() ? shape.mesh.material_ids[f] : -1;
-            triangle_material.push_back(id >= 0 && static_cast<std::size_t>(id) < obj_materials.size() ? id : -1);
-            offset += 3;
+            if (!m.diffuse_texname.empty()) {
+                const std::filesystem::path texture = file.parent_path() / m.diffuse_texname;
+                out.texture_file = texture.string();
+                std::vector<unsigned char> bytes;
+                std::ifstream in(texture, std::ios::binary);
+                if (in) bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+                CL_TRY(out.texture, decodeTexture(bytes, file, "'" + texture.string() + "' (map_Kd of material '" + m.name + "')"));
+                textured = true;
+            }
+            mesh.materials.push_back(std::move(out));
+            material_of[static_cast<std::size_t>(id)] = static_cast<int>(mesh.materials.size()) - 1;
         }
-    }
-    if (corners.empty()) return fail(meshError(file, "contains no triangles"));
-    if (vertex_count > std::numeric_limits<std::uint32_t>::max() / 2) {
-        return fail(meshError(file, "has more vertices than 32-bit indices can address"));
-    }
-
-    // Step 2: the materials the triangles use (Kd, map_Kd relative to the .mtl's folder, which is the
-    // OBJ's).
-    Mesh mesh;
-    std::vector<int> material_of(obj_materials.size(), -1);
-    bool textured = false;
-    for (const int id : triangle_material) {
-        if (id < 0 || material_of[static_cast<std::size_t>(id)] >= 0) continue;
-        const tinyobj::material_t& m = obj_materials[static_cast<std::size_t>(id)];
-        MeshMaterial out;
-        out.name = m.name;
-        out.base_colour = Eigen::Vector4f(static_cast<float>(m.diffuse[0]), static_cast<float>(m.diffuse[1]),
-                                          static_cast<float>(m.diffuse[2]), 1.0f);
-        if (!out.base_colour.allFinite() || (out.base_colour.array() < 0.0f).any()) {
-            return fail(meshError(file, "material '" + m.name + "': Kd must be finite and not negative"));
+        const bool with_texcoords = textured && all_have_texcoords;
+        if (textured && !all_have_texcoords) {
+            return fail(meshError(file, "has a material with a texture (map_Kd) but faces without texture coordinates (vt)"));
         }
-        if (!m.diffuse_texname.empty()) {
-            const std::filesystem::path texture = file.parent_path() / m.diffuse_texname;
-            out.texture_file = texture.string();
-            std::vector<unsigned char> bytes;
-            std::ifstream in(texture, std::ios::binary);
-            if (in) bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-            CL_TRY(out.texture, decodeTexture(bytes, file, "'" + texture.string() + "' (map_Kd of material '" + m.name + "')"));
-            textured = true;
+
+        // Step 3: triangles grouped by material, in file order within each (unchanged with one).
+        std::vector<std::size_t> order(triangle_material.size());
+        for (std::size_t t = 0; t < order.size(); ++t) order[t] = t;
+        const auto materialOf = [&](std::size_t t) { return triangle_material[t] < 0 ? -1 : material_of[static_cast<std::size_t>(triangle_material[t])]; };
+        std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return materialOf(a) < materialOf(b); });
+
+        // Step 4: one mesh vertex per OBJ vertex, or per (vertex, normal, texture coordinate)
+        // combination when there are normals or texture coordinates.
+        mesh.indices.reserve(corners.size());
+        if (!mesh.materials.empty()) {
+            for (std::size_t i = 0; i < order.size(); ++i) mesh.ranges.push_back({3 * i, 3, materialOf(order[i])});
+            mesh.ranges = mergedRanges(mesh.ranges);
         }
-        mesh.materials.push_back(std::move(out));
-        material_of[static_cast<std::size_t>(id)] = static_cast<int>(mesh.materials.size()) - 1;
-    }
-    const bool with_texcoords = textured && all_have_texcoords;
-    if (textured && !all_have_texcoords) {
-        return fail(meshError(file, "has a material with a texture (map_Kd) but faces without texture coordinates (vt)"));
-    }
-
-    // Step 3: triangles grouped by material, in file order within each (unchanged with one).
-    std::vector<std::size_t> order(triangle_material.size());
-    for (std::size_t t = 0; t < order.size(); ++t) order[t] = t;
-    const auto materialOf = [&](std::size_t t) { return triangle_material[t] < 0 ? -1 : material_of[static_cast<std::size_t>(triangle_material[t])]; };
-    std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return materialOf(a) < materialOf(b); });
-
-    // Step 4: one mesh vertex per OBJ vertex, or per (vertex, normal, texture coordinate)
-    // combination when there are normals or texture coordinates.
-    mesh.indices.reserve(corners.size());
-    if (!mesh.materials.empty()) {
-        for (std::size_t i = 0; i < order.size(); ++i) mesh.ranges.push_back({3 * i, 3, materialOf(order[i])});
-        mesh.ranges = mergedRanges(mesh.ranges);
-    }
-    if (!all_have_normals && !with_texcoords) {
-        mesh.positions.reserve(vertex_count);
-        for (std::size_t i = 0; i < vertex_count; ++i) mesh.positions.push_back(position(i));
+        if (!all_have_normals && !with_texcoords) {
+            mesh.positions.reserve(vertex_count);
+            for (std::size_t i = 0; i < vertex_count; ++i) mesh.positions.push_back(position(i));
+            for (const std::size_t t : order) {
+                for (std::size_t k = 0; k < 3; ++k) mesh.indices.push_back(static_cast<std::uint32_t>(corners[3 * t + k].vertex_index));
+            }
+            return mesh;
+        }
+        std::map<std::tuple<int, int, int>, std::uint32_t> vertex_of;
         for (const std::size_t t : order) {
-            for (std::size_t k = 0; k < 3; ++k) mesh.indices.push_back(static_cast<std::uint32_t>(corners[3 * t + k].vertex_index));
+            for (std::size_t k = 0; k < 3; ++k) {
+                const tinyobj::index_t& c = corners[3 * t + k];
+                const std::tuple<int, int, int> key(c.vertex_index, all_have_normals ? c.normal_index : -1, with_texcoords ? c.texcoord_index : -1);
+                auto [it, inserted] = vertex_of.try_emplace(key, static_cast<std::uint32_t>(mesh.positions.size()));
+                if (inserted) {
+                    mesh.positions.push_back(position(static_cast<std::size_t>(c.vertex_index)));
+                    if (all_have_normals) {
+                        const auto n = static_cast<std::size_t>(c.normal_index);
+                        const Eigen::Vector3f normal(attrib.normals[3 * n], attrib.normals[3 * n + 1], attrib.normals[3 * n + 2]);
+                        mesh.normals.push_back(normal.squaredNorm() > 0.0f ? normal.normalized() : normal);
+                    }
+                    if (with_texcoords) {
+                        // OBJ's v grows upwards from the image's bottom row; glTF's convention has it downwards from the top.
+                        const auto i = static_cast<std::size_t>(c.texcoord_index);
+                        mesh.texcoords.emplace_back(attrib.texcoords[2 * i], 1.0f - attrib.texcoords[2 * i + 1]);
+                    }
+                }
+                mesh.indices.push_back(it->second);
+            }
         }
         return mesh;
-    }
-    std::map<std::tuple<int, int, int>, std::uint32_t> vertex_of;
-    for (const std::size_t t : order) {
-        for (std::size_t k = 0; k < 3; ++k) {
-            const tinyobj::index_t& c = corners[3 * t + k];
-            const std::tuple<int, int, int> key(c.vertex_index, all_have_normals ? c.normal_index : -1, with_texcoords ? c.texcoord_index : -1);
-            auto [it, inserted] = vertex_of.try_emplace(key, static_cast<std::uint32_t>(mesh.positions.size()));
-            if (inserted) {
-                mesh.positions.push_back(position(static_cast<std::size_t>(c.vertex_index)));
-                if (all_have_normals) {
-                    const auto n = static_cast<std::size_t>(c.normal_index);
-                    const Eigen::Vector3f normal(attrib.normals[3 * n], attrib.normals[3 * n + 1], attrib.normals[3 * n + 2]);
-                    mesh.normals.push_back(normal.squaredNorm() > 0.0f ? normal.normalized() : normal);
-                }
-                if (with_texcoords) {
-                    // OBJ's v grows upwards from the image's bottom row; glTF's convention has it downwards from the top.
-                    const auto i = static_cast<std::size_t>(c.texcoord_index);
-                    mesh.texcoords.emplace_back(attrib.texcoords[2 * i], 1.0f - attrib.texcoords[2 * i + 1]);
-                }
-            }
-            mesh.indices.push_back(it->second);
-        }
-    }
-    return mesh;
+    });
 }
 
 Result<Mesh> readMesh(const std::filesystem::path& file) {
