@@ -22,6 +22,7 @@ namespace {
 namespace fs = std::filesystem;
 
 const commonlight::fuzz::Reader* g_reader = nullptr;
+bool g_verbose = false;  // COMMONLIGHT_FUZZ_VERBOSE=1: print every result (fuzz_x FILE... to see them)
 fs::path g_dir;   // this process's temporary folder
 fs::path g_file;  // the input, rewritten for every run
 
@@ -44,6 +45,7 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
         std::abort();
     }
     g_dir = pattern;
+    g_verbose = std::getenv("COMMONLIGHT_FUZZ_VERBOSE") != nullptr;
     g_file = g_dir / ("input" + std::string(g_reader->extension));
     std::atexit(removeDir);
     return 0;
@@ -56,6 +58,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         std::abort();
     }
     const commonlight::Result<void> result = g_reader->read(g_file);
+    if (g_verbose) std::fprintf(stderr, "fuzz_%s: %s\n", COMMONLIGHT_FUZZ_READER, result ? "read" : result.error().message.c_str());
     const std::string violation = commonlight::fuzz::contractViolation(*g_reader, g_file, result);
     if (!violation.empty()) {
         std::fprintf(stderr, "fuzz_%s: reader contract broken: %s\n", COMMONLIGHT_FUZZ_READER, violation.c_str());

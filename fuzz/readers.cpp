@@ -62,8 +62,9 @@ Result<void> readSimSensorFile(const fs::path& file) {
     return params.validate();
 }
 
-// A frame file through the sequence reader, once for every way a sequence can say how to read it
-// (sensor.yaml's pixel_format, and a resolution to match).
+// A frame file through the sequence reader as it reads frames of unknown layout (the result),
+// then once for every other way a sequence can say how to read it (sensor.yaml's pixel_format, a
+// resolution to match): those must not crash either, and their errors keep the contract too.
 Result<void> readFrameFile(const fs::path& file) {
     struct Stored {
         PixelFormat format;
@@ -79,14 +80,20 @@ Result<void> readFrameFile(const fs::path& file) {
     FrameFileReader reader;
     Image image;
     Result<void> first;
-    for (const Stored& s : kStored) {
+    for (std::size_t i = 0; i < kStored.size(); ++i) {
+        const Stored& s = kStored[i];
         Result<void> result = reader.read(file, s.format, s.width, s.height, image);
         if (result && image.format() != PixelFormat::kMjpeg &&
             (image.width() <= 0 || image.height() <= 0 || image.sizeBytes() == 0)) {
             return fail(ErrorCode::kInternal, file.string() + ": read as " + std::string(pixelFormatName(s.format)) +
                                                   " gave an empty image without an error");
         }
-        if (!result && first) first = std::move(result);
+        if (i == 0) {
+            first = std::move(result);
+        } else if (!result && (result.error().code != ErrorCode::kBadInput ||
+                               result.error().message.find(file.string()) == std::string::npos)) {
+            return result;  // a broken contract in another layout: report it
+        }
     }
     return first;
 }

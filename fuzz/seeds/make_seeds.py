@@ -42,6 +42,7 @@ normals = [0, 0, 1] * 4
 texcoords = [0, 1, 1, 1, 1, 0, 0, 0]
 indices = [0, 1, 2, 0, 2, 3]
 buffer = struct.pack("<12f", *positions) + struct.pack("<12f", *normals) + struct.pack("<6H", *indices) + b"\0\0"
+buffer += b"\0" * (-len(buffer) % 4)  # GLB's BIN chunk ends on a 4-byte boundary
 buffer_tex = buffer + struct.pack("<8f", *texcoords)
 
 
