@@ -1,6 +1,10 @@
 #include "core/frame_file.h"
 
+#include <algorithm>
 #include <cstring>
+#include <iterator>
+#include <optional>
+#include <utility>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -25,6 +29,44 @@ bool looksLikeCompleteJpeg(const std::vector<std::uint8_t>& b) {
     std::size_t end = b.size();
     while (end > 2 && b[end - 1] == 0x00) --end;  // some cameras pad buffers with zeros
     return b[end - 2] == 0xFF && b[end - 1] == 0xD9;
+}
+
+// Frames without a resolution to match are decoded up to 64 Mpx (8192 x 8192; 512 MB at RGBA16).
+constexpr std::uint64_t kMaxDecodedPixels = std::uint64_t{1} << 26;
+
+std::uint32_t bigEndian(const std::vector<std::uint8_t>& b, std::size_t at, int bytes) {
+    std::uint32_t v = 0;
+    for (int i = 0; i < bytes; ++i) v = (v << 8) | b[at + static_cast<std::size_t>(i)];
+    return v;
+}
+
+// Width and height a PNG (IHDR) or JPEG (its SOFn frame header) declares, read before decoding;
+// nullopt for another format or a header cut short.
+std::optional<std::pair<std::uint32_t, std::uint32_t>> declaredSize(const std::vector<std::uint8_t>& b) {
+    static constexpr std::uint8_t kPng[] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+    if (b.size() >= 24 && std::equal(std::begin(kPng), std::end(kPng), b.begin()) && bigEndian(b, 12, 4) == 0x49484452u) {
+        return std::pair{bigEndian(b, 16, 4), bigEndian(b, 20, 4)};  // "IHDR": width, height
+    }
+    if (b.size() < 4 || b[0] != 0xFF || b[1] != 0xD8) return std::nullopt;
+    // JPEG: markers FF xx, each segment with a 2-byte length, until a start-of-frame.
+    std::size_t at = 2;
+    while (at + 4 <= b.size()) {
+        if (b[at] != 0xFF) return std::nullopt;
+        const std::uint8_t marker = b[at + 1];
+        if (marker == 0xFF) {  // fill byte
+            ++at;
+            continue;
+        }
+        const std::size_t length = bigEndian(b, at + 2, 2);
+        const bool start_of_frame = marker >= 0xC0 && marker <= 0xCF && marker != 0xC4 && marker != 0xC8 && marker != 0xCC;
+        if (start_of_frame) {
+            if (length < 7 || at + 9 > b.size()) return std::nullopt;
+            return std::pair{bigEndian(b, at + 7, 2), bigEndian(b, at + 5, 2)};  // width, height (lines)
+        }
+        if (length < 2) return std::nullopt;
+        at += 2 + length;
+    }
+    return std::nullopt;
 }
 
 // Copies a decoded Mat into `out` as `format` (rows of the Mat are packed into out's stride).
@@ -55,6 +97,23 @@ Result<void> FrameFileReader::read(const fs::path& file, PixelFormat stored, int
         // broken signature): release it first so a failure can never pass off the previous frame's
         // pixels as this one's. Costs one allocation per decoded frame.
         decoded_.release();
+        // The header's size, checked before OpenCV allocates for it: a 69-byte PNG can declare
+        // 30000 x 30000 RGBA16 (7.2 GB). Frames are PNG or JPEG (docs/formats-sequence.md); no
+        // other format goes to the decoder.
+        const auto declared = declaredSize(bytes_);
+        if (!declared) return fail(corrupt(file, "not a PNG or JPEG file, or its header is cut short"));
+        const std::uint64_t pixels = std::uint64_t{declared->first} * std::uint64_t{declared->second};
+        // YUYV and NV12 frames are stored as GRAY8 images of up to twice the frame's pixels.
+        const std::uint64_t limit = width > 0 && height > 0 ? 2 * std::uint64_t{static_cast<unsigned>(width)} *
+                                                                  std::uint64_t{static_cast<unsigned>(height)}
+                                                            : kMaxDecodedPixels;
+        if (pixels == 0 || pixels > limit) {
+            return fail(corrupt(file, "the header declares a " + std::to_string(declared->first) + "x" +
+                                          std::to_string(declared->second) + " image" +
+                                          (width > 0 && height > 0
+                                               ? ", but the sequence is " + std::to_string(width) + "x" + std::to_string(height)
+                                               : ", larger than " + std::to_string(kMaxDecodedPixels) + " pixels")));
+        }
         try {
             cv::imdecode(cv::Mat(1, static_cast<int>(bytes_.size()), CV_8UC1, bytes_.data()), cv::IMREAD_UNCHANGED,
                          &decoded_);
