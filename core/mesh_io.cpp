@@ -261,13 +261,20 @@ private:
         const std::size_t element = static_cast<std::size_t>(component_size) * static_cast<std::size_t>(components);
         const std::size_t stride = bv.byteStride == 0 ? element : bv.byteStride;
         if (stride < element) return fail(meshError(file_, name + ": byteStride is smaller than an element"));
-        // Hard case: every size here comes from the file; check before any byte is read.
-        const std::size_t needed = a.count == 0 ? 0 : a.byteOffset + stride * (a.count - 1) + element;
-        if (needed > bv.byteLength || bv.byteOffset > bytes.size() || bv.byteLength > bytes.size() - bv.byteOffset) {
-            return fail(meshError(file_, name + ": reads past the end of its buffer (needs " + std::to_string(needed) +
-                                             " bytes of buffer view " + std::to_string(a.bufferView) + ", which has " +
-                                             std::to_string(bv.byteLength) + " of a " + std::to_string(bytes.size()) +
-                                             "-byte buffer)"));
+        // Hard case: every size here comes from the file; check before any byte is read, and
+        // without forming byteOffset + stride x (count - 1) + element, which a file can make wrap
+        // around (found while fuzzing: count 2^57 + 1 at stride 128 wrapped to 12 bytes and asked
+        // for a 1.7e18-byte vector).
+        const bool view_fits = bv.byteOffset <= bytes.size() && bv.byteLength <= bytes.size() - bv.byteOffset;
+        const bool elements_fit = a.count == 0 || (a.byteOffset <= bv.byteLength && element <= bv.byteLength - a.byteOffset &&
+                                                   a.count - 1 <= (bv.byteLength - a.byteOffset - element) / stride);
+        if (!view_fits || !elements_fit) {
+            return fail(meshError(file_, name + ": reads past the end of its buffer (" + std::to_string(a.count) +
+                                             " elements of " + std::to_string(element) + " bytes every " +
+                                             std::to_string(stride) + " from byte " + std::to_string(a.byteOffset) +
+                                             " of buffer view " + std::to_string(a.bufferView) + ", which has " +
+                                             std::to_string(bv.byteLength) + " bytes of a " +
+                                             std::to_string(bytes.size()) + "-byte buffer)"));
         }
         return AccessorView{bytes.data() + bv.byteOffset + a.byteOffset, stride, a.count, a.componentType};
     }

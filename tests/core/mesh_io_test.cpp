@@ -418,6 +418,23 @@ TEST(MeshIoBadInput, AccessorPastEndOfBuffer) {
     expectError(readMesh(dir / "overrun.gltf"), dir / "overrun.gltf", "reads past the end of its buffer");
 }
 
+// Found while fuzzing (issue 14): byteOffset + stride x (count - 1) + element wrapped around 2^64
+// (count 2^57 + 1 at stride 128 gives 12 bytes), passed the check and asked for a 1.7e18-byte vector.
+TEST(MeshIoBadInput, AccessorSizeThatWrapsAround) {
+    TempDir dir;
+    std::string json = gltfJson(GltfSpec{});
+    const auto replace = [&json](const std::string& from, const std::string& to) {
+        const auto at = json.find(from);
+        ASSERT_NE(at, std::string::npos) << from;
+        json.replace(at, from.size(), to);
+    };
+    replace(R"("byteOffset": 0, "byteLength": 48})", R"("byteOffset": 0, "byteLength": 48, "byteStride": 128})");
+    replace(R"("componentType": 5126, "count": 4,)", R"("componentType": 5126, "count": 144115188075855873,)");
+    writeText(dir / "wrap.gltf", json);
+    expectError(readMesh(dir / "wrap.gltf"), dir / "wrap.gltf",
+                "POSITION (accessor 0): reads past the end of its buffer (144115188075855873 elements of 12 bytes every 128");
+}
+
 TEST(MeshIoBadInput, TriangleStripIsRefused) {
     TempDir dir;
     GltfSpec spec;
