@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cctype>
 #include <cstring>
-#include <fstream>
 #include <iterator>
 #include <limits>
 #include <map>
@@ -21,6 +20,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "core/file_util.h"
 #include "core/reader_guard.h"
 
 namespace commonlight {
@@ -47,6 +47,31 @@ std::string oneLine(std::string text) {
     if (text.size() > kMaxLength) text = text.substr(0, kMaxLength) + "...";
     return text.empty() ? std::string("unknown error") : text;
 }
+
+// The files a mesh names (glTF buffers and images, OBJ textures) are read only when they are
+// regular files: tinygltf's own reader took a folder ("uri": ".") for a file of 2^63 bytes and
+// asked for that much memory (found while fuzzing), and a device (/dev/zero) never ends.
+bool readRegularFile(const std::filesystem::path& file, std::vector<unsigned char>& out) {
+    out.clear();
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(file, ec)) return false;
+    return static_cast<bool>(readFileInto(file, out));
+}
+
+bool regularFileExists(const std::string& path, void*) {
+    std::error_code ec;
+    return std::filesystem::is_regular_file(path, ec);
+}
+
+std::string samePath(const std::string& path, void*) { return path; }  // no ~ or $VAR expansion
+
+bool readWholeRegularFile(std::vector<unsigned char>* out, std::string* err, const std::string& path, void*) {
+    if (readRegularFile(path, *out)) return true;
+    if (err != nullptr) *err += "cannot read '" + path + "' (missing, or not a regular file)\n";
+    return false;
+}
+
+bool refuseToWrite(std::string*, const std::string&, const std::vector<unsigned char>&, void*) { return false; }
 
 // Images are decoded only when a material's base colour uses them (decodeTexture): keep the
 // encoded bytes (and do not fail on an image nothing uses).
@@ -489,6 +514,8 @@ Result<Mesh> readGltfMesh(const std::filesystem::path& file, bool binary) {
         CL_TRY_VOID(checkExists(file));
         tinygltf::TinyGLTF loader;
         loader.SetImageLoader(&keepImageBytes, nullptr);
+        loader.SetFsCallbacks(tinygltf::FsCallbacks{&regularFileExists, &samePath, &readWholeRegularFile,
+                                                    &refuseToWrite, nullptr});
         tinygltf::Model model;
         std::string err;
         std::string warn;
@@ -588,8 +615,7 @@ Result<Mesh> readObjMesh(const std::filesystem::path& file) {
                 const std::filesystem::path texture = file.parent_path() / m.diffuse_texname;
                 out.texture_file = texture.string();
                 std::vector<unsigned char> bytes;
-                std::ifstream in(texture, std::ios::binary);
-                if (in) bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+                readRegularFile(texture, bytes);  // missing, a folder or a device: no bytes
                 CL_TRY(out.texture, decodeTexture(bytes, file, "'" + texture.string() + "' (map_Kd of material '" + m.name + "')"));
                 textured = true;
             }

@@ -393,6 +393,18 @@ TEST(MeshIoBadInput, TruncatedGlb) {
     expectError(readMesh(dir / "cut.glb"), dir / "cut.glb", "not a valid glTF 2.0 file");
 }
 
+// Found while fuzzing (issue 14): tinygltf's own file reader took a folder for a file of 2^63
+// bytes and asked for that much memory. Only regular files are read for a mesh.
+TEST(MeshIoBadInput, BufferThatIsAFolder) {
+    TempDir dir;
+    GltfSpec spec;
+    for (const char* uri : {".", "..", "/"}) {
+        spec.buffer_uri = uri;
+        writeText(dir / "folder.gltf", gltfJson(spec));
+        expectError(readMesh(dir / "folder.gltf"), dir / "folder.gltf", std::string("File not found : ") + uri);
+    }
+}
+
 TEST(MeshIoBadInput, MissingBufferFile) {
     TempDir dir;
     GltfSpec spec;
