@@ -1,13 +1,13 @@
 #include "core/reader_guard.h"
 
+#include <yaml-cpp/exceptions.h>
+
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
 #include <new>
-#include <string>
-
 #include <opencv2/core.hpp>
-#include <yaml-cpp/exceptions.h>
+#include <string>
 
 namespace commonlight {
 

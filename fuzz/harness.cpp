@@ -23,8 +23,8 @@ namespace fs = std::filesystem;
 
 const commonlight::fuzz::Reader* g_reader = nullptr;
 bool g_verbose = false;  // COMMONLIGHT_FUZZ_VERBOSE=1: print every result (fuzz_x FILE... to see them)
-fs::path g_dir;   // this process's temporary folder
-fs::path g_file;  // the input, rewritten for every run
+fs::path g_dir;          // this process's temporary folder
+fs::path g_file;         // the input, rewritten for every run
 
 void removeDir() {
     std::error_code ec;
@@ -58,7 +58,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         std::abort();
     }
     const commonlight::Result<void> result = g_reader->read(g_file);
-    if (g_verbose) std::fprintf(stderr, "fuzz_%s: %s\n", COMMONLIGHT_FUZZ_READER, result ? "read" : result.error().message.c_str());
+    if (g_verbose)
+        std::fprintf(stderr, "fuzz_%s: %s\n", COMMONLIGHT_FUZZ_READER,
+                     result ? "read" : result.error().message.c_str());
     const std::string violation = commonlight::fuzz::contractViolation(*g_reader, g_file, result);
     if (!violation.empty()) {
         std::fprintf(stderr, "fuzz_%s: reader contract broken: %s\n", COMMONLIGHT_FUZZ_READER, violation.c_str());

@@ -1,9 +1,9 @@
 #include "fuzz/readers.h"
 
+#include <yaml-cpp/yaml.h>
+
 #include <algorithm>
 #include <array>
-
-#include <yaml-cpp/yaml.h>
 
 #include "core/calibration_io.h"
 #include "core/file_util.h"
@@ -58,7 +58,8 @@ Result<void> readResponseFile(const fs::path& file) { return status(ResponseCurv
 Result<void> readSimSensorFile(const fs::path& file) {
     CL_TRY(const YAML::Node root, yaml::loadFile(file));
     CL_TRY_VOID(yaml::checkKeys(file.string(), root, "", {"sensor"}));
-    CL_TRY(const mocks::sim::SensorParams params, mocks::sim::parseSensorParams(file.string(), yaml::lookup(root, "sensor")));
+    CL_TRY(const mocks::sim::SensorParams params,
+           mocks::sim::parseSensorParams(file.string(), yaml::lookup(root, "sensor")));
     return params.validate();
 }
 
@@ -140,9 +141,7 @@ constexpr Reader kReaders[] = {
 
 }  // namespace
 
-std::span<const Reader> readers() {
-    return kReaders;
-}
+std::span<const Reader> readers() { return kReaders; }
 
 const Reader* findReader(std::string_view name) {
     for (const Reader& r : readers()) {
@@ -158,8 +157,8 @@ std::string contractViolation(const Reader& reader, const fs::path& file, const 
         return "error code '" + std::string(errorCodeName(e.code)) + "', expected '" +
                std::string(errorCodeName(reader.bad_input_code)) + "': " + e.message;
     }
-    const std::string named = reader.bad_input_code == ErrorCode::kUsage ? "camera URI '" + uriText(file) + "'"
-                                                                         : file.string();
+    const std::string named =
+        reader.bad_input_code == ErrorCode::kUsage ? "camera URI '" + uriText(file) + "'" : file.string();
     if (e.message.find(named) == std::string::npos) return "the message does not name " + named + ": " + e.message;
     return {};
 }

@@ -1,12 +1,12 @@
 #include "core/reader_guard.h"
 
+#include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
+
 #include <new>
+#include <opencv2/core.hpp>
 #include <stdexcept>
 #include <string>
-
-#include <gtest/gtest.h>
-#include <opencv2/core.hpp>
-#include <yaml-cpp/yaml.h>
 
 namespace commonlight {
 namespace {

@@ -3,14 +3,14 @@
 // ASan/UBSan in scripts/test. A regression input must give an error value of the reader's
 // bad-input code that names the file; a seed (fuzz/seeds.txt, fuzz/seeds/) must read; no input
 // may crash or throw.
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
 #include <vector>
-
-#include <gtest/gtest.h>
 
 #include "fuzz/readers.h"
 #include "tests/test_support.h"
@@ -96,7 +96,8 @@ INSTANTIATE_TEST_SUITE_P(Readers, Replay, ::testing::ValuesIn([] {
 // Every harness has a dictionary and seeds to start from.
 TEST(Replay, EveryReaderHasSeedsAndADictionary) {
     for (const Reader& reader : fuzz::readers()) {
-        EXPECT_TRUE(fs::is_regular_file(sourceDir() / "fuzz/dict" / (std::string(reader.name) + ".dict"))) << reader.name;
+        EXPECT_TRUE(fs::is_regular_file(sourceDir() / "fuzz/dict" / (std::string(reader.name) + ".dict")))
+            << reader.name;
         EXPECT_FALSE(listedSeeds(reader.name).empty() && filesIn(sourceDir() / "fuzz/seeds" / reader.name).empty())
             << reader.name << " has no seeds";
     }
