@@ -65,9 +65,11 @@ bool regularFileExists(const std::string& path, void*) {
 
 std::string samePath(const std::string& path, void*) { return path; }  // no ~ or $VAR expansion
 
+// tinygltf reads the first bytes of what this gives without checking for them: an empty file is
+// an error here (found while fuzzing: an empty .glb threw std::out_of_range from inside tinygltf).
 bool readWholeRegularFile(std::vector<unsigned char>* out, std::string* err, const std::string& path, void*) {
-    if (readRegularFile(path, *out)) return true;
-    if (err != nullptr) *err += "cannot read '" + path + "' (missing, or not a regular file)\n";
+    if (readRegularFile(path, *out) && !out->empty()) return true;
+    if (err != nullptr) *err += "cannot read '" + path + "' (missing, empty, or not a regular file)\n";
     return false;
 }
 

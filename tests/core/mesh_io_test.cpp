@@ -405,6 +405,17 @@ TEST(MeshIoBadInput, BufferThatIsAFolder) {
     }
 }
 
+// Found while fuzzing (issue 14): an empty .glb made tinygltf throw std::out_of_range.
+TEST(MeshIoBadInput, EmptyFiles) {
+    TempDir dir;
+    writeText(dir / "empty.glb", "");
+    expectError(readMesh(dir / "empty.glb"), dir / "empty.glb", "(missing, empty, or not a regular file)");
+    writeText(dir / "empty.gltf", "");
+    expectError(readMesh(dir / "empty.gltf"), dir / "empty.gltf", "(missing, empty, or not a regular file)");
+    writeText(dir / "empty.obj", "");
+    expectError(readMesh(dir / "empty.obj"), dir / "empty.obj", "contains no triangles");
+}
+
 TEST(MeshIoBadInput, MissingBufferFile) {
     TempDir dir;
     GltfSpec spec;
