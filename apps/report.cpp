@@ -23,6 +23,7 @@ nlohmann::json captureJson(const capture::CaptureStats& stats) {
             {"dropped_frames", droppedFrames(stats)},
             {"dropped", {{"device", stats.drops.device}, {"no_slot", stats.drops.no_slot}, {"mailbox", stats.drops.mailbox}}},
             {"corrupt_frames", stats.drops.corrupt},
+            {"frames_discarded", stats.frames_discarded},
             {"latency_ms", toJson(stats.latency_ms)}};
 }
 
@@ -48,6 +49,10 @@ void printCaptureStats(const capture::CaptureStats& stats) {
                 static_cast<unsigned long long>(stats.drops.no_slot),
                 static_cast<unsigned long long>(stats.drops.mailbox),
                 static_cast<unsigned long long>(stats.drops.corrupt));
+    if (stats.frames_discarded > 0) {
+        std::printf("  discarded %llu made after the consumer stopped taking frames (not dropped)\n",
+                    static_cast<unsigned long long>(stats.frames_discarded));
+    }
     std::printf("  latency   p50 %.3f ms, p95 %.3f ms, max %.3f ms (frame arrival to hand-over)\n", stats.latency_ms.p50,
                 stats.latency_ms.p95, stats.latency_ms.max);
 }

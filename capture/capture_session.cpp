@@ -98,7 +98,9 @@ NextFrame CaptureSession::next(std::stop_token stop, std::chrono::nanoseconds ti
     return taken;
 }
 
-CaptureStats CaptureSession::stats() const { return collector_.snapshot(framesWithoutSlot(), mailbox_.dropped()); }
+CaptureStats CaptureSession::stats() const {
+    return collector_.snapshot(framesWithoutSlot(), mailbox_.dropped(), mailbox_.discarded());
+}
 
 std::uint64_t CaptureSession::framesWithoutSlot() const noexcept {
     return camera_->framesWithoutSlot() - without_slot_base_.load(std::memory_order_relaxed);

@@ -18,13 +18,16 @@ bool Mailbox::put(FrameHandle frame) {
             changed_.wait(lock, [&] { return !slot_ || closed_; });
         }
         if (closed_) {
+            // The stream is over (stopped, ended or failed): the consumer takes nothing more, so
+            // this frame was made after it stopped, not lost by it.
             released = std::move(frame);
-            dropped_.fetch_add(1, std::memory_order_relaxed);
+            discarded_.fetch_add(1, std::memory_order_relaxed);
             delivered = false;
         } else {
             if (slot_) {
                 released = std::move(slot_);  // newest wins: nobody took it
-                dropped_.fetch_add(1, std::memory_order_relaxed);
+                ++replaced_since_take_;       // a drop once the consumer takes a newer frame
+                discarded_.fetch_add(1, std::memory_order_relaxed);
             }
             slot_ = std::move(frame);
         }
@@ -53,6 +56,10 @@ MailboxTake Mailbox::take(std::stop_token stop, std::chrono::nanoseconds timeout
         }
         frame.emplace(std::move(slot_));
         delivered_.fetch_add(1, std::memory_order_relaxed);
+        // The frames replaced since the last take came before this one: the consumer lost them.
+        dropped_.fetch_add(replaced_since_take_, std::memory_order_relaxed);
+        discarded_.fetch_sub(replaced_since_take_, std::memory_order_relaxed);
+        replaced_since_take_ = 0;
     }
     changed_.notify_all();  // a lossless producer may put the next frame
     return frame;
@@ -81,6 +88,8 @@ void Mailbox::reopen() {
         closed_ = false;
         delivered_.store(0, std::memory_order_relaxed);
         dropped_.store(0, std::memory_order_relaxed);
+        discarded_.store(0, std::memory_order_relaxed);
+        replaced_since_take_ = 0;
         end_error_.reset();
     }
     changed_.notify_all();

@@ -3,7 +3,10 @@
 //
 // Newest-wins mode (live cameras, DESIGN section 1): put() never blocks. A frame nobody took is
 // replaced by the newer one; the old handle is released (its slot goes back to the pool) outside
-// the lock and counted as dropped. The consumer always gets the newest frame, in order.
+// the lock. It counts as dropped once the consumer takes a newer frame: the user lost it. Frames
+// replaced after the consumer's last take, and frames put after close(), were made after it
+// stopped taking (record --frames N, Ctrl-C, the end of a stream): they are discarded, not
+// dropped. The consumer always gets the newest frame, in order.
 //
 // Lossless mode (`--sync` playback of replay cameras only): put() blocks the producer until the
 // consumer has taken the previous frame, so every frame is delivered, in order, and processing
@@ -46,7 +49,7 @@ public:
 
     // Producer thread. Newest-wins: never blocks. Lossless: blocks until the slot is empty or the
     // mailbox is closed. Returns false when the frame was not delivered: the mailbox was closed
-    // (the frame is released and counted as dropped). An empty handle is ignored (returns false,
+    // (the frame is released and counted as discarded). An empty handle is ignored (returns false,
     // not counted).
     bool put(FrameHandle frame);
 
@@ -67,8 +70,11 @@ public:
 
     // Frames the consumer took.
     std::uint64_t delivered() const noexcept { return delivered_.load(std::memory_order_relaxed); }
-    // Frames replaced before the consumer took them, or put after close().
+    // Frames replaced before the consumer took them, counted when it takes a newer frame.
     std::uint64_t dropped() const noexcept { return dropped_.load(std::memory_order_relaxed); }
+    // Frames that did not reach the consumer but that it did not lose (yet): replaced since its
+    // last take, or put after close(). delivered + dropped + discarded = every frame put.
+    std::uint64_t discarded() const noexcept { return discarded_.load(std::memory_order_relaxed); }
     // True when a frame waits to be taken.
     bool pending() const;
 
@@ -81,6 +87,8 @@ private:
     std::optional<Error> end_error_;
     std::atomic<std::uint64_t> delivered_{0};  // written under mutex_, read without it
     std::atomic<std::uint64_t> dropped_{0};
+    std::atomic<std::uint64_t> discarded_{0};
+    std::uint64_t replaced_since_take_ = 0;  // under mutex_
 };
 
 }  // namespace commonlight::capture

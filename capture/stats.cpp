@@ -68,8 +68,10 @@ void CaptureStatsCollector::onDelivery(const FrameMetadata& meta, std::int64_t h
     }
 }
 
-CaptureStats CaptureStatsCollector::snapshot(std::uint64_t frames_without_slot, std::uint64_t mailbox_drops) const {
+CaptureStats CaptureStatsCollector::snapshot(std::uint64_t frames_without_slot, std::uint64_t mailbox_drops,
+                                             std::uint64_t mailbox_discarded) const {
     CaptureStats stats;
+    stats.frames_discarded = mailbox_discarded;
     stats.frames_received = received_.load(std::memory_order_relaxed);
     stats.drops.device = device_drops_.load(std::memory_order_relaxed);
     stats.drops.no_slot = frames_without_slot;

@@ -40,6 +40,9 @@ struct CaptureStats {
     double jitter_ms = 0.0;  // population std dev of the intervals between delivered frames'
                              // timestamps; frames dropped in between widen an interval
     DropCounts drops;
+    // Frames the camera made after the consumer stopped taking (replaced in the mailbox after its
+    // last take, or put after the stream was closed): not lost by the user, so not in `drops`.
+    std::uint64_t frames_discarded = 0;
     // FrameMetadata::arrival_ns to the hand-over to the consumer, in ms. Frames without an
     // arrival time (arrival_ns == 0) give no sample.
     Percentiles latency_ms;
@@ -65,7 +68,8 @@ public:
 
     // Any thread. The no-slot and mailbox counts are kept by the camera and the mailbox; the
     // caller passes them in.
-    CaptureStats snapshot(std::uint64_t frames_without_slot, std::uint64_t mailbox_drops) const;
+    CaptureStats snapshot(std::uint64_t frames_without_slot, std::uint64_t mailbox_drops,
+                          std::uint64_t mailbox_discarded = 0) const;
 
 private:
     // Producer side: the atomics are read by snapshot(); the rest is the producer's own.

@@ -15,6 +15,25 @@ if(COMMONLIGHT_ASAN)
                          -fno-sanitize-recover=undefined -fno-omit-frame-pointer)
   target_link_options(commonlight_options INTERFACE -fsanitize=address,undefined)
 endif()
+if(COMMONLIGHT_FUZZ)
+  if(COMMONLIGHT_ASAN OR COMMONLIGHT_TSAN)
+    message(FATAL_ERROR "COMMONLIGHT_FUZZ brings its own sanitizers: leave COMMONLIGHT_ASAN and COMMONLIGHT_TSAN off")
+  endif()
+  if(NOT CMAKE_CXX_COMPILER_ID STREQUAL "Clang" OR CMAKE_CXX_COMPILER_VERSION VERSION_LESS 16)
+    message(FATAL_ERROR "COMMONLIGHT_FUZZ needs clang 16 or newer (CMAKE_CXX_COMPILER=clang++-16; scripts/fuzz sets it up), "
+                        "found ${CMAKE_CXX_COMPILER_ID} ${CMAKE_CXX_COMPILER_VERSION}")
+  endif()
+  # Every object of a fuzz tree (core too) carries libFuzzer's coverage, ASan and UBSan; the
+  # harness executables add -fsanitize=fuzzer (its main). libstdc++ 12 declares std::expected
+  # (core/result.h) only when __cpp_concepts >= 202002, which clang 16 does not announce although
+  # it implements what the header needs: say so (the macro is the compiler's, hence the warning
+  # switched off). COMMONLIGHT_FUZZ_STRICT_READERS: an exception reaching a reader's border
+  # aborts (core/reader_guard.h), so the fuzzer finds where a reader leaned on that net.
+  add_compile_options(-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=undefined
+                      -fno-omit-frame-pointer -g -D__cpp_concepts=202002L -Wno-macro-redefined
+                      -DCOMMONLIGHT_FUZZ_STRICT_READERS)
+  add_link_options(-fsanitize=address,undefined)
+endif()
 if(COMMONLIGHT_TSAN)
   target_compile_options(commonlight_options INTERFACE -fsanitize=thread -fno-omit-frame-pointer)
   target_link_options(commonlight_options INTERFACE -fsanitize=thread)

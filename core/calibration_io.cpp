@@ -1,11 +1,13 @@
 #include "core/calibration_io.h"
 
 #include <cmath>
+#include <cstdint>
 #include <sstream>
 #include <utility>
 
 #include "core/file_util.h"
 #include "core/yaml_util.h"
+#include "core/reader_guard.h"
 
 namespace commonlight {
 
@@ -51,11 +53,16 @@ Result<Matrix> readMatrix(const std::string& file, const YAML::Node& root, const
                                        "element type '" + dt + "' is not a single-channel number type (d or f)"));
         }
     }
-    m.data_node = std::as_const(m.node)["data"];  // const lookup: never inserts
+    // Checked before the lookup below: without `data` the const lookup gives a node that yaml-cpp
+    // refuses to assign (it throws YAML::InvalidNode).
     CL_TRY(m.data, yaml::getDoubles(file, m.node, key + ".data"));
-    if (static_cast<std::size_t>(m.rows) * static_cast<std::size_t>(m.cols) != m.data.size()) {
+    m.data_node = yaml::lookup(m.node, "data");
+    // rows and cols are ints from the file: their product is formed in 64 bits (two ints cannot
+    // overflow it), never as int.
+    const std::int64_t entries = std::int64_t{m.rows} * std::int64_t{m.cols};
+    if (static_cast<std::uint64_t>(entries) != m.data.size()) {
         std::ostringstream msg;
-        msg << "rows x cols = " << m.rows << " x " << m.cols << " = " << m.rows * m.cols << " but data has "
+        msg << "rows x cols = " << m.rows << " x " << m.cols << " = " << entries << " but data has "
             << m.data.size() << " numbers";
         return fail(yaml::keyError(file, m.data_node, key + ".data", msg.str()));
     }
@@ -202,20 +209,22 @@ Result<void> checkWritable(const std::filesystem::path& file, const CameraModel&
 }  // namespace
 
 Result<CameraModel> parseCalibration(const std::string& text, const std::string& name) {
-    CL_TRY(const YAML::Node root, yaml::loadString(text, name));
-    if (!root.IsMap()) {
-        return fail(ErrorCode::kBadInput, yaml::where(name, root) +
-                                              ": expected a calibration (a map with image_width, image_height, "
-                                              "camera_matrix, distortion_coefficients)");
-    }
-    const Format format = detectFormat(root);
-    CameraModel model;
-    CL_TRY(model.width, readImageSize(name, root, "image_width"));
-    CL_TRY(model.height, readImageSize(name, root, "image_height"));
-    CL_TRY_VOID(readCameraMatrix(name, root, format, model));
-    CL_TRY_VOID(readDistortion(name, root, format, model));
-    if (auto valid = model.validate(); !valid) return fail(valid.error().prepend(name));
-    return model;
+    return guardReader(name, [&]() -> Result<CameraModel> {
+        CL_TRY(const YAML::Node root, yaml::loadString(text, name));
+        if (!root.IsMap()) {
+            return fail(ErrorCode::kBadInput, yaml::where(name, root) +
+                                                  ": expected a calibration (a map with image_width, image_height, "
+                                                  "camera_matrix, distortion_coefficients)");
+        }
+        const Format format = detectFormat(root);
+        CameraModel model;
+        CL_TRY(model.width, readImageSize(name, root, "image_width"));
+        CL_TRY(model.height, readImageSize(name, root, "image_height"));
+        CL_TRY_VOID(readCameraMatrix(name, root, format, model));
+        CL_TRY_VOID(readDistortion(name, root, format, model));
+        if (auto valid = model.validate(); !valid) return fail(valid.error().prepend(name));
+        return model;
+    });
 }
 
 Result<CameraModel> readCalibration(const std::filesystem::path& file) {

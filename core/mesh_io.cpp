@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cctype>
 #include <cstring>
-#include <fstream>
 #include <iterator>
 #include <limits>
 #include <map>
@@ -20,6 +19,9 @@
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+
+#include "core/file_util.h"
+#include "core/reader_guard.h"
 
 namespace commonlight {
 
@@ -45,6 +47,33 @@ std::string oneLine(std::string text) {
     if (text.size() > kMaxLength) text = text.substr(0, kMaxLength) + "...";
     return text.empty() ? std::string("unknown error") : text;
 }
+
+// The files a mesh names (glTF buffers and images, OBJ textures) are read only when they are
+// regular files: tinygltf's own reader took a folder ("uri": ".") for a file of 2^63 bytes and
+// asked for that much memory (found while fuzzing), and a device (/dev/zero) never ends.
+bool readRegularFile(const std::filesystem::path& file, std::vector<unsigned char>& out) {
+    out.clear();
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(file, ec)) return false;
+    return static_cast<bool>(readFileInto(file, out));
+}
+
+bool regularFileExists(const std::string& path, void*) {
+    std::error_code ec;
+    return std::filesystem::is_regular_file(path, ec);
+}
+
+std::string samePath(const std::string& path, void*) { return path; }  // no ~ or $VAR expansion
+
+// tinygltf reads the first bytes of what this gives without checking for them: an empty file is
+// an error here (found while fuzzing: an empty .glb threw std::out_of_range from inside tinygltf).
+bool readWholeRegularFile(std::vector<unsigned char>* out, std::string* err, const std::string& path, void*) {
+    if (readRegularFile(path, *out) && !out->empty()) return true;
+    if (err != nullptr) *err += "cannot read '" + path + "' (missing, empty, or not a regular file)\n";
+    return false;
+}
+
+bool refuseToWrite(std::string*, const std::string&, const std::vector<unsigned char>&, void*) { return false; }
 
 // Images are decoded only when a material's base colour uses them (decodeTexture): keep the
 // encoded bytes (and do not fail on an image nothing uses).
@@ -130,7 +159,7 @@ struct AccessorView {
 class GltfReader {
 public:
     GltfReader(const std::filesystem::path& file, const tinygltf::Model& model)
-        : file_(file), model_(model), on_path_(model.nodes.size(), 0) {}
+        : file_(file), model_(model), on_path_(model.nodes.size(), 0), visited_(model.nodes.size(), 0) {}
 
     Result<Mesh> read() {
         // Step 1: the scene to flatten.
@@ -142,7 +171,7 @@ public:
         }
         // Step 2: walk every node tree, accumulating world transforms.
         for (const int node : model_.scenes[static_cast<std::size_t>(scene)].nodes) {
-            CL_TRY_VOID(visit(node, Eigen::Matrix4d::Identity()));
+            CL_TRY_VOID(visit(node));
         }
         // Step 3: normals only when every primitive had them; texture coordinates and materials
         // only when some primitive had them.
@@ -163,32 +192,59 @@ private:
         return "node " + std::to_string(node) + (name.empty() ? "" : " '" + name + "'");
     }
 
-    Result<void> visit(int node, const Eigen::Matrix4d& parent) {
-        if (node < 0 || node >= static_cast<int>(model_.nodes.size())) {
-            return fail(meshError(file_, "node index " + std::to_string(node) + " is out of range (" +
-                                             std::to_string(model_.nodes.size()) + " nodes)"));
-        }
-        const auto index = static_cast<std::size_t>(node);
-        if (on_path_[index]) return fail(meshError(file_, nodeName(node) + " is its own ancestor (a cycle)"));
-        const tinygltf::Node& n = model_.nodes[index];
-        const Eigen::Matrix4d world = parent * localTransform(n);
-        if (!world.allFinite()) return fail(meshError(file_, nodeName(node) + " has a non-finite transform"));
-        if (n.mesh >= 0) {
-            if (n.mesh >= static_cast<int>(model_.meshes.size())) {
-                return fail(meshError(
-                    file_, nodeName(node) + " refers to mesh " + std::to_string(n.mesh) + ", which does not exist"));
+    // Depth first over one node tree, in the order a recursion would take, with a stack of its
+    // own: a chain of nodes as deep as the file likes must not exhaust the call stack (found
+    // while fuzzing: 2000 nested nodes overflowed it under ASan, 30000 without). glTF nodes form
+    // strict trees (at most one parent each): a node met twice is an error, which also bounds the
+    // work by the node count (a node listed twice as a child, at every level, would double it
+    // per level).
+    Result<void> visit(int root) {
+        struct Step {
+            int node;
+            Eigen::Matrix4d parent;  // world transform of the parent
+            bool leave;              // the node's children are done: it leaves the path
+        };
+        std::vector<Step> stack{{root, Eigen::Matrix4d::Identity(), false}};
+        while (!stack.empty()) {
+            const Step step = stack.back();
+            stack.pop_back();
+            const int node = step.node;
+            if (step.leave) {
+                on_path_[static_cast<std::size_t>(node)] = 0;
+                continue;
             }
-            const tinygltf::Mesh& mesh = model_.meshes[static_cast<std::size_t>(n.mesh)];
-            for (std::size_t p = 0; p < mesh.primitives.size(); ++p) {
-                const std::string where = "mesh " + std::to_string(n.mesh) +
-                                          (mesh.name.empty() ? "" : " '" + mesh.name + "'") + " primitive " +
-                                          std::to_string(p);
-                CL_TRY_VOID(addPrimitive(mesh.primitives[p], world, where));
+            if (node < 0 || node >= static_cast<int>(model_.nodes.size())) {
+                return fail(meshError(file_, "node index " + std::to_string(node) + " is out of range (" +
+                                                 std::to_string(model_.nodes.size()) + " nodes)"));
+            }
+            const auto index = static_cast<std::size_t>(node);
+            if (on_path_[index]) return fail(meshError(file_, nodeName(node) + " is its own ancestor (a cycle)"));
+            if (visited_[index]) {
+                return fail(meshError(file_, nodeName(node) + " has more than one parent (glTF nodes form trees)"));
+            }
+            visited_[index] = 1;
+            const tinygltf::Node& n = model_.nodes[index];
+            const Eigen::Matrix4d world = step.parent * localTransform(n);
+            if (!world.allFinite()) return fail(meshError(file_, nodeName(node) + " has a non-finite transform"));
+            if (n.mesh >= 0) {
+                if (n.mesh >= static_cast<int>(model_.meshes.size())) {
+                    return fail(meshError(
+                        file_, nodeName(node) + " refers to mesh " + std::to_string(n.mesh) + ", which does not exist"));
+                }
+                const tinygltf::Mesh& mesh = model_.meshes[static_cast<std::size_t>(n.mesh)];
+                for (std::size_t p = 0; p < mesh.primitives.size(); ++p) {
+                    const std::string where = "mesh " + std::to_string(n.mesh) +
+                                              (mesh.name.empty() ? "" : " '" + mesh.name + "'") + " primitive " +
+                                              std::to_string(p);
+                    CL_TRY_VOID(addPrimitive(mesh.primitives[p], world, where));
+                }
+            }
+            on_path_[index] = 1;
+            stack.push_back({node, Eigen::Matrix4d::Identity(), true});
+            for (auto child = n.children.rbegin(); child != n.children.rend(); ++child) {
+                stack.push_back({*child, world, false});
             }
         }
-        on_path_[index] = 1;
-        for (const int child : n.children) CL_TRY_VOID(visit(child, world));
-        on_path_[index] = 0;
         return {};
     }
 
@@ -232,13 +288,20 @@ private:
         const std::size_t element = static_cast<std::size_t>(component_size) * static_cast<std::size_t>(components);
         const std::size_t stride = bv.byteStride == 0 ? element : bv.byteStride;
         if (stride < element) return fail(meshError(file_, name + ": byteStride is smaller than an element"));
-        // Hard case: every size here comes from the file; check before any byte is read.
-        const std::size_t needed = a.count == 0 ? 0 : a.byteOffset + stride * (a.count - 1) + element;
-        if (needed > bv.byteLength || bv.byteOffset > bytes.size() || bv.byteLength > bytes.size() - bv.byteOffset) {
-            return fail(meshError(file_, name + ": reads past the end of its buffer (needs " + std::to_string(needed) +
-                                             " bytes of buffer view " + std::to_string(a.bufferView) + ", which has " +
-                                             std::to_string(bv.byteLength) + " of a " + std::to_string(bytes.size()) +
-                                             "-byte buffer)"));
+        // Hard case: every size here comes from the file; check before any byte is read, and
+        // without forming byteOffset + stride x (count - 1) + element, which a file can make wrap
+        // around (found while fuzzing: count 2^57 + 1 at stride 128 wrapped to 12 bytes and asked
+        // for a 1.7e18-byte vector).
+        const bool view_fits = bv.byteOffset <= bytes.size() && bv.byteLength <= bytes.size() - bv.byteOffset;
+        const bool elements_fit = a.count == 0 || (a.byteOffset <= bv.byteLength && element <= bv.byteLength - a.byteOffset &&
+                                                   a.count - 1 <= (bv.byteLength - a.byteOffset - element) / stride);
+        if (!view_fits || !elements_fit) {
+            return fail(meshError(file_, name + ": reads past the end of its buffer (" + std::to_string(a.count) +
+                                             " elements of " + std::to_string(element) + " bytes every " +
+                                             std::to_string(stride) + " from byte " + std::to_string(a.byteOffset) +
+                                             " of buffer view " + std::to_string(a.bufferView) + ", which has " +
+                                             std::to_string(bv.byteLength) + " bytes of a " +
+                                             std::to_string(bytes.size()) + "-byte buffer)"));
         }
         return AccessorView{bytes.data() + bv.byteOffset + a.byteOffset, stride, a.count, a.componentType};
     }
@@ -437,6 +500,7 @@ private:
     bool any_texcoords_ = false;
     std::unordered_map<int, int> material_of_;  // glTF material -> mesh_.materials index
     std::vector<std::uint8_t> on_path_;  // 1 for nodes on the current root-to-node path, to catch cycles
+    std::vector<std::uint8_t> visited_;  // 1 for nodes already read: each has one parent at most
 };
 
 std::string lowerExtension(const std::filesystem::path& file) {
@@ -448,163 +512,168 @@ std::string lowerExtension(const std::filesystem::path& file) {
 }  // namespace
 
 Result<Mesh> readGltfMesh(const std::filesystem::path& file, bool binary) {
-    CL_TRY_VOID(checkExists(file));
-    tinygltf::TinyGLTF loader;
-    loader.SetImageLoader(&keepImageBytes, nullptr);
-    tinygltf::Model model;
-    std::string err;
-    std::string warn;
-    const bool ok = binary ? loader.LoadBinaryFromFile(&model, &err, &warn, file.string())
-                           : loader.LoadASCIIFromFile(&model, &err, &warn, file.string());
-    if (!ok) return fail(meshError(file, "not a valid glTF 2.0 file: " + oneLine(err)));
-    return GltfReader(file, model).read();
+    return guardReader(file, [&]() -> Result<Mesh> {
+        CL_TRY_VOID(checkExists(file));
+        tinygltf::TinyGLTF loader;
+        loader.SetImageLoader(&keepImageBytes, nullptr);
+        loader.SetFsCallbacks(tinygltf::FsCallbacks{&regularFileExists, &samePath, &readWholeRegularFile,
+                                                    &refuseToWrite, nullptr});
+        tinygltf::Model model;
+        std::string err;
+        std::string warn;
+        const bool ok = binary ? loader.LoadBinaryFromFile(&model, &err, &warn, file.string())
+                               : loader.LoadASCIIFromFile(&model, &err, &warn, file.string());
+        if (!ok) return fail(meshError(file, "not a valid glTF 2.0 file: " + oneLine(err)));
+        return GltfReader(file, model).read();
+    });
 }
 
 Result<Mesh> readObjMesh(const std::filesystem::path& file) {
-    CL_TRY_VOID(checkExists(file));
-    tinyobj::ObjReaderConfig config;
-    config.triangulate = true;
-    config.vertex_color = false;
-    tinyobj::ObjReader reader;
-    if (!reader.ParseFromFile(file.string(), config)) {
-        return fail(meshError(file, "not a valid OBJ file: " + oneLine(reader.Error())));
-    }
-    const tinyobj::attrib_t& attrib = reader.GetAttrib();
-    const std::size_t vertex_count = attrib.vertices.size() / 3;
-    const std::size_t normal_count = attrib.normals.size() / 3;
-    const auto position = [&](std::size_t i) {
-        return Eigen::Vector3f(attrib.vertices[3 * i], attrib.vertices[3 * i + 1], attrib.vertices[3 * i + 2]);
-    };
+    return guardReader(file, [&]() -> Result<Mesh> {
+        CL_TRY_VOID(checkExists(file));
+        tinyobj::ObjReaderConfig config;
+        config.triangulate = true;
+        config.vertex_color = false;
+        tinyobj::ObjReader reader;
+        if (!reader.ParseFromFile(file.string(), config)) {
+            return fail(meshError(file, "not a valid OBJ file: " + oneLine(reader.Error())));
+        }
+        const tinyobj::attrib_t& attrib = reader.GetAttrib();
+        const std::size_t vertex_count = attrib.vertices.size() / 3;
+        const std::size_t normal_count = attrib.normals.size() / 3;
+        const auto position = [&](std::size_t i) {
+            return Eigen::Vector3f(attrib.vertices[3 * i], attrib.vertices[3 * i + 1], attrib.vertices[3 * i + 2]);
+        };
 
-    // Step 1: every corner, checked against the vertex, normal and texture coordinate lists; the
-    // material of every triangle.
-    const std::vector<tinyobj::material_t>& obj_materials = reader.GetMaterials();
-    const std::size_t texcoord_count = attrib.texcoords.size() / 2;
-    std::vector<tinyobj::index_t> corners;
-    std::vector<int> triangle_material;
-    bool all_have_normals = true;
-    bool all_have_texcoords = true;
-    for (const tinyobj::shape_t& shape : reader.GetShapes()) {
-        const std::string shape_name = shape.name.empty() ? std::string("shape") : "shape '" + shape.name + "'";
-        const auto& faces = shape.mesh.num_face_vertices;
-        std::size_t offset = 0;
-        for (std::size_t f = 0; f < faces.size(); ++f) {
-            if (faces[f] != 3) {
-                return fail(meshError(file, shape_name + " face " + std::to_string(f) + " has " +
-                                                std::to_string(faces[f]) + " vertices after triangulation"));
+        // Step 1: every corner, checked against the vertex, normal and texture coordinate lists; the
+        // material of every triangle.
+        const std::vector<tinyobj::material_t>& obj_materials = reader.GetMaterials();
+        const std::size_t texcoord_count = attrib.texcoords.size() / 2;
+        std::vector<tinyobj::index_t> corners;
+        std::vector<int> triangle_material;
+        bool all_have_normals = true;
+        bool all_have_texcoords = true;
+        for (const tinyobj::shape_t& shape : reader.GetShapes()) {
+            const std::string shape_name = shape.name.empty() ? std::string("shape") : "shape '" + shape.name + "'";
+            const auto& faces = shape.mesh.num_face_vertices;
+            std::size_t offset = 0;
+            for (std::size_t f = 0; f < faces.size(); ++f) {
+                if (faces[f] != 3) {
+                    return fail(meshError(file, shape_name + " face " + std::to_string(f) + " has " +
+                                                    std::to_string(faces[f]) + " vertices after triangulation"));
+                }
+                for (std::size_t k = 0; k < 3; ++k) {
+                    if (offset + k >= shape.mesh.indices.size()) {
+                        return fail(meshError(file, shape_name + " has fewer indices than its faces need"));
+                    }
+                    const tinyobj::index_t corner = shape.mesh.indices[offset + k];
+                    if (corner.vertex_index < 0 || static_cast<std::size_t>(corner.vertex_index) >= vertex_count) {
+                        return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to vertex " +
+                                                        std::to_string(corner.vertex_index + 1) + ", but the file has " +
+                                                        std::to_string(vertex_count)));
+                    }
+                    if (corner.normal_index < 0) {
+                        all_have_normals = false;
+                    } else if (static_cast<std::size_t>(corner.normal_index) >= normal_count) {
+                        return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to normal " +
+                                                        std::to_string(corner.normal_index + 1) + ", but the file has " +
+                                                        std::to_string(normal_count)));
+                    }
+                    if (corner.texcoord_index < 0) {
+                        all_have_texcoords = false;
+                    } else if (static_cast<std::size_t>(corner.texcoord_index) >= texcoord_count) {
+                        return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to texture coordinate " +
+                                                        std::to_string(corner.texcoord_index + 1) + ", but the file has " +
+                                                        std::to_string(texcoord_count)));
+                    }
+                    corners.push_back(corner);
+                }
+                const int id = f < shape.mesh.material_ids.size() ? shape.mesh.material_ids[f] : -1;
+                triangle_material.push_back(id >= 0 && static_cast<std::size_t>(id) < obj_materials.size() ? id : -1);
+                offset += 3;
             }
-            for (std::size_t k = 0; k < 3; ++k) {
-                if (offset + k >= shape.mesh.indices.size()) {
-                    return fail(meshError(file, shape_name + " has fewer indices than its faces need"));
-                }
-                const tinyobj::index_t corner = shape.mesh.indices[offset + k];
-                if (corner.vertex_index < 0 || static_cast<std::size_t>(corner.vertex_index) >= vertex_count) {
-                    return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to vertex " +
-                                                    std::to_string(corner.vertex_index + 1) + ", but the file has " +
-                                                    std::to_string(vertex_count)));
-                }
-                if (corner.normal_index < 0) {
-                    all_have_normals = false;
-                } else if (static_cast<std::size_t>(corner.normal_index) >= normal_count) {
-                    return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to normal " +
-                                                    std::to_string(corner.normal_index + 1) + ", but the file has " +
-                                                    std::to_string(normal_count)));
-                }
-                if (corner.texcoord_index < 0) {
-                    all_have_texcoords = false;
-                } else if (static_cast<std::size_t>(corner.texcoord_index) >= texcoord_count) {
-                    return fail(meshError(file, shape_name + " face " + std::to_string(f) + " refers to texture coordinate " +
-                                                    std::to_string(corner.texcoord_index + 1) + ", but the file has " +
-                                                    std::to_string(texcoord_count)));
-                }
-                corners.push_back(corner);
+        }
+        if (corners.empty()) return fail(meshError(file, "contains no triangles"));
+        if (vertex_count > std::numeric_limits<std::uint32_t>::max() / 2) {
+            return fail(meshError(file, "has more vertices than 32-bit indices can address"));
+        }
+
+        // Step 2: the materials the triangles use (Kd, map_Kd relative to the .mtl's folder, which is the
+        // OBJ's).
+        Mesh mesh;
+        std::vector<int> material_of(obj_materials.size(), -1);
+        bool textured = false;
+        for (const int id : triangle_material) {
+            if (id < 0 || material_of[static_cast<std::size_t>(id)] >= 0) continue;
+            const tinyobj::material_t& m = obj_materials[static_cast<std::size_t>(id)];
+            MeshMaterial out;
+            out.name = m.name;
+            out.base_colour = Eigen::Vector4f(static_cast<float>(m.diffuse[0]), static_cast<float>(m.diffuse[1]),
+                                              static_cast<float>(m.diffuse[2]), 1.0f);
+            if (!out.base_colour.allFinite() || (out.base_colour.array() < 0.0f).any()) {
+                return fail(meshError(file, "material '" + m.name + "': Kd must be finite and not negative"));
             }
-            const int id = f < shape.mesh.material_ids.size() ? shape.mesh.material_ids[f] : -1;
-            triangle_material.push_back(id >= 0 && static_cast<std::size_t>(id) < obj_materials.size() ? id : -1);
-            offset += 3;
+            if (!m.diffuse_texname.empty()) {
+                const std::filesystem::path texture = file.parent_path() / m.diffuse_texname;
+                out.texture_file = texture.string();
+                std::vector<unsigned char> bytes;
+                readRegularFile(texture, bytes);  // missing, a folder or a device: no bytes
+                CL_TRY(out.texture, decodeTexture(bytes, file, "'" + texture.string() + "' (map_Kd of material '" + m.name + "')"));
+                textured = true;
+            }
+            mesh.materials.push_back(std::move(out));
+            material_of[static_cast<std::size_t>(id)] = static_cast<int>(mesh.materials.size()) - 1;
         }
-    }
-    if (corners.empty()) return fail(meshError(file, "contains no triangles"));
-    if (vertex_count > std::numeric_limits<std::uint32_t>::max() / 2) {
-        return fail(meshError(file, "has more vertices than 32-bit indices can address"));
-    }
-
-    // Step 2: the materials the triangles use (Kd, map_Kd relative to the .mtl's folder, which is the
-    // OBJ's).
-    Mesh mesh;
-    std::vector<int> material_of(obj_materials.size(), -1);
-    bool textured = false;
-    for (const int id : triangle_material) {
-        if (id < 0 || material_of[static_cast<std::size_t>(id)] >= 0) continue;
-        const tinyobj::material_t& m = obj_materials[static_cast<std::size_t>(id)];
-        MeshMaterial out;
-        out.name = m.name;
-        out.base_colour = Eigen::Vector4f(static_cast<float>(m.diffuse[0]), static_cast<float>(m.diffuse[1]),
-                                          static_cast<float>(m.diffuse[2]), 1.0f);
-        if (!out.base_colour.allFinite() || (out.base_colour.array() < 0.0f).any()) {
-            return fail(meshError(file, "material '" + m.name + "': Kd must be finite and not negative"));
+        const bool with_texcoords = textured && all_have_texcoords;
+        if (textured && !all_have_texcoords) {
+            return fail(meshError(file, "has a material with a texture (map_Kd) but faces without texture coordinates (vt)"));
         }
-        if (!m.diffuse_texname.empty()) {
-            const std::filesystem::path texture = file.parent_path() / m.diffuse_texname;
-            out.texture_file = texture.string();
-            std::vector<unsigned char> bytes;
-            std::ifstream in(texture, std::ios::binary);
-            if (in) bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-            CL_TRY(out.texture, decodeTexture(bytes, file, "'" + texture.string() + "' (map_Kd of material '" + m.name + "')"));
-            textured = true;
+
+        // Step 3: triangles grouped by material, in file order within each (unchanged with one).
+        std::vector<std::size_t> order(triangle_material.size());
+        for (std::size_t t = 0; t < order.size(); ++t) order[t] = t;
+        const auto materialOf = [&](std::size_t t) { return triangle_material[t] < 0 ? -1 : material_of[static_cast<std::size_t>(triangle_material[t])]; };
+        std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return materialOf(a) < materialOf(b); });
+
+        // Step 4: one mesh vertex per OBJ vertex, or per (vertex, normal, texture coordinate)
+        // combination when there are normals or texture coordinates.
+        mesh.indices.reserve(corners.size());
+        if (!mesh.materials.empty()) {
+            for (std::size_t i = 0; i < order.size(); ++i) mesh.ranges.push_back({3 * i, 3, materialOf(order[i])});
+            mesh.ranges = mergedRanges(mesh.ranges);
         }
-        mesh.materials.push_back(std::move(out));
-        material_of[static_cast<std::size_t>(id)] = static_cast<int>(mesh.materials.size()) - 1;
-    }
-    const bool with_texcoords = textured && all_have_texcoords;
-    if (textured && !all_have_texcoords) {
-        return fail(meshError(file, "has a material with a texture (map_Kd) but faces without texture coordinates (vt)"));
-    }
-
-    // Step 3: triangles grouped by material, in file order within each (unchanged with one).
-    std::vector<std::size_t> order(triangle_material.size());
-    for (std::size_t t = 0; t < order.size(); ++t) order[t] = t;
-    const auto materialOf = [&](std::size_t t) { return triangle_material[t] < 0 ? -1 : material_of[static_cast<std::size_t>(triangle_material[t])]; };
-    std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return materialOf(a) < materialOf(b); });
-
-    // Step 4: one mesh vertex per OBJ vertex, or per (vertex, normal, texture coordinate)
-    // combination when there are normals or texture coordinates.
-    mesh.indices.reserve(corners.size());
-    if (!mesh.materials.empty()) {
-        for (std::size_t i = 0; i < order.size(); ++i) mesh.ranges.push_back({3 * i, 3, materialOf(order[i])});
-        mesh.ranges = mergedRanges(mesh.ranges);
-    }
-    if (!all_have_normals && !with_texcoords) {
-        mesh.positions.reserve(vertex_count);
-        for (std::size_t i = 0; i < vertex_count; ++i) mesh.positions.push_back(position(i));
+        if (!all_have_normals && !with_texcoords) {
+            mesh.positions.reserve(vertex_count);
+            for (std::size_t i = 0; i < vertex_count; ++i) mesh.positions.push_back(position(i));
+            for (const std::size_t t : order) {
+                for (std::size_t k = 0; k < 3; ++k) mesh.indices.push_back(static_cast<std::uint32_t>(corners[3 * t + k].vertex_index));
+            }
+            return mesh;
+        }
+        std::map<std::tuple<int, int, int>, std::uint32_t> vertex_of;
         for (const std::size_t t : order) {
-            for (std::size_t k = 0; k < 3; ++k) mesh.indices.push_back(static_cast<std::uint32_t>(corners[3 * t + k].vertex_index));
+            for (std::size_t k = 0; k < 3; ++k) {
+                const tinyobj::index_t& c = corners[3 * t + k];
+                const std::tuple<int, int, int> key(c.vertex_index, all_have_normals ? c.normal_index : -1, with_texcoords ? c.texcoord_index : -1);
+                auto [it, inserted] = vertex_of.try_emplace(key, static_cast<std::uint32_t>(mesh.positions.size()));
+                if (inserted) {
+                    mesh.positions.push_back(position(static_cast<std::size_t>(c.vertex_index)));
+                    if (all_have_normals) {
+                        const auto n = static_cast<std::size_t>(c.normal_index);
+                        const Eigen::Vector3f normal(attrib.normals[3 * n], attrib.normals[3 * n + 1], attrib.normals[3 * n + 2]);
+                        mesh.normals.push_back(normal.squaredNorm() > 0.0f ? normal.normalized() : normal);
+                    }
+                    if (with_texcoords) {
+                        // OBJ's v grows upwards from the image's bottom row; glTF's convention has it downwards from the top.
+                        const auto i = static_cast<std::size_t>(c.texcoord_index);
+                        mesh.texcoords.emplace_back(attrib.texcoords[2 * i], 1.0f - attrib.texcoords[2 * i + 1]);
+                    }
+                }
+                mesh.indices.push_back(it->second);
+            }
         }
         return mesh;
-    }
-    std::map<std::tuple<int, int, int>, std::uint32_t> vertex_of;
-    for (const std::size_t t : order) {
-        for (std::size_t k = 0; k < 3; ++k) {
-            const tinyobj::index_t& c = corners[3 * t + k];
-            const std::tuple<int, int, int> key(c.vertex_index, all_have_normals ? c.normal_index : -1, with_texcoords ? c.texcoord_index : -1);
-            auto [it, inserted] = vertex_of.try_emplace(key, static_cast<std::uint32_t>(mesh.positions.size()));
-            if (inserted) {
-                mesh.positions.push_back(position(static_cast<std::size_t>(c.vertex_index)));
-                if (all_have_normals) {
-                    const auto n = static_cast<std::size_t>(c.normal_index);
-                    const Eigen::Vector3f normal(attrib.normals[3 * n], attrib.normals[3 * n + 1], attrib.normals[3 * n + 2]);
-                    mesh.normals.push_back(normal.squaredNorm() > 0.0f ? normal.normalized() : normal);
-                }
-                if (with_texcoords) {
-                    // OBJ's v grows upwards from the image's bottom row; glTF's convention has it downwards from the top.
-                    const auto i = static_cast<std::size_t>(c.texcoord_index);
-                    mesh.texcoords.emplace_back(attrib.texcoords[2 * i], 1.0f - attrib.texcoords[2 * i + 1]);
-                }
-            }
-            mesh.indices.push_back(it->second);
-        }
-    }
-    return mesh;
+    });
 }
 
 Result<Mesh> readMesh(const std::filesystem::path& file) {

@@ -8,6 +8,7 @@
 
 #include "core/file_util.h"
 #include "core/yaml_util.h"
+#include "core/reader_guard.h"
 
 namespace commonlight {
 
@@ -105,29 +106,31 @@ Result<ResponseCurve> ResponseCurve::parse(std::string_view spec, const std::fil
 }
 
 Result<ResponseCurve> ResponseCurve::readFile(const std::filesystem::path& file) {
-    std::error_code ec;
-    if (!std::filesystem::is_regular_file(file, ec)) {
-        return fail(ErrorCode::kNotFound, file.string() + ": response file not found (expected srgb, linear, "
-                                                          "gamma:G or a response file)");
-    }
-    const std::string name = file.string();
-    CL_TRY(YAML::Node root, yaml::loadFile(file));
-    CL_TRY_VOID(yaml::checkKeys(name, root, "", {"response"}));
-    if (!yaml::has(root, "response")) return fail(ErrorCode::kBadInput, name + ": key 'response': missing");
-    const YAML::Node node = root["response"];
-    CL_TRY_VOID(yaml::checkKeys(name, node, "response", {"type", "method", "r", "g", "b", "bits"}));
-    CL_TRY(std::string type, yaml::getString(name, node, "response.type"));
-    if (type != "table") {
-        return fail(yaml::keyError(name, yaml::findKey(node, "type"), "response.type",
-                                   "'" + type + "' is not a response type (expected table)"));
-    }
-    Table table{};
-    static constexpr const char* kKeys[3] = {"response.r", "response.g", "response.b"};
-    for (int c = 0; c < 3; ++c) {
-        CL_TRY(std::vector<double> values, yaml::getDoubles(name, node, kKeys[c], 256));
-        for (int code = 0; code < 256; ++code) table[c][code] = static_cast<float>(values[code]);
-    }
-    return fromTable(table, name);
+    return guardReader(file, [&]() -> Result<ResponseCurve> {
+        std::error_code ec;
+        if (!std::filesystem::is_regular_file(file, ec)) {
+            return fail(ErrorCode::kNotFound, file.string() + ": response file not found (expected srgb, linear, "
+                                                              "gamma:G or a response file)");
+        }
+        const std::string name = file.string();
+        CL_TRY(YAML::Node root, yaml::loadFile(file));
+        CL_TRY_VOID(yaml::checkKeys(name, root, "", {"response"}));
+        if (!yaml::has(root, "response")) return fail(ErrorCode::kBadInput, name + ": key 'response': missing");
+        const YAML::Node node = root["response"];
+        CL_TRY_VOID(yaml::checkKeys(name, node, "response", {"type", "method", "r", "g", "b", "bits"}));
+        CL_TRY(std::string type, yaml::getString(name, node, "response.type"));
+        if (type != "table") {
+            return fail(yaml::keyError(name, yaml::findKey(node, "type"), "response.type",
+                                       "'" + type + "' is not a response type (expected table)"));
+        }
+        Table table{};
+        static constexpr const char* kKeys[3] = {"response.r", "response.g", "response.b"};
+        for (int c = 0; c < 3; ++c) {
+            CL_TRY(std::vector<double> values, yaml::getDoubles(name, node, kKeys[c], 256));
+            for (int code = 0; code < 256; ++code) table[c][code] = static_cast<float>(values[code]);
+        }
+        return fromTable(table, name);
+    });
 }
 
 Result<void> ResponseCurve::writeFile(const std::filesystem::path& file, std::string_view method) const {

@@ -10,6 +10,7 @@
 #include "core/file_util.h"
 #include "core/scene_yaml.h"
 #include "core/yaml_util.h"
+#include "core/reader_guard.h"
 
 namespace commonlight {
 
@@ -411,11 +412,13 @@ private:
 }  // namespace
 
 Result<Scene> parseScene(const std::string& text, const std::filesystem::path& file, const SceneReadOptions& options) {
-    CL_TRY(const YAML::Node root, yaml::loadString(text, file.string()));
-    const std::filesystem::path absolute = std::filesystem::absolute(file).lexically_normal();
-    CL_TRY(Scene scene, SceneParser(file.string(), absolute.parent_path(), options).parse(root));
-    scene.file = absolute;
-    return scene;
+    return guardReader(file, [&]() -> Result<Scene> {
+        CL_TRY(const YAML::Node root, yaml::loadString(text, file.string()));
+        const std::filesystem::path absolute = std::filesystem::absolute(file).lexically_normal();
+        CL_TRY(Scene scene, SceneParser(file.string(), absolute.parent_path(), options).parse(root));
+        scene.file = absolute;
+        return scene;
+    });
 }
 
 Result<Scene> readScene(const std::filesystem::path& file, const SceneReadOptions& options) {

@@ -15,6 +15,9 @@ template <class... Ts>
 struct Overloaded : Ts... {
     using Ts::operator()...;
 };
+// C++20 deduces this for aggregates by itself; clang 16 (the fuzz build) does not yet.
+template <class... Ts>
+Overloaded(Ts...) -> Overloaded<Ts...>;
 
 std::string relativePath(const std::filesystem::path& path, const std::filesystem::path& base_dir) {
     if (!path.is_absolute() || base_dir.empty()) return path.generic_string();

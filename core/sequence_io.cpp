@@ -7,6 +7,7 @@
 #include "core/csv.h"
 #include "core/file_util.h"
 #include "core/yaml_util.h"
+#include "core/reader_guard.h"
 
 namespace commonlight {
 
@@ -20,6 +21,8 @@ std::optional<fs::path> Sequence::scenePath() const {
 }
 
 namespace {
+
+constexpr int kMaxImageSide = 65535;
 
 std::string formatDouble(double value) {
     char buf[32];
@@ -57,84 +60,92 @@ Result<void> checkIncreasing(const fs::path& file, const std::vector<csv::Row>& 
 }  // namespace
 
 Result<SensorInfo> readSensorYaml(const fs::path& file) {
-    CL_TRY(const YAML::Node root, yaml::loadFile(file));
-    const std::string name = file.string();
-    if (!root.IsMap()) return fail(ErrorCode::kBadInput, name + ": expected a map of sensor keys");
-    SensorInfo info;
-    CL_TRY(const auto resolution, yaml::getDoubles(name, root, "resolution", 2));
-    info.width = static_cast<int>(resolution[0]);
-    info.height = static_cast<int>(resolution[1]);
-    if (info.width <= 0 || info.height <= 0 || info.width != resolution[0] || info.height != resolution[1]) {
-        return fail(yaml::keyError(name, root["resolution"], "resolution", "expected two positive integers"));
-    }
-    if (root["rate_hz"]) {
-        CL_TRY(info.rate_hz, yaml::getDouble(name, root, "rate_hz"));
-        if (info.rate_hz < 0) return fail(yaml::keyError(name, root["rate_hz"], "rate_hz", "must not be negative"));
-    }
-    if (root["sensor_type"]) {
-        CL_TRY(info.sensor_type, yaml::getString(name, root, "sensor_type"));
-    }
-    if (root["comment"] && root["comment"].IsScalar()) info.comment = root["comment"].Scalar();
-    if (root["T_BS"]) {
-        CL_TRY(const auto data, yaml::getDoubles(name, root["T_BS"], "T_BS.data", 16));
-        for (int i = 0; i < 16; ++i) info.body_from_sensor(i / 4, i % 4) = data[i];
-    }
-    if (root["camera_model"]) {
-        CL_TRY(const std::string model, yaml::getString(name, root, "camera_model"));
-        if (model != "pinhole") {
-            return fail(yaml::keyError(name, root["camera_model"], "camera_model",
-                                       "'" + model + "' is not supported (only pinhole)"));
-        }
-    }
-    if (root["intrinsics"]) {
-        CL_TRY(const auto k, yaml::getDoubles(name, root, "intrinsics", 4));
-        CameraModel cam;
-        cam.width = info.width;
-        cam.height = info.height;
-        cam.fx = k[0];
-        cam.fy = k[1];
-        cam.cx = k[2];
-        cam.cy = k[3];
-        if (root["distortion_model"]) {
-            CL_TRY(const std::string model, yaml::getString(name, root, "distortion_model"));
-            if (model != "radial-tangential" && model != "radtan" && model != "plumb_bob" && model != "none") {
-                return fail(yaml::keyError(name, root["distortion_model"], "distortion_model",
-                                           "'" + model + "' is not supported (radial-tangential)"));
+    return guardReader(file, [&]() -> Result<SensorInfo> {
+        CL_TRY(const YAML::Node root, yaml::loadFile(file));
+        const std::string name = file.string();
+        if (!root.IsMap()) return fail(ErrorCode::kBadInput, name + ": expected a map of sensor keys");
+        SensorInfo info;
+        CL_TRY(const auto resolution, yaml::getDoubles(name, root, "resolution", 2));
+        // Checked before the cast: a double outside int's range (1e10) has no int value (undefined
+        // behaviour). 65535 is the largest size any frame format here can hold (V4L2, PNG, OpenCV).
+        for (const double v : resolution) {
+            if (!(v >= 1.0 && v <= kMaxImageSide && v == std::floor(v))) {
+                return fail(yaml::keyError(name, yaml::lookup(root, "resolution"), "resolution",
+                                           "expected two whole numbers from 1 to " + std::to_string(kMaxImageSide) +
+                                               ", found " + yaml::formatNumber(v)));
             }
         }
-        if (root["distortion_coefficients"]) {
-            CL_TRY(const auto d, yaml::getDoubles(name, root, "distortion_coefficients"));
-            if (d.size() != 4 && d.size() != 5) {
-                return fail(yaml::keyError(name, root["distortion_coefficients"], "distortion_coefficients",
-                                           "expected 4 or 5 numbers (k1 k2 p1 p2 [k3]), found " +
-                                               std::to_string(d.size())));
+        info.width = static_cast<int>(resolution[0]);
+        info.height = static_cast<int>(resolution[1]);
+        if (root["rate_hz"]) {
+            CL_TRY(info.rate_hz, yaml::getDouble(name, root, "rate_hz"));
+            if (info.rate_hz < 0) return fail(yaml::keyError(name, root["rate_hz"], "rate_hz", "must not be negative"));
+        }
+        if (root["sensor_type"]) {
+            CL_TRY(info.sensor_type, yaml::getString(name, root, "sensor_type"));
+        }
+        if (root["comment"] && root["comment"].IsScalar()) info.comment = root["comment"].Scalar();
+        if (root["T_BS"]) {
+            CL_TRY(const auto data, yaml::getDoubles(name, root["T_BS"], "T_BS.data", 16));
+            for (int i = 0; i < 16; ++i) info.body_from_sensor(i / 4, i % 4) = data[i];
+        }
+        if (root["camera_model"]) {
+            CL_TRY(const std::string model, yaml::getString(name, root, "camera_model"));
+            if (model != "pinhole") {
+                return fail(yaml::keyError(name, root["camera_model"], "camera_model",
+                                           "'" + model + "' is not supported (only pinhole)"));
             }
-            cam.distortion = {d[0], d[1], d[2], d[3], d.size() == 5 ? d[4] : 0.0};
         }
-        if (auto valid = cam.validate(); !valid) {
-            return fail(yaml::keyError(name, root["intrinsics"], "intrinsics", valid.error().message));
+        if (root["intrinsics"]) {
+            CL_TRY(const auto k, yaml::getDoubles(name, root, "intrinsics", 4));
+            CameraModel cam;
+            cam.width = info.width;
+            cam.height = info.height;
+            cam.fx = k[0];
+            cam.fy = k[1];
+            cam.cx = k[2];
+            cam.cy = k[3];
+            if (root["distortion_model"]) {
+                CL_TRY(const std::string model, yaml::getString(name, root, "distortion_model"));
+                if (model != "radial-tangential" && model != "radtan" && model != "plumb_bob" && model != "none") {
+                    return fail(yaml::keyError(name, root["distortion_model"], "distortion_model",
+                                               "'" + model + "' is not supported (radial-tangential)"));
+                }
+            }
+            if (root["distortion_coefficients"]) {
+                CL_TRY(const auto d, yaml::getDoubles(name, root, "distortion_coefficients"));
+                if (d.size() != 4 && d.size() != 5) {
+                    return fail(yaml::keyError(name, root["distortion_coefficients"], "distortion_coefficients",
+                                               "expected 4 or 5 numbers (k1 k2 p1 p2 [k3]), found " +
+                                                   std::to_string(d.size())));
+                }
+                cam.distortion = {d[0], d[1], d[2], d[3], d.size() == 5 ? d[4] : 0.0};
+            }
+            if (auto valid = cam.validate(); !valid) {
+                return fail(yaml::keyError(name, root["intrinsics"], "intrinsics", valid.error().message));
+            }
+            info.camera = cam;
         }
-        info.camera = cam;
-    }
-    if (root["response"]) {
-        CL_TRY(info.response, yaml::getString(name, root, "response"));
-    }
-    if (root["radiance_scale"]) {
-        CL_TRY(const double scale, yaml::getDouble(name, root, "radiance_scale"));
-        if (!(std::isfinite(scale) && scale > 0.0)) {
-            return fail(yaml::keyError(name, root["radiance_scale"], "radiance_scale", "must be a positive number"));
+        if (root["response"]) {
+            CL_TRY(info.response, yaml::getString(name, root, "response"));
         }
-        info.radiance_scale = scale;
-    }
-    if (root["pixel_format"]) {
-        CL_TRY(const std::string format, yaml::getString(name, root, "pixel_format"));
-        const auto parsed = parsePixelFormat(format);
-        if (!parsed) {
-            return fail(yaml::keyError(name, root["pixel_format"], "pixel_format", "unknown pixel format '" + format + "'"));
+        if (root["radiance_scale"]) {
+            CL_TRY(const double scale, yaml::getDouble(name, root, "radiance_scale"));
+            if (!(std::isfinite(scale) && scale > 0.0)) {
+                return fail(yaml::keyError(name, root["radiance_scale"], "radiance_scale", "must be a positive number"));
+            }
+            info.radiance_scale = scale;
         }
-        info.pixel_format = *parsed;
-    }
-    return info;
+        if (root["pixel_format"]) {
+            CL_TRY(const std::string format, yaml::getString(name, root, "pixel_format"));
+            const auto parsed = parsePixelFormat(format);
+            if (!parsed) {
+                return fail(yaml::keyError(name, root["pixel_format"], "pixel_format", "unknown pixel format '" + format + "'"));
+            }
+            info.pixel_format = *parsed;
+        }
+        return info;
+    });
 }
 
 Result<void> writeSensorYaml(const fs::path& file, const SensorInfo& sensor) {
@@ -169,65 +180,71 @@ Result<void> writeSensorYaml(const fs::path& file, const SensorInfo& sensor) {
 }
 
 Result<std::vector<SequenceFrame>> readDataCsv(const fs::path& file) {
-    CL_TRY(const auto rows, csv::read(file, 2));
-    std::vector<SequenceFrame> frames;
-    frames.reserve(rows.size());
-    for (const auto& row : rows) {
-        SequenceFrame frame;
-        CL_TRY(frame.timestamp_ns, csv::toInt64(file, row, 0, "timestamp [ns]"));
-        frame.filename = row.fields[1];
-        const fs::path name(frame.filename);
-        if (frame.filename.empty() || name.is_absolute() || frame.filename.find("..") != std::string::npos) {
-            return fail(badLine(file, row.line, "filename '" + frame.filename + "' must be a path inside data/"));
+    return guardReader(file, [&]() -> Result<std::vector<SequenceFrame>> {
+        CL_TRY(const auto rows, csv::read(file, 2));
+        std::vector<SequenceFrame> frames;
+        frames.reserve(rows.size());
+        for (const auto& row : rows) {
+            SequenceFrame frame;
+            CL_TRY(frame.timestamp_ns, csv::toInt64(file, row, 0, "timestamp [ns]"));
+            frame.filename = row.fields[1];
+            const fs::path name(frame.filename);
+            if (frame.filename.empty() || name.is_absolute() || frame.filename.find("..") != std::string::npos) {
+                return fail(badLine(file, row.line, "filename '" + frame.filename + "' must be a path inside data/"));
+            }
+            frames.push_back(std::move(frame));
         }
-        frames.push_back(std::move(frame));
-    }
-    CL_TRY_VOID(checkIncreasing(file, rows, frames));
-    return frames;
+        CL_TRY_VOID(checkIncreasing(file, rows, frames));
+        return frames;
+    });
 }
 
 Result<std::vector<FrameMetaRecord>> readMetaCsv(const fs::path& file) {
-    CL_TRY(const auto rows, csv::read(file, 5));
-    std::vector<FrameMetaRecord> records;
-    records.reserve(rows.size());
-    for (const auto& row : rows) {
-        FrameMetaRecord r;
-        CL_TRY(r.timestamp_ns, csv::toInt64(file, row, 0, "timestamp_ns"));
-        CL_TRY(const std::int64_t sequence, csv::toInt64(file, row, 1, "sequence"));
-        if (sequence < 0) return fail(badLine(file, row.line, "sequence must not be negative"));
-        r.sequence = static_cast<std::uint64_t>(sequence);
-        CL_TRY(r.exposure_us, csv::toDouble(file, row, 2, "exposure_us"));
-        CL_TRY(r.analog_gain, csv::toDouble(file, row, 3, "analog_gain"));
-        const auto status = parseStatus(row.fields[4]);
-        if (!status) return fail(badLine(file, row.line, "status must be ok, corrupt or incomplete, found '" + row.fields[4] + "'"));
-        r.status = *status;
-        records.push_back(r);
-    }
-    CL_TRY_VOID(checkIncreasing(file, rows, records));
-    return records;
+    return guardReader(file, [&]() -> Result<std::vector<FrameMetaRecord>> {
+        CL_TRY(const auto rows, csv::read(file, 5));
+        std::vector<FrameMetaRecord> records;
+        records.reserve(rows.size());
+        for (const auto& row : rows) {
+            FrameMetaRecord r;
+            CL_TRY(r.timestamp_ns, csv::toInt64(file, row, 0, "timestamp_ns"));
+            CL_TRY(const std::int64_t sequence, csv::toInt64(file, row, 1, "sequence"));
+            if (sequence < 0) return fail(badLine(file, row.line, "sequence must not be negative"));
+            r.sequence = static_cast<std::uint64_t>(sequence);
+            CL_TRY(r.exposure_us, csv::toDouble(file, row, 2, "exposure_us"));
+            CL_TRY(r.analog_gain, csv::toDouble(file, row, 3, "analog_gain"));
+            const auto status = parseStatus(row.fields[4]);
+            if (!status) return fail(badLine(file, row.line, "status must be ok, corrupt or incomplete, found '" + row.fields[4] + "'"));
+            r.status = *status;
+            records.push_back(r);
+        }
+        CL_TRY_VOID(checkIncreasing(file, rows, records));
+        return records;
+    });
 }
 
 Result<std::vector<PoseRecord>> readPosesCsv(const fs::path& file) {
-    CL_TRY(const auto rows, csv::read(file, 8));
-    std::vector<PoseRecord> poses;
-    poses.reserve(rows.size());
-    static constexpr const char* kColumns[] = {"timestamp_ns", "p_x", "p_y", "p_z", "q_w", "q_x", "q_y", "q_z"};
-    for (const auto& row : rows) {
-        PoseRecord pose;
-        CL_TRY(pose.timestamp_ns, csv::toInt64(file, row, 0, kColumns[0]));
-        double v[7];
-        for (int i = 0; i < 7; ++i) {
-            CL_TRY(v[i], csv::toDouble(file, row, static_cast<std::size_t>(i + 1), kColumns[i + 1]));
+    return guardReader(file, [&]() -> Result<std::vector<PoseRecord>> {
+        CL_TRY(const auto rows, csv::read(file, 8));
+        std::vector<PoseRecord> poses;
+        poses.reserve(rows.size());
+        static constexpr const char* kColumns[] = {"timestamp_ns", "p_x", "p_y", "p_z", "q_w", "q_x", "q_y", "q_z"};
+        for (const auto& row : rows) {
+            PoseRecord pose;
+            CL_TRY(pose.timestamp_ns, csv::toInt64(file, row, 0, kColumns[0]));
+            double v[7];
+            for (int i = 0; i < 7; ++i) {
+                CL_TRY(v[i], csv::toDouble(file, row, static_cast<std::size_t>(i + 1), kColumns[i + 1]));
+            }
+            const Eigen::Quaterniond q(v[3], v[4], v[5], v[6]);
+            if (std::abs(q.norm() - 1.0) > 1e-3) {
+                return fail(badLine(file, row.line, "quaternion is not unit length (norm " + formatDouble(q.norm()) + ")"));
+            }
+            pose.world_from_cam = Rigid3d(q, Eigen::Vector3d(v[0], v[1], v[2]));
+            poses.push_back(pose);
         }
-        const Eigen::Quaterniond q(v[3], v[4], v[5], v[6]);
-        if (std::abs(q.norm() - 1.0) > 1e-3) {
-            return fail(badLine(file, row.line, "quaternion is not unit length (norm " + formatDouble(q.norm()) + ")"));
-        }
-        pose.world_from_cam = Rigid3d(q, Eigen::Vector3d(v[0], v[1], v[2]));
-        poses.push_back(pose);
-    }
-    CL_TRY_VOID(checkIncreasing(file, rows, poses));
-    return poses;
+        CL_TRY_VOID(checkIncreasing(file, rows, poses));
+        return poses;
+    });
 }
 
 std::string poseCsvRow(const PoseRecord& pose) {

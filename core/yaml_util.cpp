@@ -179,6 +179,13 @@ YAML::Node findKey(const YAML::Node& map, std::string_view key) {
     return YAML::Node(YAML::NodeType::Undefined);
 }
 
+YAML::Node lookup(const YAML::Node& map, std::string_view key) {
+    if (!map.IsMap()) return YAML::Node(YAML::NodeType::Undefined);
+    const YAML::Node node = map[std::string(key)];  // const: never inserts
+    if (!node.IsDefined()) return YAML::Node(YAML::NodeType::Undefined);
+    return node;
+}
+
 bool has(const YAML::Node& map, std::string_view key) {
     if (!map.IsMap()) return false;
     const YAML::Node node = map[std::string(key)];

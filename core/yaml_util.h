@@ -50,6 +50,11 @@ std::string indexKey(std::string_view parent, std::size_t index);
 // The key node of entry `key` of `map` (its line is the line of "key:"), or an undefined node.
 YAML::Node findKey(const YAML::Node& map, std::string_view key);
 
+// The entry `key` of `map`, or an undefined node when `map` is not a map or has no such entry.
+// Unlike yaml-cpp's const operator[], it never throws (a scalar subscripted throws
+// YAML::BadSubscript) and never gives the "zombie" node that yaml-cpp refuses to assign.
+YAML::Node lookup(const YAML::Node& map, std::string_view key);
+
 // Whether `map` is a map with a non-null entry `key`.
 bool has(const YAML::Node& map, std::string_view key);
 

@@ -6,6 +6,7 @@
 #include <utility>
 
 #include "core/yaml_util.h"
+#include "core/reader_guard.h"
 
 namespace commonlight::mocks::sim {
 
@@ -207,35 +208,37 @@ Result<void> SensorParams::validate() const {
 }
 
 Result<SensorParams> parseSensorParams(const std::string& file, const YAML::Node& node, std::string_view path) {
-    SensorParams params;
-    // An absent or empty `sensor:` keeps every default.
-    if (!node.IsDefined() || node.IsNull()) return params;
-    CL_TRY_VOID(yaml::checkKeys(file, node, path,
-                                {"exposure_us", "analog_gain", "electrons_per_radiance_second", "full_well_e",
-                                 "dark_noise_e", "dark_current_e_per_s", "dsnu_e", "prnu", "system_gain_dn_per_e",
-                                 "bits", "black_level_dn", "response", "color", "seed"}));
-    for (auto it = node.begin(); it != node.end(); ++it) {
-        const YAML::Node key_node = it->first;
-        const YAML::Node value = it->second;
-        const std::string& key = key_node.Scalar();
-        const std::string key_path = yaml::joinKey(path, key);
-        if (!value.IsDefined() || value.IsNull())
-            return fail(yaml::keyError(file, key_node, key_path, "missing value"));
-        if (!value.IsScalar()) {
-            return fail(yaml::keyError(file, value, key_path,
-                                       expectation(key) + (value.IsSequence() ? ", found a list" : ", found a map")));
+    return guardReader(file, [&]() -> Result<SensorParams> {
+        SensorParams params;
+        // An absent or empty `sensor:` keeps every default.
+        if (!node.IsDefined() || node.IsNull()) return params;
+        CL_TRY_VOID(yaml::checkKeys(file, node, path,
+                                    {"exposure_us", "analog_gain", "electrons_per_radiance_second", "full_well_e",
+                                     "dark_noise_e", "dark_current_e_per_s", "dsnu_e", "prnu", "system_gain_dn_per_e",
+                                     "bits", "black_level_dn", "response", "color", "seed"}));
+        for (auto it = node.begin(); it != node.end(); ++it) {
+            const YAML::Node key_node = it->first;
+            const YAML::Node value = it->second;
+            const std::string& key = key_node.Scalar();
+            const std::string key_path = yaml::joinKey(path, key);
+            if (!value.IsDefined() || value.IsNull())
+                return fail(yaml::keyError(file, key_node, key_path, "missing value"));
+            if (!value.IsScalar()) {
+                return fail(yaml::keyError(file, value, key_path,
+                                           expectation(key) + (value.IsSequence() ? ", found a list" : ", found a map")));
+            }
+            if (auto problem = assign(params, key, value.Scalar())) {
+                return fail(yaml::keyError(file, value, key_path, *problem));
+            }
         }
-        if (auto problem = assign(params, key, value.Scalar())) {
-            return fail(yaml::keyError(file, value, key_path, *problem));
+        // Fields against each other (the black level against the bit depth), at the line of the key at fault.
+        if (auto problem = firstProblem(params)) {
+            const YAML::Node at = node[std::string(problem->first)];
+            return fail(
+                yaml::keyError(file, at.IsDefined() ? at : node, yaml::joinKey(path, problem->first), problem->second));
         }
-    }
-    // Fields against each other (the black level against the bit depth), at the line of the key at fault.
-    if (auto problem = firstProblem(params)) {
-        const YAML::Node at = node[std::string(problem->first)];
-        return fail(
-            yaml::keyError(file, at.IsDefined() ? at : node, yaml::joinKey(path, problem->first), problem->second));
-    }
-    return params;
+        return params;
+    });
 }
 
 Result<void> setSensorParam(SensorParams& params, std::string_view key, std::string_view value) {

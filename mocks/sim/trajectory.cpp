@@ -7,6 +7,7 @@
 #include "core/file_util.h"
 #include "core/scene_yaml.h"
 #include "core/yaml_util.h"
+#include "core/reader_guard.h"
 
 namespace commonlight::mocks::sim {
 
@@ -101,24 +102,26 @@ Result<Trajectory> Trajectory::fromKeyframes(std::vector<CameraKeyframe> keyfram
 }
 
 Result<Trajectory> Trajectory::parse(const std::string& text, const std::string& name) {
-    CL_TRY(const YAML::Node root, yaml::loadString(text, name));
-    CL_TRY_VOID(yaml::checkKeys(name, root, "", {"rate_hz", "keyframes", "orbit", "pan"}));
-    const int kinds = int(yaml::has(root, "keyframes")) + int(yaml::has(root, "orbit")) + int(yaml::has(root, "pan"));
-    if (kinds != 1) {
-        return fail(ErrorCode::kBadInput, name + ": a trajectory has exactly one of keyframes, orbit or pan");
-    }
-    Trajectory trajectory;
-    if (yaml::has(root, "rate_hz")) {
-        CL_TRY(trajectory.rate_hz_, yaml::getPositive(name, root, "rate_hz"));
-    }
-    if (yaml::has(root, "keyframes")) {
-        CL_TRY(trajectory.path_, readKeyframes(name, root));
-    } else if (yaml::has(root, "orbit")) {
-        CL_TRY(trajectory.path_, readOrbit(name, root));
-    } else {
-        CL_TRY(trajectory.path_, readPan(name, root));
-    }
-    return trajectory;
+    return guardReader(name, [&]() -> Result<Trajectory> {
+        CL_TRY(const YAML::Node root, yaml::loadString(text, name));
+        CL_TRY_VOID(yaml::checkKeys(name, root, "", {"rate_hz", "keyframes", "orbit", "pan"}));
+        const int kinds = int(yaml::has(root, "keyframes")) + int(yaml::has(root, "orbit")) + int(yaml::has(root, "pan"));
+        if (kinds != 1) {
+            return fail(ErrorCode::kBadInput, name + ": a trajectory has exactly one of keyframes, orbit or pan");
+        }
+        Trajectory trajectory;
+        if (yaml::has(root, "rate_hz")) {
+            CL_TRY(trajectory.rate_hz_, yaml::getPositive(name, root, "rate_hz"));
+        }
+        if (yaml::has(root, "keyframes")) {
+            CL_TRY(trajectory.path_, readKeyframes(name, root));
+        } else if (yaml::has(root, "orbit")) {
+            CL_TRY(trajectory.path_, readOrbit(name, root));
+        } else {
+            CL_TRY(trajectory.path_, readPan(name, root));
+        }
+        return trajectory;
+    });
 }
 
 Result<Trajectory> Trajectory::read(const std::filesystem::path& file) {

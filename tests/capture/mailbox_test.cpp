@@ -91,15 +91,39 @@ TEST(Mailbox, CloseWithErrorDeliversPendingFrameThenTheError) {
     }
 }
 
-TEST(Mailbox, PutAfterCloseReleasesTheFrameAndCountsIt) {
+// Issue 14: a frame made after the stream was closed is not a frame the user lost.
+TEST(Mailbox, PutAfterCloseReleasesTheFrameAsDiscardedNotDropped) {
     FramePool pool(2, PixelFormat::kGray8, 4, 4);
     Mailbox mailbox;
     mailbox.close();
     EXPECT_FALSE(mailbox.put(frameNumbered(pool, 1)));
-    EXPECT_EQ(mailbox.dropped(), 1u);
+    EXPECT_EQ(mailbox.dropped(), 0u);
+    EXPECT_EQ(mailbox.discarded(), 1u);
     EXPECT_EQ(pool.inUse(), 0u);
     EXPECT_FALSE(mailbox.put(FrameHandle()));  // an empty handle is ignored
+    EXPECT_EQ(mailbox.discarded(), 1u);
+}
+
+// Issue 14 (record --frames N): frames replaced after the consumer's last take were made after it
+// stopped taking; they become drops only if it takes a newer frame.
+TEST(Mailbox, FramesReplacedAfterTheLastTakeAreDroppedOnlyWhenANewerOneIsTaken) {
+    FramePool pool(4, PixelFormat::kGray8, 4, 4);
+    Mailbox mailbox;
+    mailbox.put(frameNumbered(pool, 1));
+    mailbox.put(frameNumbered(pool, 2));  // replaces 1
+    EXPECT_EQ(sequenceOf(mailbox.take({}, kLongWait)), 2u);
     EXPECT_EQ(mailbox.dropped(), 1u);
+    EXPECT_EQ(mailbox.discarded(), 0u);
+    // The consumer has what it wanted; the camera goes on until it is stopped.
+    for (std::uint64_t i = 3; i <= 17; ++i) mailbox.put(frameNumbered(pool, i));
+    mailbox.close();
+    EXPECT_EQ(mailbox.dropped(), 1u);
+    EXPECT_EQ(mailbox.discarded(), 14u);  // 3..16; 17 still waits in the slot
+    EXPECT_EQ(mailbox.delivered() + mailbox.dropped() + mailbox.discarded() + (mailbox.pending() ? 1u : 0u), 17u);
+    // Had the consumer taken 17 (delivered before the end), 3..16 were frames it lost.
+    EXPECT_EQ(sequenceOf(mailbox.take({}, kLongWait)), 17u);
+    EXPECT_EQ(mailbox.dropped(), 15u);
+    EXPECT_EQ(mailbox.discarded(), 0u);
 }
 
 TEST(Mailbox, ReopenReleasesTheLeftoverFrameAndRestartsCounters) {
@@ -152,6 +176,7 @@ TEST(Mailbox, ProducerAndConsumerThreadsAccountForEveryFrame) {
     EXPECT_EQ(pool.inUse(), 0u);
     EXPECT_EQ(mailbox.delivered(), delivered.size());
     EXPECT_EQ(mailbox.delivered() + mailbox.dropped(), kFrames);
+    EXPECT_EQ(mailbox.discarded(), 0u);  // the last frame was taken: every replaced one was lost
     ASSERT_FALSE(delivered.empty());
     for (std::size_t i = 1; i < delivered.size(); ++i) ASSERT_LT(delivered[i - 1], delivered[i]) << "at " << i;
     EXPECT_EQ(delivered.back(), kFrames);  // the newest frame before close() always arrives
@@ -191,7 +216,8 @@ TEST(Mailbox, CloseWakesALosslessProducerWaitingForTheConsumer) {
     mailbox.close();
     producer.join();
     EXPECT_FALSE(second_delivered);
-    EXPECT_EQ(mailbox.dropped(), 1u);
+    EXPECT_EQ(mailbox.dropped(), 0u);  // made after the stop: not lost by the consumer
+    EXPECT_EQ(mailbox.discarded(), 1u);
     EXPECT_EQ(sequenceOf(mailbox.take({}, kLongWait)), 1u);
     MailboxTake end = mailbox.take({}, kLongWait);
     ASSERT_TRUE(end);

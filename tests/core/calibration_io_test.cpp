@@ -311,5 +311,38 @@ TEST(CalibrationIoBadInput, NonPositiveImageSize) {
                    "image_height:");
 }
 
+// Issue 14: a matrix with rows, cols and dt but no data threw YAML::InvalidNode out of the reader
+// (an abort in `commonlight track --calib`). Every form of it is an error naming the key.
+TEST(CalibrationIoBadInput, OpenCvCameraMatrixWithoutData) {
+    expectBadInput(replaced(openCvSample(), "   dt: d\n   data: [ 5.3591573396163199e+02",
+                            "   dt: d\n   dat: [ 5.3591573396163199e+02"),
+                   "camera_matrix.data", "missing", "camera_matrix:");
+}
+
+TEST(CalibrationIoBadInput, OpenCvDistortionWithoutData) {
+    expectBadInput(replaced(openCvSample(), kFiveCoefficients, "rows: 5\n   cols: 1\n   dt: d"),
+                   "distortion_coefficients.data", "missing", "distortion_coefficients:");
+}
+
+TEST(CalibrationIoBadInput, RosMatrixWithoutData) {
+    expectBadInput(replaced(rosSample(), "  data: [423.52693", "  unused: [423.52693"), "camera_matrix.data",
+                   "missing", "rows: 3\n  cols: 3\n  unused");
+}
+
+TEST(CalibrationIoBadInput, MatrixDataThatIsNotAList) {
+    expectBadInput(replaced(openCvSample(), kFiveCoefficients, "rows: 5\n   cols: 1\n   dt: d\n   data: { a: 1 }"),
+                   "distortion_coefficients.data", "expected a list of numbers", "data: { a: 1 }");
+}
+
+// Issue 14: rows x cols was multiplied as int in the error message (signed overflow, UB).
+TEST(CalibrationIoBadInput, HugeRowsTimesColsIsReportedWithoutOverflow) {
+    expectBadInput(replaced(rosSample(), "rows: 3\n  cols: 3\n  data: [423.52693", "rows: 1735082496\n  cols: 3\n  data: [423.52693"),
+                   "camera_matrix.data", "rows x cols = 1735082496 x 3 = 5205247488 but data has 9 numbers",
+                   "data: [423.52693");
+    expectBadInput(replaced(rosSample(), "rows: 3\n  cols: 3\n  data: [423.52693",
+                            "rows: 2147483647\n  cols: 2147483647\n  data: [423.52693"),
+                   "camera_matrix.data", "= 4611686014132420609 but data has 9 numbers", "data: [423.52693");
+}
+
 }  // namespace
 }  // namespace commonlight

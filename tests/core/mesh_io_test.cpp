@@ -393,6 +393,29 @@ TEST(MeshIoBadInput, TruncatedGlb) {
     expectError(readMesh(dir / "cut.glb"), dir / "cut.glb", "not a valid glTF 2.0 file");
 }
 
+// Found while fuzzing (issue 14): tinygltf's own file reader took a folder for a file of 2^63
+// bytes and asked for that much memory. Only regular files are read for a mesh.
+TEST(MeshIoBadInput, BufferThatIsAFolder) {
+    TempDir dir;
+    GltfSpec spec;
+    for (const char* uri : {".", "..", "/"}) {
+        spec.buffer_uri = uri;
+        writeText(dir / "folder.gltf", gltfJson(spec));
+        expectError(readMesh(dir / "folder.gltf"), dir / "folder.gltf", std::string("File not found : ") + uri);
+    }
+}
+
+// Found while fuzzing (issue 14): an empty .glb made tinygltf throw std::out_of_range.
+TEST(MeshIoBadInput, EmptyFiles) {
+    TempDir dir;
+    writeText(dir / "empty.glb", "");
+    expectError(readMesh(dir / "empty.glb"), dir / "empty.glb", "(missing, empty, or not a regular file)");
+    writeText(dir / "empty.gltf", "");
+    expectError(readMesh(dir / "empty.gltf"), dir / "empty.gltf", "(missing, empty, or not a regular file)");
+    writeText(dir / "empty.obj", "");
+    expectError(readMesh(dir / "empty.obj"), dir / "empty.obj", "contains no triangles");
+}
+
 TEST(MeshIoBadInput, MissingBufferFile) {
     TempDir dir;
     GltfSpec spec;
@@ -418,6 +441,23 @@ TEST(MeshIoBadInput, AccessorPastEndOfBuffer) {
     expectError(readMesh(dir / "overrun.gltf"), dir / "overrun.gltf", "reads past the end of its buffer");
 }
 
+// Found while fuzzing (issue 14): byteOffset + stride x (count - 1) + element wrapped around 2^64
+// (count 2^57 + 1 at stride 128 gives 12 bytes), passed the check and asked for a 1.7e18-byte vector.
+TEST(MeshIoBadInput, AccessorSizeThatWrapsAround) {
+    TempDir dir;
+    std::string json = gltfJson(GltfSpec{});
+    const auto replace = [&json](const std::string& from, const std::string& to) {
+        const auto at = json.find(from);
+        ASSERT_NE(at, std::string::npos) << from;
+        json.replace(at, from.size(), to);
+    };
+    replace(R"("byteOffset": 0, "byteLength": 48})", R"("byteOffset": 0, "byteLength": 48, "byteStride": 128})");
+    replace(R"("componentType": 5126, "count": 4,)", R"("componentType": 5126, "count": 144115188075855873,)");
+    writeText(dir / "wrap.gltf", json);
+    expectError(readMesh(dir / "wrap.gltf"), dir / "wrap.gltf",
+                "POSITION (accessor 0): reads past the end of its buffer (144115188075855873 elements of 12 bytes every 128");
+}
+
 TEST(MeshIoBadInput, TriangleStripIsRefused) {
     TempDir dir;
     GltfSpec spec;
@@ -440,6 +480,39 @@ TEST(MeshIoBadInput, NodeCycle) {
     spec.nodes = R"([{"children": [1]}, {"children": [0], "mesh": 0}])";
     writeText(dir / "cycle.gltf", gltfJson(spec));
     expectError(readMesh(dir / "cycle.gltf"), dir / "cycle.gltf", "cycle");
+}
+
+// Found while fuzzing (issue 14): the node trees were walked by recursion, and 2000 nested nodes
+// overflowed the stack under ASan (30000 without). Now a chain of any depth reads, in the same
+// order, with the transforms of all its ancestors.
+TEST(MeshIo, DeepNodeChainReads) {
+    TempDir dir;
+    GltfSpec spec;
+    constexpr int kDepth = 50000;
+    std::string nodes = "[";
+    for (int i = 0; i + 1 < kDepth; ++i) nodes += R"({"translation": [0, 0, 0.0001], "children": [)" + std::to_string(i + 1) + "]},";
+    nodes += R"({"mesh": 0}])";
+    spec.nodes = nodes;
+    writeText(dir / "deep.gltf", gltfJson(spec));
+    const auto mesh = readMesh(dir / "deep.gltf");
+    ASSERT_TRUE(mesh) << mesh.error().message;
+    ASSERT_FALSE(mesh->positions.empty());
+    // 49999 ancestors, each 0.1 mm up: the quad lies 5 m up (float sums: 1e-3 relative).
+    for (const auto& p : mesh->positions) EXPECT_NEAR(p.z(), 4.9999, 5e-3);
+}
+
+// glTF nodes form trees: a node with two parents would be read twice per path (a file listing
+// each child twice at every level doubles the work per level).
+TEST(MeshIoBadInput, NodeWithTwoParents) {
+    TempDir dir;
+    GltfSpec spec;
+    spec.nodes = R"([{"children": [1, 1]}, {"mesh": 0}])";
+    writeText(dir / "dag.gltf", gltfJson(spec));
+    expectError(readMesh(dir / "dag.gltf"), dir / "dag.gltf", "node 1 has more than one parent");
+    spec.nodes = R"([{"children": [2]}, {"children": [2]}, {"mesh": 0}])";
+    spec.scene_nodes = "[0, 1]";
+    writeText(dir / "shared.gltf", gltfJson(spec));
+    expectError(readMesh(dir / "shared.gltf"), dir / "shared.gltf", "node 2 has more than one parent");
 }
 
 TEST(MeshIoBadInput, ObjVertexOutOfRange) {

@@ -3,6 +3,7 @@
 #include <fstream>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "core/frame_file.h"
 #include "core/sequence_writer.h"
@@ -202,6 +203,15 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"SensorMissingResolution", "cam0/sensor.yaml", "rate_hz: 20\n", "key 'resolution': missing"},
         BadCase{"SensorBadIntrinsics", "cam0/sensor.yaml", "resolution: [752, 480]\nintrinsics: [1, 2, 3]\n",
                 ":2: key 'intrinsics': expected 4 numbers, found 3"},
+        // Issue 14: the range was checked after the cast to int (UB for 1e10).
+        BadCase{"SensorHugeResolution", "cam0/sensor.yaml", "resolution: [1e10, 480]\n",
+                ":1: key 'resolution': expected two whole numbers from 1 to 65535, found 1e+10"},
+        BadCase{"SensorNegativeResolution", "cam0/sensor.yaml", "resolution: [640, -1e300]\n",
+                "key 'resolution': expected two whole numbers from 1 to 65535, found -1e+300"},
+        BadCase{"SensorFractionalResolution", "cam0/sensor.yaml", "resolution: [640.5, 480]\n",
+                "key 'resolution': expected two whole numbers from 1 to 65535, found 640.5"},
+        BadCase{"SensorZeroResolution", "cam0/sensor.yaml", "resolution: [640, 0]\n",
+                "key 'resolution': expected two whole numbers from 1 to 65535, found 0"},
         BadCase{"SensorNonNumber", "cam0/sensor.yaml", "resolution: [752, abc]\n", "key 'resolution[1]': expected a number"},
         BadCase{"SensorModel", "cam0/sensor.yaml", "resolution: [752, 480]\ncamera_model: omni\nintrinsics: [1,1,1,1]\n",
                 ":2: key 'camera_model': 'omni' is not supported"},
@@ -236,6 +246,65 @@ TEST(SequenceIo, PosesRoundTripExactly) {
         EXPECT_EQ((*back)[i].world_from_cam.translation, poses[i].world_from_cam.translation);
         EXPECT_LT(rotationErrorDeg((*back)[i].world_from_cam, poses[i].world_from_cam), 1e-12);
     }
+}
+
+// A PNG header with a valid CRC declaring `width` x `height`, and one tiny zlib block of pixels.
+std::string pngDeclaring(std::uint32_t width, std::uint32_t height) {
+    const auto be32 = [](std::uint32_t v) {
+        return std::string{static_cast<char>(v >> 24), static_cast<char>(v >> 16), static_cast<char>(v >> 8), static_cast<char>(v)};
+    };
+    const auto crc32 = [](const std::string& data) {
+        std::uint32_t crc = 0xFFFFFFFFu;
+        for (const char c : data) {
+            crc ^= static_cast<std::uint8_t>(c);
+            for (int k = 0; k < 8; ++k) crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
+        }
+        return crc ^ 0xFFFFFFFFu;
+    };
+    const auto chunk = [&](const std::string& type, const std::string& body) {
+        return be32(static_cast<std::uint32_t>(body.size())) + type + body + be32(crc32(type + body));
+    };
+    const std::string ihdr = be32(width) + be32(height) + std::string("\x10\x06\x00\x00\x00", 5);  // RGBA16
+    const std::string idat("\x78\x9c\x63\x00\x00\x00\x01\x00\x01", 9);                         // zlib of one 0 byte
+    return std::string("\x89PNG\r\n\x1a\n", 8) + chunk("IHDR", ihdr) + chunk("IDAT", idat) + chunk("IEND", "");
+}
+
+// Found while fuzzing (issue 14): a 69-byte PNG declaring 30000 x 30000 RGBA16 made OpenCV allocate
+// 7.2 GB before it found the pixels missing. The header is checked first; and only PNG and JPEG go
+// to the decoder.
+TEST(FrameFile, HeaderSizeIsCheckedBeforeDecoding) {
+    TempDir dir;
+    FrameFileReader reader;
+    Image out;
+    writeText(dir / "huge.png", pngDeclaring(30000, 30000));
+    auto r = reader.read(dir / "huge.png", PixelFormat::kInvalid, 0, 0, out);
+    ASSERT_FALSE(r);
+    EXPECT_EQ(r.error().code, ErrorCode::kBadInput);
+    EXPECT_NE(r.error().message.find("huge.png: the header declares a 30000x30000 image, larger than 67108864 pixels"),
+              std::string::npos)
+        << r.error().message;
+    r = reader.read(dir / "huge.png", PixelFormat::kRgba8, 640, 480, out);
+    ASSERT_FALSE(r);
+    EXPECT_NE(r.error().message.find("declares a 30000x30000 image, but the sequence is 640x480"), std::string::npos)
+        << r.error().message;
+    writeText(dir / "empty.png", pngDeclaring(0, 480));
+    r = reader.read(dir / "empty.png", PixelFormat::kInvalid, 0, 0, out);
+    ASSERT_FALSE(r);
+    EXPECT_NE(r.error().message.find("declares a 0x480 image"), std::string::npos) << r.error().message;
+    // A JPEG's frame header says the same (SOF0: 40000 x 30000), for a sequence of gray frames.
+    std::string jpeg("\xFF\xD8\xFF\xE0\x00\x04\x00\x00\xFF\xC0\x00\x0B\x08\x75\x30\x9C\x40\x01\x01\x11\x00\xFF\xD9", 23);
+    writeText(dir / "huge.jpg", jpeg);
+    r = reader.read(dir / "huge.jpg", PixelFormat::kGray8, 0, 0, out);
+    ASSERT_FALSE(r);
+    EXPECT_NE(r.error().message.find("huge.jpg: the header declares a 40000x30000 image"), std::string::npos)
+        << r.error().message;
+    // Another format OpenCV would decode (BMP) is not a frame file.
+    std::vector<std::uint8_t> bmp;
+    ASSERT_TRUE(cv::imencode(".bmp", cv::Mat(4, 4, CV_8UC3, cv::Scalar(1, 2, 3)), bmp));
+    writeText(dir / "f.png", std::string(bmp.begin(), bmp.end()));
+    r = reader.read(dir / "f.png", PixelFormat::kInvalid, 0, 0, out);
+    ASSERT_FALSE(r);
+    EXPECT_NE(r.error().message.find("f.png: not a PNG or JPEG file"), std::string::npos) << r.error().message;
 }
 
 TEST(FrameFile, CorruptAndTruncatedFilesAreErrorsNamingTheFile) {

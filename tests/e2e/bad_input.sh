@@ -64,6 +64,27 @@ expect_text "calib.yaml:" "$TMP/err"
 expect_text "camera_matrix" "$TMP/err"
 [[ ! -e "$TMP/rec/cam0/data.csv" ]] || fail "a failed record must not create a sequence"
 
+# Issue 14: a calibration matrix with rows, cols and dt but no data (it aborted with
+# YAML::InvalidNode): exit 3 and the key, from `track --calib`.
+cat > "$TMP/nodata.yaml" <<'YAML'
+%YAML:1.0
+image_width: 640
+image_height: 480
+camera_matrix: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 525., 0., 319.5, 0., 525., 239.5, 0., 0., 1. ]
+distortion_coefficients: !!opencv-matrix
+   rows: 5
+   cols: 1
+   dt: d
+YAML
+expect_exit 3 "$COMMONLIGHT" track "$SAMPLE" --calib "$TMP/nodata.yaml" --tag-size 0.16 --out "$TMP/poses.csv"
+expect_text "nodata.yaml:" "$TMP/err"
+expect_text "key 'distortion_coefficients.data': missing" "$TMP/err"
+grep -q "terminate called" "$TMP/err" && fail "track aborted on a calibration without data"
+
 # Missing sequence.
 expect_exit 3 "$COMMONLIGHT" play "$TMP/does-not-exist"
 expect_text "does-not-exist: no such sequence folder" "$TMP/err"
