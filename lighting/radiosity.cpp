@@ -203,7 +203,7 @@ void Radiosity::markBuried() {
     const auto& elements = hierarchy_.elements();
     for (std::size_t i = elements.size(); i-- > 0;) {
         const Element& el = elements[i];
-        if (el.leaf()) continue;
+        if (el.child_count == 0) continue;  // leaves, and retired elements (kept as they were)
         double sum = 0.0;
         for (int c = 0; c < el.child_count; ++c) {
             const Element& child = elements[static_cast<std::size_t>(el.first_child + c)];
