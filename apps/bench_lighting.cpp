@@ -476,7 +476,6 @@ Result<SolverPoint> solverPoint(const Scene& truth, const CameraModel& camera, c
     EstimatorOptions eo;
     eo.refine_unobserved = true;
     eo.refine_by_light = false;  // element averages are what is compared: no texture detail needed
-    eo.refine_by_virtual = false;
     eo.initial_element_size = c.size;
     eo.radiosity.hierarchical = c.hierarchical;
     eo.radiosity.link_epsilon = c.link_epsilon;

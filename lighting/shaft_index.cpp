@@ -30,6 +30,45 @@ bool shaftMeetsBall(const Shaft& shaft, const Ball& ball) {
     return best <= ball.radius;
 }
 
+bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b, const Ball& ball) {
+    const auto separates = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
+        const double length = n.norm();
+        if (!(length > 1e-15)) return false;
+        n /= length;
+        // A face plane has every vertex on one side (a tolerance for round-off: ends that touch).
+        double lo = 0.0, hi = 0.0;
+        for (const Eigen::Vector3d& x : a) {
+            const double s = (x - origin).dot(n);
+            lo = std::min(lo, s);
+            hi = std::max(hi, s);
+        }
+        for (const Eigen::Vector3d& x : b) {
+            const double s = (x - origin).dot(n);
+            lo = std::min(lo, s);
+            hi = std::max(hi, s);
+        }
+        const double tol = 1e-9 * std::max(1.0, hi - lo);
+        const double c = (ball.centre - origin).dot(n);
+        if (hi <= tol) return c > ball.radius;   // every vertex below: outward is +n
+        if (lo >= -tol) return -c > ball.radius;  // every vertex above: outward is -n
+        return false;                             // not a face plane
+    };
+    for (int pass = 0; pass < 2; ++pass) {
+        const std::span<const Eigen::Vector3d> p = pass == 0 ? a : b, q = pass == 0 ? b : a;
+        const std::size_t n = p.size();
+        if (n >= 3 && separates(p[0], (p[1] - p[0]).cross(p[2] - p[0]))) return false;
+        if (n < 2) continue;
+        for (std::size_t i = 0; i < (n == 2 ? 1 : n); ++i) {
+            const Eigen::Vector3d& e0 = p[i];
+            const Eigen::Vector3d& e1 = p[(i + 1) % n];
+            for (const Eigen::Vector3d& r : q) {
+                if (separates(e0, (e1 - e0).cross(r - e0))) return false;
+            }
+        }
+    }
+    return true;
+}
+
 namespace {
 
 // One node of the hierarchy, in memory of the BVH's allocator (freed with it). Inner nodes have

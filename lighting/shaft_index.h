@@ -16,9 +16,11 @@
 
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include "core/result.h"
 
@@ -40,6 +42,15 @@ struct Ball {
 // Whether the shaft's cone of balls meets the ball (conservative for the shaft itself: a false
 // "meets" costs a visibility computation, a false "misses" would lose a shadow, and cannot happen).
 bool shaftMeetsBall(const Shaft& shaft, const Ball& ball);
+
+// Whether the ball meets the convex hull of two convex polygons (or a polygon and a point: `b`
+// of one vertex), by the hull's face planes (Haines and Wallace's shaft planes): every plane
+// through an edge of one end and a vertex of the other, or through an end itself, that has every
+// vertex on one side is a face plane; the ball misses the hull when one of them leaves it wholly
+// outside. Conservative near the hull's edges (a ball just off an edge may count as meeting it).
+// The index's cones are far looser for a large end (a ceiling panel seen from the floor): this is
+// the test that decides.
+bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b, const Ball& ball);
 
 class ShaftIndex {
 public:
