@@ -85,7 +85,7 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
         const int e = leaves[k];
         const ElementGeometry g = radiosity.geometry(e);
         const Element& el = radiosity.hierarchy()[e];
-        const std::uint64_t seed = hashCombine(source_seed, static_cast<std::uint64_t>(e));
+        const std::uint64_t seed = hashCombine(source_seed, radiosity.hierarchy().key(e));
         const bool is_virtual = radiosity.isVirtualElement(e);
         double real_sum = 0.0;
         switch (source.kind) {

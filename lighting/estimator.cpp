@@ -248,6 +248,7 @@ void Estimator::setViewer(const std::optional<Rigid3d>& cam_from_world) {
 void Estimator::requestFullUpdate() { impl_->force_full = true; }
 
 VirtualInfluence& Estimator::influence() noexcept { return *impl_->influence; }
+const VirtualInfluence& Estimator::influence() const noexcept { return *impl_->influence; }
 
 Result<void> Estimator::observe(const ImageView& rgb8, const Rigid3d& cam_from_world, double exposure_s,
                                 double analog_gain, std::int64_t) {

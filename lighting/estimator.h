@@ -102,6 +102,7 @@ public:
     // asks for it. Full updates otherwise happen when the observations have doubled since the last.
     void requestFullUpdate();
     VirtualInfluence& influence() noexcept;
+    const VirtualInfluence& influence() const noexcept;
     Result<void> observe(const ImageView& rgb8, const Rigid3d& cam_from_world, double exposure_s, double analog_gain,
                          std::int64_t timestamp_ns) override;
     Result<LightingSnapshot> update(const std::vector<Rigid3d>& virtual_world_from_object) override;

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "lighting/sampling.h"
+
 namespace commonlight::lighting {
 
 bool insideUnit(double a, double b, bool triangle, double tolerance) {
@@ -112,6 +114,14 @@ bool Hierarchy::subdivide(int element, double min_size) {
     }
     leaf_count_ += static_cast<int>(children.size()) - 1;
     return true;
+}
+
+std::uint64_t Hierarchy::key(int element) const {
+    const Element& e = elements_[static_cast<std::size_t>(element)];
+    const auto q = [](double v) { return static_cast<std::uint64_t>(std::llround(v * 1073741824.0)); };  // 2^30
+    std::uint64_t h = hash64(static_cast<std::uint64_t>(e.face) + 0x9e3779b97f4a7c15ull);
+    for (double v : {e.st.x(), e.st.y(), e.ds.x(), e.ds.y(), e.dt.x(), e.dt.y()}) h = hashCombine(h, q(v));
+    return h;
 }
 
 int Hierarchy::collapse(int element) {

@@ -8,6 +8,7 @@
 // root is element `roots[face]`.
 #pragma once
 
+#include <cstdint>
 #include <vector>
 
 #include <Eigen/Core>
@@ -72,6 +73,10 @@ public:
     // Makes an element a leaf again: everything under it is retired (kept for subdivide()).
     // Nothing happens to a leaf. Returns the number of leaves removed (leaves before - 1).
     int collapse(int element);
+    // A key of an element's place (its face and (s, t) parallelogram), the same however the
+    // hierarchy was built: what random sample streams of an element are seeded with, so that an
+    // element made again in another order (the influence's refinement) samples the same.
+    std::uint64_t key(int element) const;
     // Elements ever made (active and retired), for bounds on memory.
     std::size_t storedCount() const noexcept { return elements_.size(); }
 

@@ -395,7 +395,7 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
     const Element& el = rad.hierarchy()[c];
     const bool partial = rad.exposure(c) < 1.0;
     RealMask& m = mask(c, -1 - light);
-    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed, static_cast<std::uint64_t>(c)), 0x11ull + static_cast<std::uint64_t>(light));
+    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed, rad.hierarchy().key(c)), 0x11ull + static_cast<std::uint64_t>(light));
     mixed = false;
     // One estimate over `n` samples: each sample a point of the leaf and a point of (or a
     // direction to) the light, its weight, and whether real and virtual occluders block it.
@@ -495,7 +495,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     const bool known = (m.have & 1u) != 0;
     std::uint64_t computed = 0;
     const int n = std::clamp(self.options_.link_pairs, 1, 64);
-    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0x5eedull, static_cast<std::uint64_t>(c)), static_cast<std::uint64_t>(s));
+    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0x5eedull, rad.hierarchy().key(c)), rad.hierarchy().key(s));
     double open_real = 0.0, open_all = 0.0;
     bool any_blocked = false, any_open = false;
     for (int k = 0; k < n; ++k) {

@@ -151,7 +151,7 @@ double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, 
     const RayScene& rays = self.rays_;
     const ElementGeometry g = rad.geometry(element);
     const bool partial = rad.exposure(element) < 1.0;
-    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0xc1u, static_cast<std::uint64_t>(element)), static_cast<std::uint64_t>(o));
+    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0xc1u, rad.hierarchy().key(element)), static_cast<std::uint64_t>(o));
     int valid = 0, open = 0;
     for (int k = 0; k < pairs; ++k) {
         const SamplePair u = stratifiedPair(seed, k, pairs);
