@@ -107,6 +107,8 @@ public:
                          std::int64_t timestamp_ns) override;
     Result<LightingSnapshot> update(const std::vector<Rigid3d>& virtual_world_from_object) override;
 
+    bool lastUpdateFull() const override { return stats_.full; }
+
     // After update(): the estimates and solutions it used.
     const std::vector<LightEstimate>& lights() const noexcept { return estimates_; }
     const Radiosity& radiosity() const noexcept { return *radiosity_; }
