@@ -267,6 +267,25 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
         d.luma_scale = std::max(d.luma_scale, lumaOf(d.base.radiance[static_cast<std::size_t>(e)]));
     }
     if (!(d.scale > 0.0)) d.scale = d.luma_scale = 1.0;
+    {
+        // Each face's mean B~ (luminance, area-weighted over its exposed leaves): a twentieth of it
+        // floors the B~ changes are measured against.
+        std::vector<double> sum(h.faceCount(), 0.0), area(h.faceCount(), 0.0);
+        for (int e : radiosity_.leaves(Mode::kReal)) {
+            const auto f = static_cast<std::size_t>(h[e].face);
+            const double a = h[e].area * radiosity_.exposure(e);
+            sum[f] += a * lumaOf(d.base.radiance[static_cast<std::size_t>(e)]);
+            area[f] += a;
+        }
+        double total = 0.0, total_area = 0.0;
+        for (std::size_t f = 0; f < h.faceCount(); ++f) {
+            total += sum[f];
+            total_area += area[f];
+        }
+        d.mean_luma = total_area > 0.0 ? total / total_area : 0.0;
+        d.face_floor.assign(h.faceCount(), 0.0);
+        for (std::size_t f = 0; f < h.faceCount(); ++f) d.face_floor[f] = area[f] > 0.0 ? 0.05 * sum[f] / area[f] : 0.0;
+    }
     // Pull weights: a child's exposed area over its siblings' (Radiosity::pull's).
     for (std::size_t e = 0; e < n; ++e) {
         const Element& el = h[static_cast<int>(e)];
@@ -320,7 +339,18 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
     // Step 3: the shaft index over the base links and the light shafts of the base leaves.
     std::vector<Shaft> shafts;
     shafts.reserve(links.size());
-    for (const Link& l : links) shafts.push_back(d.elementShaft(l.receiver, l.source));
+    // A link no object can make significant (its whole transfer, to the brightest leaf under its
+    // receiver, below a twentieth of link_epsilon: a link to a small or dim source) is not indexed.
+    d.shaft_link.clear();
+    for (std::size_t i = 0; i < links.size(); ++i) {
+        const Link& l = links[i];
+        const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
+        const double strength = d.rho_max[static_cast<std::size_t>(l.receiver)] / kPi * w *
+                                lumaOf(d.base.radiance[static_cast<std::size_t>(l.source)]) / d.den_min[static_cast<std::size_t>(l.receiver)];
+        if (strength < 0.1 * options_.link_epsilon) continue;
+        shafts.push_back(d.elementShaft(l.receiver, l.source));
+        d.shaft_link.push_back(static_cast<int>(i));
+    }
     d.link_shafts = static_cast<int>(shafts.size());
     d.light_shafts.clear();
     d.far_lights.clear();
@@ -531,8 +561,13 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     return open_real > 0.0 ? open_all / open_real : 1.0;
 }
 
+double VirtualInfluence::Impl::floorLuma(int element) const {
+    const int face = self.radiosity_.hierarchy()[element].face;
+    return std::max(1e-3 * luma_scale, static_cast<std::size_t>(face) < face_floor.size() ? face_floor[static_cast<std::size_t>(face)] : 0.0);
+}
+
 double VirtualInfluence::Impl::denominator(int element) const {
-    return std::max(lumaOf(self.tilde_[static_cast<std::size_t>(element)]), floorLuma());
+    return std::max(lumaOf(self.tilde_[static_cast<std::size_t>(element)]), floorLuma(element));
 }
 
 // The largest fraction of a solid angle `omega` seen from `element` that object o can cover.
@@ -696,7 +731,8 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
 
 // The base leaves where object o (at `ball`) is significant: the sum of its largest effects on
 // B/B~ there, through each light and base link whose shaft it meets, reaches link_epsilon (each
-// effect below a tenth of that is not counted; links are followed from their receivers down to
+// effect below a twentieth of that is not counted: under a box standing on the floor every link
+// is blocked, and many small ones add up; links are followed from their receivers down to
 // the base leaves, pruned by a bound on that effect). Recorded per base leaf: the object, and the
 // links through which it matters. `scan`: every shaft instead of the index (the from-scratch baseline).
 void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links) {
@@ -712,8 +748,6 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         index->query(ball, ids);
     }
     const std::vector<Link>& links = rad.links();
-    static const bool debug = std::getenv("CL_INFLUENCE_DEBUG") != nullptr;
-    std::size_t visited = 0, link_ids = 0;
     std::vector<std::pair<int, double>> sums;       // base leaf, significance
     std::vector<std::pair<int, int>> link_entries;  // base leaf, link
     std::vector<int> stack;
@@ -727,8 +761,8 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             continue;
         }
         // A link: the base leaves under its receiver whose own shaft to the source meets the ball.
-        const Link& l = links[static_cast<std::size_t>(id)];
-        ++link_ids;
+        const int link = shaft_link[static_cast<std::size_t>(id)];
+        const Link& l = links[static_cast<std::size_t>(link)];
         const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
         const double source = lumaOf(base.radiance[static_cast<std::size_t>(l.source)]);
         const ElementShape& src = shape[static_cast<std::size_t>(l.source)];
@@ -737,7 +771,6 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         while (!stack.empty()) {
             const int e = stack.back();
             stack.pop_back();
-            ++visited;
             const Element& el = h[e];
             if (el.buried) continue;
             const ElementShape& es = shape[static_cast<std::size_t>(e)];
@@ -750,10 +783,10 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
             if (base_leaf[static_cast<std::size_t>(e)]) {
                 if (!hullMeetsBall(es.polygon(), src.polygon(), ball)) continue;
-                const double sig = linkSignificance(e, id, object);
+                const double sig = linkSignificance(e, link, object);
                 if (sig < item) continue;
                 sums.emplace_back(e, sig);
-                link_entries.emplace_back(e, id);
+                link_entries.emplace_back(e, link);
                 continue;
             }
             for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);
@@ -770,7 +803,6 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             }
         }
     }
-    if (debug) std::fprintf(stderr, "candidates: %zu ids, %zu links, %zu nodes visited, %zu sums\n", ids.size(), link_ids, visited, sums.size());
     // Significant where the sum reaches link_epsilon.
     std::sort(sums.begin(), sums.end());
     std::sort(link_entries.begin(), link_entries.end());

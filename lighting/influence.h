@@ -60,7 +60,7 @@ namespace commonlight::lighting {
 
 struct InfluenceOptions {
     double refine_epsilon = 0.02;   // a leaf is split while B/B~ may vary across it by more than this
-    double link_epsilon = 2e-3;     // per base leaf, the largest total change of B/B~ left out (the weakest
+    double link_epsilon = 5e-3;     // per base leaf, the largest total change of B/B~ left out (the weakest
                                     // blocked links and lights, the faintest virtual light)
     double min_size = 0.01;         // metres: the smallest element (and the split pattern's minimum)
     double footprint_pixels = 2.0;  // an element need not be smaller than this many of the camera's pixels

@@ -99,6 +99,7 @@ struct VirtualInfluence::Impl {
     InfluenceBase base;
     double scale = 1.0;        // largest B~ leaf radiance (max over channels)
     double luma_scale = 1.0;   // largest B~ leaf luminance
+    double mean_luma = 0.0;    // area-weighted mean B~ of the real leaves (luminance)
 
     // By element (grown with the hierarchy by grow()).
     std::vector<char> sub;        // made here
@@ -128,6 +129,7 @@ struct VirtualInfluence::Impl {
     std::unique_ptr<ShaftIndex> index;
     int link_shafts = 0;
     std::vector<std::pair<int, int>> light_shafts;
+    std::vector<int> shaft_link;  // link shafts: the base link (only links strong enough to matter are indexed)
     std::vector<int> far_lights;  // directional lights and distant cells (not in the index)
 
     std::vector<ObjectState> objects;
@@ -141,7 +143,12 @@ struct VirtualInfluence::Impl {
     // --- influence.cpp ---
     void grow();
     int baseLeafOf(int element) const;
-    double floorLuma() const { return 1e-3 * luma_scale; }
+    // The B~ (luminance) a change at an element is measured against: its own, floored at a
+    // twentieth of its face's mean (below a fiftieth the renderer adds the difference B - B~
+    // instead of multiplying by the ratio: Debevec's rule, lighting/snapshot.h), and at 1e-3 of
+    // the scene's largest.
+    double floorLuma(int element) const;
+    std::vector<double> face_floor;  // by face
     int boundLevel(int element) const;  // footprint bound as min_size * 2^level; large: out of view
     double boundSize(int level) const;
     Shaft elementShaft(int element, int other) const;

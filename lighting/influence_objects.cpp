@@ -198,9 +198,11 @@ Eigen::Vector3d VirtualInfluence::Impl::clusterAt(int o, int element, double* va
     double vis = clusterVisibility(o, element, 4, mixed, mask);
     if (mixed) vis = clusterVisibility(o, element, 16, mixed, mask);
     if (variation) {
-        const double den = std::max(lumaOf(self.tilde_[static_cast<std::size_t>(element)]), floorLuma());
+        const double den = denominator(element);
         const double rho = lumaOf(self.rho_[static_cast<std::size_t>(element)]);
-        *variation = rho * ((f_hi - f_lo) + (mixed ? f : 0.0)) * lumaOf(l) / den;
+        // What varies is the object's light net of the light it hides (about the scene's mean
+        // radiance): a grey ball beside a grey wall changes little, a lamp a lot.
+        *variation = rho * ((f_hi - f_lo) + (mixed ? f : 0.0)) * std::abs(lumaOf(l) - mean_luma) / den;
     }
     return kPi * f * vis * l;
 }
@@ -228,7 +230,7 @@ void VirtualInfluence::Impl::clusterLinks(int o, std::vector<int>& leaf_level) {
         // Step 1: can its light matter here? The largest form factor any point could have.
         const double dmin = std::max(distanceToPolygon(g, s.ball.centre) - s.radius, 0.25 * s.radius);
         const double f_max = std::min(1.0, s.projected_max / (kPi * dmin * dmin));
-        const double den = std::max(lumaOf(base.radiance[static_cast<std::size_t>(a)]), floorLuma());
+        const double den = std::max(lumaOf(base.radiance[static_cast<std::size_t>(a)]), floorLuma(a));
         const double rho = rho_mean[static_cast<std::size_t>(a)];
         if (rho * f_max * s.luma_max / den < opt.link_epsilon) continue;
         // Step 2: is the form factor even over it (and the object not too close)?
@@ -242,7 +244,7 @@ void VirtualInfluence::Impl::clusterLinks(int o, std::vector<int>& leaf_level) {
         f_lo = std::min(f_lo, fc);
         f_hi = std::max(f_hi, fc);
         const bool near = dmin < std::max(el.size_s, el.size_t_);
-        if (near || rho * (f_hi - f_lo) * s.luma_max / den > opt.refine_epsilon) {
+        if (near || rho * (f_hi - f_lo) * std::abs(s.luma_max - mean_luma) / den > opt.refine_epsilon) {
             if (base_leaf[static_cast<std::size_t>(a)]) {
                 s.cluster_leaves.push_back(a);
                 leaf_level.push_back(a);

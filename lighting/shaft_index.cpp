@@ -35,6 +35,10 @@ bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Ve
         const double length = n.norm();
         if (!(length > 1e-15)) return false;
         n /= length;
+        // A plane the ball straddles separates nothing, face plane or not (most planes: no need
+        // to look at the vertices).
+        const double c = (ball.centre - origin).dot(n);
+        if (std::abs(c) <= ball.radius) return false;
         // A face plane has every vertex on one side (a tolerance for round-off: ends that touch).
         double lo = 0.0, hi = 0.0;
         for (const Eigen::Vector3d& x : a) {
@@ -48,7 +52,6 @@ bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Ve
             hi = std::max(hi, s);
         }
         const double tol = 1e-9 * std::max(1.0, hi - lo);
-        const double c = (ball.centre - origin).dot(n);
         if (hi <= tol) return c > ball.radius;   // every vertex below: outward is +n
         if (lo >= -tol) return -c > ball.radius;  // every vertex above: outward is -n
         return false;                             // not a face plane
