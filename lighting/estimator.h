@@ -67,7 +67,6 @@ struct EstimatorStats {
     int leaves_initial = 0;       // after the initial mesh
     int leaves_light = 0;         // after refinement where direct light varies
     int leaves_links = 0;         // after link refinement
-    int leaves_virtual = 0;       // after refinement in the virtual objects' shadows
     int leaves_observation = 0;   // after refinement where the observations vary
     int observed_leaves = 0;
     double ms_columns = 0.0;      // direct-light columns (visibility rays)

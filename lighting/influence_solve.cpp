@@ -153,7 +153,7 @@ std::vector<Eigen::Vector3d> VirtualInfluence::denseDifference(double tolerance)
     const Hierarchy& h = radiosity_.hierarchy();
     const std::size_t n = h.elements().size();
     const std::vector<Link>& links = radiosity_.links();
-    std::vector<Eigen::Vector3d> D(n, Eigen::Vector3d::Zero()), G(n), CL(n);
+    std::vector<Eigen::Vector3d> D(n, Eigen::Vector3d::Zero()), G(n);
     std::vector<int> leaves;
     for (int e : radiosity_.leaves(Mode::kReal)) leaves.push_back(e);
     const auto pull = [&]() {
@@ -204,7 +204,6 @@ std::vector<Eigen::Vector3d> VirtualInfluence::denseDifference(double tolerance)
         pull();
         if (change <= tolerance * d.scale) break;
     }
-    (void)CL;
     return D;
 }
 

@@ -66,6 +66,21 @@ TEST(ShaftIndex, ConeOfBallsHoldsTheHullOfTheTwoEnds) {
         // And a point well off the line between them is not.
         const Eigen::Vector3d off = 0.5 * (ca + cb) + 5.0 * (cb - ca).unitOrthogonal();
         EXPECT_FALSE(shaftMeetsBall(s, Ball{off, 0.1}));
+        // The hull's face planes (both tests bound the hull; the influence asks both): every hull
+        // point meets, the far point does not.
+        const std::vector<Eigen::Vector3d> pa{ca - ha * ea - ha * fa, ca + ha * ea - ha * fa, ca + ha * ea + ha * fa, ca - ha * ea + ha * fa};
+        const std::vector<Eigen::Vector3d> pb{cb - hb * eb - hb * fb, cb + hb * eb - hb * fb, cb + hb * eb + hb * fb, cb - hb * eb + hb * fb};
+        for (int k = 0; k < 200; ++k) {
+            const Eigen::Vector3d x = ca + ha * (2 * u(rng) - 1) * ea + ha * (2 * u(rng) - 1) * fa;
+            const Eigen::Vector3d y = cb + hb * (2 * u(rng) - 1) * eb + hb * (2 * u(rng) - 1) * fb;
+            const double t = u(rng);
+            ASSERT_TRUE(hullMeetsBall(pa, pb, Ball{(1 - t) * x + t * y, 1e-9})) << trial << " " << k;
+        }
+        EXPECT_FALSE(hullMeetsBall(pa, pb, Ball{off, 0.1}));
+        // A point light: the hull of a square and a point (a pyramid).
+        const std::vector<Eigen::Vector3d> apex{cb};
+        EXPECT_TRUE(hullMeetsBall(pa, apex, Ball{0.5 * (ca + cb), 1e-9}));
+        EXPECT_FALSE(hullMeetsBall(pa, apex, Ball{off, 0.1}));
     }
 }
 
