@@ -1,4 +1,5 @@
 #include "apps/bench_lighting.h"
+#include "apps/bench_lighting_common.h"
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -28,12 +29,7 @@ namespace commonlight::apps {
 
 namespace fs = std::filesystem;
 
-namespace {
-
-using lighting::Estimator;
-using lighting::EstimatorOptions;
-using lighting::LightingSnapshot;
-using lighting::Mode;
+namespace bench_common {
 
 double luma(const Eigen::Vector3d& v) { return 0.2126 * v.x() + 0.7152 * v.y() + 0.0722 * v.z(); }
 
@@ -44,22 +40,11 @@ double percentile(std::vector<double> v, double p) {
     return v[k - 1];
 }
 
-std::string fmt(double v, const char* f = "%.2f") {
+std::string fmt(double v, const char* f) {
     char b[64];
     std::snprintf(b, sizeof b, f, v);
     return b;
 }
-
-// A rendered sequence with its truth: linear radiance with and without the virtual objects, the
-// simulator's masks, the poses.
-struct SimSequence {
-    CameraModel camera;
-    std::vector<Rigid3d> world_from_cam;
-    std::vector<cv::Mat> radiance;    // CV_32FC3, RGB, W/(m^2 sr)
-    std::vector<cv::Mat> composite;   // same, with the virtual objects
-    std::vector<cv::Mat> changed;     // CV_8U: 255 where the virtual objects change real surfaces by > 1%
-    std::vector<cv::Mat> virtual_coverage;  // CV_8U: 0..255 fraction of samples on a virtual object
-};
 
 Result<cv::Mat> readExrRgb(const fs::path& file) {
     cv::Mat bgr = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
@@ -76,8 +61,14 @@ Result<SimSequence> renderOrLoad(const fs::path& scene_file, const fs::path& tra
     if (!truth.camera) return fail(ErrorCode::kBadInput, scene_file.string() + ": the scene names no camera");
     const int height = o.width * truth.camera->height / truth.camera->width;
     const CameraModel camera = truth.camera->scaledTo(o.width, height);
+    CL_TRY(mocks::sim::Trajectory trajectory, mocks::sim::Trajectory::read(trajectory_file));
     const fs::path dir = o.data_dir / (name + "-" + std::to_string(o.width) + "-" + std::to_string(o.spp) + "spp-" +
                                        std::to_string(frames));
+    return renderOrLoadScene(truth, trajectory, camera, o.spp, dir, name, frames);
+}
+
+Result<SimSequence> renderOrLoadScene(const Scene& truth, const mocks::sim::Trajectory& trajectory, const CameraModel& camera, int spp,
+                                      const fs::path& dir, const std::string& name, int frames) {
     const auto complete = [&]() {
         auto seq = readSequence(dir);
         return seq && static_cast<int>(seq->frames.size()) == frames && static_cast<int>(seq->groundtruth_poses.size()) == frames;
@@ -86,15 +77,14 @@ Result<SimSequence> renderOrLoad(const fs::path& scene_file, const fs::path& tra
         std::error_code ec;
         fs::remove_all(dir, ec);
         fs::create_directories(dir.parent_path(), ec);
-        CL_TRY(mocks::sim::Trajectory trajectory, mocks::sim::Trajectory::read(trajectory_file));
         mocks::sim::SimulationOptions sim;
         sim.out = dir;
         sim.frames = frames;
-        sim.spp = o.spp;
+        sim.spp = spp;
         sim.max_depth = 8;
         sim.camera = camera;
         std::printf("  rendering %s: %d frames %dx%d at %d spp (kept in %s)\n", name.c_str(), frames, camera.width,
-                    camera.height, o.spp, dir.c_str());
+                    camera.height, spp, dir.c_str());
         std::fflush(stdout);
         CL_TRY(mocks::sim::SimulationSummary summary, mocks::sim::simulate(truth, trajectory, sim));
         if (summary.frames_written != frames) return fail(ErrorCode::kInternal, "bench: the render of " + name + " stopped early");
@@ -146,39 +136,82 @@ double exposureFor(const cv::Mat& radiance) {
     return p > 0.0 ? 0.85 / p : 1.0;
 }
 
-// Ratio error over masks/changed, pixels not on a virtual object: the predicted B/B~ (luminance)
-// against the truth's composite / plain radiance.
-struct RatioError {
-    std::vector<double> errors;  // predicted - true, per pixel
-    void add(const Image& predicted, const cv::Mat& plain, const cv::Mat& composite, const cv::Mat& changed,
-             const cv::Mat& coverage) {
-        for (int y = 0; y < plain.rows; ++y) {
-            const auto* p = reinterpret_cast<const float*>(predicted.view().row(y));
-            const auto* a = plain.ptr<float>(y);
-            const auto* b = composite.ptr<float>(y);
-            for (int x = 0; x < plain.cols; ++x) {
-                if (changed.empty() || changed.at<std::uint8_t>(y, x) < 128) continue;
-                if (!coverage.empty() && coverage.at<std::uint8_t>(y, x) > 0) continue;
-                if (!std::isfinite(p[3 * x + 1])) continue;
-                const double la = 0.2126 * a[3 * x] + 0.7152 * a[3 * x + 1] + 0.0722 * a[3 * x + 2];
-                const double lb = 0.2126 * b[3 * x] + 0.7152 * b[3 * x + 1] + 0.0722 * b[3 * x + 2];
-                if (!(la > 1e-6)) continue;
-                const double lp = 0.2126 * p[3 * x] + 0.7152 * p[3 * x + 1] + 0.0722 * p[3 * x + 2];
-                errors.push_back(lp - lb / la);
-            }
+}  // namespace bench_common
+
+namespace bench_common {
+
+// The truth's ratio composite / plain (luminance) over the bounding box of masks/changed,
+// path-traced again at `spp` with another seed: per pixel, the sequence's own ratio carries the
+// Monte Carlo noise of its spp where paths meet a virtual object (NaN outside the box).
+Result<cv::Mat> referenceRatio(const mocks::sim::SimScene& plain, const mocks::sim::SimScene& composite, const SimSequence& seq,
+                               std::size_t frame, int spp) {
+    cv::Mat out(seq.camera.height, seq.camera.width, CV_64F, cv::Scalar(std::nan("")));
+    if (seq.changed[frame].empty() || cv::countNonZero(seq.changed[frame]) == 0) return out;
+    const cv::Rect box = cv::boundingRect(seq.changed[frame] >= 128);
+    mocks::sim::RenderRequest request;
+    request.camera = seq.camera;
+    request.world_from_cam = seq.world_from_cam[frame];
+    request.spp = spp;
+    request.seed = 0x5eed2;
+    request.frame_index = frame;
+    request.max_depth = 8;
+    request.region = mocks::sim::PixelRect{box.x, box.y, box.width, box.height};
+    request.scene = &plain;
+    CL_TRY(mocks::sim::RenderOutput a, mocks::sim::render(request));
+    request.scene = &composite;
+    CL_TRY(mocks::sim::RenderOutput b, mocks::sim::render(request));
+    for (int y = box.y; y < box.y + box.height; ++y) {
+        const auto* pa = reinterpret_cast<const float*>(a.radiance.view().row(y));
+        const auto* pb = reinterpret_cast<const float*>(b.radiance.view().row(y));
+        for (int x = box.x; x < box.x + box.width; ++x) {
+            const double la = luma(Eigen::Vector3d(pa[3 * x], pa[3 * x + 1], pa[3 * x + 2]));
+            const double lb = luma(Eigen::Vector3d(pb[3 * x], pb[3 * x + 1], pb[3 * x + 2]));
+            if (la > 1e-6) out.at<double>(y, x) = lb / la;
         }
     }
-    double rms() const {
-        double s = 0.0;
-        for (double e : errors) s += e * e;
-        return errors.empty() ? 0.0 : std::sqrt(s / errors.size());
+    return out;
+}
+
+void RatioError::add(const Image& predicted, const cv::Mat& plain, const cv::Mat& composite, const cv::Mat& changed,
+                     const cv::Mat& coverage) {
+    for (int y = 0; y < plain.rows; ++y) {
+        const auto* p = reinterpret_cast<const float*>(predicted.view().row(y));
+        const auto* a = plain.ptr<float>(y);
+        const auto* b = composite.ptr<float>(y);
+        for (int x = 0; x < plain.cols; ++x) {
+            if (changed.empty() || changed.at<std::uint8_t>(y, x) < 128) continue;
+            if (!coverage.empty() && coverage.at<std::uint8_t>(y, x) > 0) continue;
+            if (!std::isfinite(p[3 * x + 1])) continue;
+            const double la = 0.2126 * a[3 * x] + 0.7152 * a[3 * x + 1] + 0.0722 * a[3 * x + 2];
+            const double lb = 0.2126 * b[3 * x] + 0.7152 * b[3 * x + 1] + 0.0722 * b[3 * x + 2];
+            if (!(la > 1e-6)) continue;
+            const double lp = 0.2126 * p[3 * x] + 0.7152 * p[3 * x + 1] + 0.0722 * p[3 * x + 2];
+            errors.push_back(lp - lb / la);
+        }
     }
-    double mean() const {
-        double s = 0.0;
-        for (double e : errors) s += e;
-        return errors.empty() ? 0.0 : s / errors.size();
-    }
-};
+}
+
+double RatioError::rms() const {
+    double sum = 0.0;
+    for (double e : errors) sum += e * e;
+    return errors.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(errors.size()));
+}
+
+double RatioError::mean() const {
+    double sum = 0.0;
+    for (double e : errors) sum += e;
+    return errors.empty() ? 0.0 : sum / static_cast<double>(errors.size());
+}
+
+}  // namespace bench_common
+
+namespace {
+
+using namespace bench_common;
+using lighting::Estimator;
+using lighting::EstimatorOptions;
+using lighting::LightingSnapshot;
+using lighting::Mode;
 
 struct EstimateRun {
     std::unique_ptr<Estimator> estimator;
@@ -338,38 +371,6 @@ Result<nlohmann::json> caseDistant(const BenchLightingOptions& o) {
     return nlohmann::json{{"scene", "sunlit"}, {"rows", rows}};
 }
 
-// The truth's ratio composite / plain (luminance) over the bounding box of masks/changed,
-// path-traced again at `spp` with another seed: per pixel, the sequence's own ratio carries the
-// Monte Carlo noise of its spp where paths meet a virtual object (NaN outside the box).
-Result<cv::Mat> referenceRatio(const mocks::sim::SimScene& plain, const mocks::sim::SimScene& composite, const SimSequence& seq,
-                               std::size_t frame, int spp) {
-    cv::Mat out(seq.camera.height, seq.camera.width, CV_64F, cv::Scalar(std::nan("")));
-    if (seq.changed[frame].empty() || cv::countNonZero(seq.changed[frame]) == 0) return out;
-    const cv::Rect box = cv::boundingRect(seq.changed[frame] >= 128);
-    mocks::sim::RenderRequest request;
-    request.camera = seq.camera;
-    request.world_from_cam = seq.world_from_cam[frame];
-    request.spp = spp;
-    request.seed = 0x5eed2;
-    request.frame_index = frame;
-    request.max_depth = 8;
-    request.region = mocks::sim::PixelRect{box.x, box.y, box.width, box.height};
-    request.scene = &plain;
-    CL_TRY(mocks::sim::RenderOutput a, mocks::sim::render(request));
-    request.scene = &composite;
-    CL_TRY(mocks::sim::RenderOutput b, mocks::sim::render(request));
-    for (int y = box.y; y < box.y + box.height; ++y) {
-        const auto* pa = reinterpret_cast<const float*>(a.radiance.view().row(y));
-        const auto* pb = reinterpret_cast<const float*>(b.radiance.view().row(y));
-        for (int x = box.x; x < box.x + box.width; ++x) {
-            const double la = luma(Eigen::Vector3d(pa[3 * x], pa[3 * x + 1], pa[3 * x + 2]));
-            const double lb = luma(Eigen::Vector3d(pb[3 * x], pb[3 * x + 1], pb[3 * x + 2]));
-            if (la > 1e-6) out.at<double>(y, x) = lb / la;
-        }
-    }
-    return out;
-}
-
 struct RatioErrors {
     RatioError sequence;   // against the sequence's own frames (its spp)
     RatioError reference;  // against the reference renders (8x the spp)
@@ -476,7 +477,6 @@ Result<SolverPoint> solverPoint(const Scene& truth, const CameraModel& camera, c
     EstimatorOptions eo;
     eo.refine_unobserved = true;
     eo.refine_by_light = false;  // element averages are what is compared: no texture detail needed
-    eo.refine_by_virtual = false;
     eo.initial_element_size = c.size;
     eo.radiosity.hierarchical = c.hierarchical;
     eo.radiosity.link_epsilon = c.link_epsilon;
@@ -876,10 +876,16 @@ Result<nlohmann::json> caseShading(const BenchLightingOptions& o) {
 
 }  // namespace
 
-std::vector<std::string> benchLightingCaseNames() { return {"solver", "known", "distant", "nothing", "ratio", "shading"}; }
+std::vector<std::string> benchLightingCaseNames() { return {"solver", "known", "distant", "nothing", "ratio", "shading", "incremental"}; }
 
 int runBenchLighting(const BenchLightingOptions& options) {
-    const std::vector<std::string> cases = options.cases.empty() ? benchLightingCaseNames() : options.cases;
+    // Every case but `incremental` (its own run: --incremental) by default.
+    std::vector<std::string> cases = options.cases;
+    if (cases.empty()) {
+        cases = benchLightingCaseNames();
+        std::erase(cases, "incremental");
+    }
+    const bool solver_plot = std::find(cases.begin(), cases.end(), "solver") != cases.end();
     nlohmann::json report;
     report["frames"] = options.frames;
     report["width"] = options.width;
@@ -893,11 +899,17 @@ int runBenchLighting(const BenchLightingOptions& options) {
         if (name == "nothing") result = caseRatio(options, true);
         if (name == "ratio") result = caseRatio(options, false);
         if (name == "shading") result = caseShading(options);
+        if (name == "incremental") {
+            // Its plot beside the solver's when both run.
+            std::string plot = options.plot;
+            if (!plot.empty() && solver_plot) plot = (fs::path(plot).parent_path() / (fs::path(plot).stem().string() + "-incremental.png")).string();
+            result = runIncrementalCase(options, plot);
+        }
         if (!result) return reportError(result.error());
         report[name] = *result;
         std::fflush(stdout);
     }
-    if (!options.plot.empty()) {
+    if (!options.plot.empty() && solver_plot) {
         if (points.empty()) {
             log::warning("--plot: the solver case did not run; no plot written");
         } else {

@@ -17,6 +17,11 @@
 //             masks/changed (RMS and mean signed error), desk and room, against a reference
 //             rendered at 8x the sequence's spp over the changed region (and against the frames)
 //   shading   light direction from a known sphere's shading against seed 002's Tables 1-3
+//   incremental  (--incremental; not in the default set) a virtual object moving along a path for
+//             `steps` steps on the desk and in the room: incremental update time (p50/p95/max),
+//             elements and links over time, ratio B/B~ against the path tracer at some steps, the
+//             refinement thresholds swept (speed against error), full re-solves side by side, and a
+//             long check of `stress_moves` random moves (element count bounded, equal to a fresh solve)
 #pragma once
 
 #include <filesystem>
@@ -39,9 +44,20 @@ struct BenchLightingOptions {
     std::string json;
     std::string plot;
     std::filesystem::path solver_csv;  // the solver case's per-element errors, one CSV per configuration
+    // Case `incremental` (--incremental): a virtual object moving along a path on the desk and in
+    // the room, updated incrementally (lighting/influence.h) against full re-solves and the path tracer.
+    int steps = 300;            // steps of the path
+    int truth_every = 60;       // path-traced truth at every n-th step (and the last)
+    int full_every = 20;        // a full re-solve beside the incremental update at every n-th step
+    int stress_moves = 10000;   // random moves of the long check (desk); 0: none
+    bool sweep = true;          // the refinement thresholds swept
 };
 
+// Every case's name (all but `incremental` run by default).
 std::vector<std::string> benchLightingCaseNames();
+
+// Case `incremental` (apps/bench_lighting_incremental.cpp); `plot`: its PNG, or empty.
+Result<nlohmann::json> runIncrementalCase(const BenchLightingOptions& options, const std::string& plot);
 
 int runBenchLighting(const BenchLightingOptions& options);
 

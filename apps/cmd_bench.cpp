@@ -66,10 +66,20 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
     lighting->add_option("--solver-csv", lighting_options->solver_csv,
                          "Write the solver case's per-element truth and model radiance (direct and total) as CSV files in this folder");
     lighting->add_option("--source", lighting_options->source_dir, "The repository (for data/); default: . or $COMMONLIGHT_SOURCE_DIR");
+    auto incremental = std::make_shared<bool>(false);
+    lighting->add_flag("--incremental", *incremental, "Only the incremental case: a virtual object moving along a path (lighting/influence.h)");
+    lighting->add_option("--steps", lighting_options->steps, "Incremental case: steps of the path")->check(CLI::Range(2, 100000));
+    lighting->add_option("--stress-moves", lighting_options->stress_moves, "Incremental case: random moves of the long check (0: none)")
+        ->check(CLI::Range(0, 10000000));
+    lighting->add_flag("--no-sweep", [lighting_options](std::int64_t) { lighting_options->sweep = false; },
+                       "Incremental case: do not sweep the refinement thresholds");
     lighting->footer("Cases: solver (radiosity against the path tracer, hierarchical against uniform), known (desk: "
                      "emissions, reflectances), distant (sunlit: direction), nothing (no light in the scene), ratio "
                      "(B/B~ against the simulator over masks/changed). Sequences are rendered once and kept.");
-    lighting->callback([lighting_options, &runner] { runner = [lighting_options] { return runBenchLighting(*lighting_options); }; });
+    lighting->callback([lighting_options, incremental, &runner] {
+        if (*incremental) lighting_options->cases = {"incremental"};
+        runner = [lighting_options] { return runBenchLighting(*lighting_options); };
+    });
 
     auto pipeline_options = std::make_shared<BenchPipelineOptions>();
     CLI::App* pipe = bench->add_subcommand("pipeline", "The whole pipeline: compositor time, composite error (lighting on/off), real-time fps and latency");

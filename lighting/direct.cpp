@@ -15,9 +15,10 @@ namespace {
 
 constexpr double kPi = std::numbers::pi;
 
-// A uniform point on an area light from (u, v) in [0,1)^2: rectangles directly, discs by the
-// concentric map (Shirley and Chiu 1997) so that stratification survives.
-Eigen::Vector3d lightPoint(const LightGeometry& g, const Eigen::Vector2d& u) {
+}  // namespace
+
+// Rectangles directly, discs by the concentric map (Shirley and Chiu 1997).
+Eigen::Vector3d sampleLight(const LightGeometry& g, const Eigen::Vector2d& u) {
     if (!g.disc) {
         return g.world_from_object * Eigen::Vector3d((u.x() - 0.5) * g.size.x(), (u.y() - 0.5) * g.size.y(), 0.0);
     }
@@ -35,7 +36,17 @@ Eigen::Vector3d lightPoint(const LightGeometry& g, const Eigen::Vector2d& u) {
     return g.world_from_object * Eigen::Vector3d(g.radius * r * std::cos(phi), g.radius * r * std::sin(phi), 0.0);
 }
 
-}  // namespace
+std::uint64_t directSeed(const DirectSource& source, std::uint64_t seed) {
+    return hashCombine(seed, static_cast<std::uint64_t>(source.light) * 1000003ull +
+                                 static_cast<std::uint64_t>(std::llround(1e4 * (source.phi0 + 7.0 * source.cos0))));
+}
+
+Eigen::Vector3d DirectSource::cellDirection(const Eigen::Vector2d& u) const {
+    const double c = cos0 + u.x() * (cos1 - cos0);
+    const double s = std::sqrt(std::max(0.0, 1.0 - c * c));
+    const double phi = phi0 + u.y() * (phi1 - phi0);
+    return {s * std::cos(phi), s * std::sin(phi), c};
+}
 
 Eigen::Vector3d DirectSource::cellCentre() const {
     const double c = 0.5 * (cos0 + cos1);
@@ -68,18 +79,15 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
                    const DirectOptions& options, DirectColumn& column) {
     const std::size_t n = radiosity.hierarchy().elements().size();
     column.real.resize(n, 0.0f);
-    column.all.resize(n, 0.0f);
     const RayScene& rays = radiosity.rays();
-    const std::uint64_t source_seed =
-        hashCombine(options.seed, static_cast<std::uint64_t>(source.light) * 1000003ull +
-                                      static_cast<std::uint64_t>(std::llround(1e4 * (source.phi0 + 7.0 * source.cos0))));
+    const std::uint64_t source_seed = directSeed(source, options.seed);
     tbb::parallel_for(std::size_t{0}, leaves.size(), [&](std::size_t k) {
         const int e = leaves[k];
         const ElementGeometry g = radiosity.geometry(e);
         const Element& el = radiosity.hierarchy()[e];
-        const std::uint64_t seed = hashCombine(source_seed, static_cast<std::uint64_t>(e));
+        const std::uint64_t seed = hashCombine(source_seed, radiosity.hierarchy().key(e));
         const bool is_virtual = radiosity.isVirtualElement(e);
-        double real_sum = 0.0, all_sum = 0.0;
+        double real_sum = 0.0;
         switch (source.kind) {
             case DirectSource::Kind::kPolygon: {
                 const LightGeometry& light = *source.polygon;
@@ -98,14 +106,14 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
                 for (const QuadraturePoint& q : points) open += q.weight * kPi * pointToPolygon(q.x, g.normal, light.polygon, light.normal);
                 if (!(open > 0.0)) break;
                 const double floor2 = std::pow(0.05 * std::sqrt(std::min(el.area, light.area)), 2);
-                const auto visible_fraction = [&](int pairs, std::uint64_t pair_seed, double& real_fraction, double& all_fraction) {
-                    double f_sum = 0.0, f_real = 0.0, f_all = 0.0;
+                const auto visible_fraction = [&](int pairs, std::uint64_t pair_seed) {
+                    double f_sum = 0.0, f_real = 0.0;
                     for (int pair = 0; pair < pairs; ++pair) {
                         const SamplePair u = stratifiedPair(pair_seed, pair, pairs);
                         Eigen::Vector3d x = samplePolygon(g.corner, g.edge_s, g.edge_t, g.triangle, u.first.x(), u.first.y());
                         if (partial && radiosity.hidden(e, x)) continue;
                         if (is_virtual) x = radiosity.onSurface(e, x);
-                        const Eigen::Vector3d y = lightPoint(light, u.second);
+                        const Eigen::Vector3d y = sampleLight(light, u.second);
                         const Eigen::Vector3d d = y - x;
                         // Hard case: the kernel diverges where the light touches the leaf; the
                         // distance is floored at 5% of the smaller of the two (the weights only
@@ -114,37 +122,28 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
                         const double f = std::max(0.0, g.normal.dot(d)) * std::max(0.0, -light.normal.dot(d)) / (d2 * d2);
                         if (f <= 0.0) continue;
                         f_sum += f;
-                        if (rays.occludedReal(x, g.normal, y, light.normal)) continue;
-                        f_real += f;
-                        if (!rays.occludedVirtual(x, g.normal, y, light.normal)) f_all += f;
+                        if (!rays.occludedReal(x, g.normal, y, light.normal)) f_real += f;
                     }
-                    real_fraction = f_sum > 0.0 ? f_real / f_sum : 1.0;
-                    all_fraction = f_sum > 0.0 ? f_all / f_sum : 1.0;
+                    return f_sum > 0.0 ? f_real / f_sum : 1.0;
                 };
-                double vr = 1.0, va = 1.0;
                 const int pairs = std::max(4, options.rays);
                 // A pilot decides how many pairs the estimate gets; the estimate uses pairs of its
                 // own (stopping at a clear pilot would read a leaf barely touched by a shadow as
                 // clear: biased high). A penumbra across the leaf: sixteen times the pairs (a large
-                // leaf half in a shadow needs many to know which half: 1.5% noise).
-                const auto penumbra = [](double r, double a) { return (r > 0.0 && r < 1.0) || (a > 0.0 && a < 1.0); };
-                double pr = 1.0, pa = 1.0;
-                visible_fraction(pairs, hash64(seed ^ 0x9f1e7ull), pr, pa);
-                if (penumbra(pr, pa)) {
-                    visible_fraction(16 * pairs, seed, vr, va);
-                } else if (pr == 0.0) {
-                    visible_fraction(4 * pairs, hash64(seed ^ 0x51ce1ull), pr, pa);  // a sliver of light the pilot missed
-                    if (penumbra(pr, pa)) {
-                        visible_fraction(16 * pairs, seed, vr, va);
-                    } else {
-                        vr = pr;
-                        va = pa;
-                    }
+                // leaf half in a shadow needs many to know which half: 1.5% noise). Real occluders
+                // only: what the virtual objects block is lighting/influence.h's (B~ must not
+                // depend on where they are).
+                const auto penumbra = [](double r) { return r > 0.0 && r < 1.0; };
+                double vr = visible_fraction(pairs, hash64(seed ^ 0x9f1e7ull));
+                if (penumbra(vr)) {
+                    vr = visible_fraction(16 * pairs, seed);
+                } else if (vr == 0.0) {
+                    vr = visible_fraction(4 * pairs, hash64(seed ^ 0x51ce1ull));  // a sliver of light the pilot missed
+                    if (penumbra(vr)) vr = visible_fraction(16 * pairs, seed);
                 } else {
-                    visible_fraction(pairs, seed, vr, va);
+                    vr = visible_fraction(pairs, seed);
                 }
                 real_sum = open * vr;
-                all_sum = open * va;
                 break;
             }
             case DirectSource::Kind::kPoint: {
@@ -157,11 +156,7 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
                     if (!(d2 > 1e-12)) continue;
                     const double cos_theta = g.normal.dot(d) / std::sqrt(d2);
                     if (cos_theta <= 0.0) continue;
-                    const bool blocked_real = rays.occludedReal(xq, g.normal, source.position);
-                    const bool blocked_virtual = !blocked_real && rays.occludedVirtual(xq, g.normal, source.position);
-                    const double irradiance = cos_theta / d2;
-                    if (!blocked_real) real_sum += points[q].weight * irradiance;
-                    if (!blocked_real && !blocked_virtual) all_sum += points[q].weight * irradiance;
+                    if (!rays.occludedReal(xq, g.normal, source.position)) real_sum += points[q].weight * cos_theta / d2;
                 }
                 break;
             }
@@ -172,10 +167,7 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
                 const auto points = radiosity.exposedRule(e, 2);
                 for (std::size_t q = 0; q < points.size(); ++q) {
                     const Eigen::Vector3d xq = is_virtual ? radiosity.onSurface(e, points[q].x) : points[q].x;
-                    const bool blocked_real = rays.occludedRealRay(xq, g.normal, towards);
-                    const bool blocked_virtual = !blocked_real && rays.occludedVirtualRay(xq, g.normal, towards);
-                    if (!blocked_real) real_sum += points[q].weight * cos_theta;
-                    if (!blocked_real && !blocked_virtual) all_sum += points[q].weight * cos_theta;
+                    if (!rays.occludedRealRay(xq, g.normal, towards)) real_sum += points[q].weight * cos_theta;
                 }
                 break;
             }
@@ -186,10 +178,7 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
                 int valid = 0;
                 for (int r = 0; r < m; ++r) {
                     const Eigen::Vector2d u = stratified2d(seed, r, m);
-                    const double c = source.cos0 + u.x() * (source.cos1 - source.cos0);
-                    const double s = std::sqrt(std::max(0.0, 1.0 - c * c));
-                    const double phi = source.phi0 + u.y() * (source.phi1 - source.phi0);
-                    const Eigen::Vector3d w(s * std::cos(phi), s * std::sin(phi), c);
+                    const Eigen::Vector3d w = source.cellDirection(u);
                     // One point per direction, spread over the leaf's exposed part.
                     const Eigen::Vector2d p = stratified2d(hash64(seed), permuted(r, m, hash64(seed + 1)), m);
                     Eigen::Vector3d x = samplePolygon(g.corner, g.edge_s, g.edge_t, g.triangle, p.x(), p.y());
@@ -198,19 +187,14 @@ void computeDirect(const Radiosity& radiosity, const DirectSource& source, const
                     const double cos_theta = g.normal.dot(w);
                     if (cos_theta <= 0.0) continue;
                     if (is_virtual) x = radiosity.onSurface(e, x);
-                    const bool blocked_real = rays.occludedRealRay(x, g.normal, w);
-                    const bool blocked_virtual = !blocked_real && rays.occludedVirtualRay(x, g.normal, w);
-                    if (!blocked_real) real_sum += omega * cos_theta;
-                    if (!blocked_real && !blocked_virtual) all_sum += omega * cos_theta;
+                    if (!rays.occludedRealRay(x, g.normal, w)) real_sum += omega * cos_theta;
                 }
                 // Hard case: every point of a mostly hidden leaf fell under the box: nothing known, none counted.
                 real_sum /= std::max(1, valid);
-                all_sum /= std::max(1, valid);
                 break;
             }
         }
         column.real[static_cast<std::size_t>(e)] = static_cast<float>(real_sum);
-        column.all[static_cast<std::size_t>(e)] = static_cast<float>(all_sum);
     });
 }
 
@@ -224,7 +208,7 @@ double directAtPoint(const RayScene& rays, const DirectSource& source, const Eig
             if (f <= 0.0) return 0.0;
             int visible = 0;
             for (int r = 0; r < samples; ++r) {
-                if (!rays.occludedReal(x, normal, lightPoint(light, stratified2d(seed, r, samples)), light.normal)) ++visible;
+                if (!rays.occludedReal(x, normal, sampleLight(light, stratified2d(seed, r, samples)), light.normal)) ++visible;
             }
             return kPi * f * visible / samples;
         }

@@ -3,8 +3,8 @@
 // irradiance of any emissions is a linear combination of columns (the light fit of
 // lighting/light_fit.h solves for those coefficients).
 //
-// Per leaf and source, two values: through the real occluders only (for B~) and through the real
-// and virtual ones (for B). Units: W/m^2 of irradiance per unit of the source's emission quantity:
+// Per leaf and source, through the real occluders only: B~'s direct light. What the virtual
+// objects block is lighting/influence.h's (a transmission per leaf and light). Units: W/m^2 of irradiance per unit of the source's emission quantity:
 //   area / disc light   per unit radiance W/(m^2 sr):  E = pi * integral over the leaf of F(x -> light) V(x)
 //   point light         per unit intensity W/sr:       E = cos(theta) / d^2 * V
 //   directional light   per unit irradiance W/m^2:     E = max(0, cos(theta)) * V
@@ -33,11 +33,11 @@ struct DirectSource {
     double cos0 = 0.0, cos1 = 1.0, phi0 = 0.0, phi1 = 0.0;
     double solidAngle() const { return (cos1 - cos0) * (phi1 - phi0); }
     Eigen::Vector3d cellCentre() const;  // unit, towards the sky
+    Eigen::Vector3d cellDirection(const Eigen::Vector2d& u) const;  // u in [0,1)^2 -> uniform over the cell's solid angle
 };
 
 struct DirectColumn {
     std::vector<float> real;  // by element index (leaves only), irradiance per unit emission
-    std::vector<float> all;
 };
 
 struct DirectOptions {
@@ -50,6 +50,13 @@ struct DirectOptions {
 // to the element count).
 void computeDirect(const Radiosity& radiosity, const DirectSource& source, const std::vector<int>& leaves,
                    const DirectOptions& options, DirectColumn& column);
+
+// A uniform point of an area light from u in [0, 1)^2 (rectangles directly, discs by the concentric
+// map, so that stratification survives).
+Eigen::Vector3d sampleLight(const LightGeometry& light, const Eigen::Vector2d& u);
+
+// The sample stream of a source for computeDirect()'s seed (`DirectOptions::seed`).
+std::uint64_t directSeed(const DirectSource& source, std::uint64_t seed);
 
 // Irradiance per unit emission at one point facing `normal` through the real occluders (a tag's
 // white border, a probe): the same estimators as computeDirect with `rays` visibility samples.

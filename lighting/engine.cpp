@@ -281,9 +281,12 @@ Result<void> LightingEngine::Impl::process(OwnedObservation& observation, const 
     }
     std::lock_guard lock(mutex);
     ++stats.updates;
+    const bool full = model->lastUpdateFull();
+    if (full) ++stats.full_updates;
     if (stats.update_ms.size() < kMaxStatSamples) {
         stats.update_ms.push_back(static_cast<double>(end_ns - start_ns) / 1e6);
         stats.lag_ms.push_back(static_cast<double>(end_ns - observation.submitted_ns) / 1e6);
+        if (!full) stats.incremental_ms.push_back(static_cast<double>(end_ns - start_ns) / 1e6);
     }
     return {};
 }
@@ -307,6 +310,8 @@ nlohmann::json lightingMetricsJson(const EngineStats& stats, const LightingSnaps
     j["update_ms"] = percentiles(stats.update_ms);
     j["lag_ms"] = percentiles(stats.lag_ms);
     j["updates"] = stats.updates;
+    j["full_updates"] = stats.full_updates;
+    j["incremental_update_ms"] = percentiles(stats.incremental_ms);
     j["update_rate_hz"] = stats.updateRateHz();
     j["observations"] = {{"submitted", stats.submitted},
                          {"processed", stats.processed},

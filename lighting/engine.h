@@ -61,7 +61,9 @@ struct EngineStats {
     std::uint64_t skipped = 0;        // replaced by a newer one before the engine took them (real time)
     std::uint64_t without_pose = 0;   // submitted without a camera pose
     std::uint64_t updates = 0;        // snapshots published
+    std::uint64_t full_updates = 0;   // of them, full (light fit, B~ and the influence from scratch)
     std::vector<double> update_ms;    // per update: accumulation + estimation + solve + publication
+    std::vector<double> incremental_ms;  // per incremental update (only the virtual objects' influence): the same
     std::vector<double> lag_ms;       // per update: publication time - the observation's submit time
     double elapsed_s = 0.0;           // since start()
 

@@ -18,6 +18,7 @@
 #include "core/log.h"
 #include "lighting/distant.h"
 #include "lighting/form_factor.h"
+#include "lighting/influence.h"
 #include "lighting/sampling.h"
 #include "lighting/snapshot_builder.h"
 
@@ -100,6 +101,18 @@ struct Estimator::Impl {
     int update_depth = 0;         // update() calls itself once after rebuilding the links
     std::vector<Eigen::Vector3d> last_emission;  // per source, the last update's (relative units)
     std::vector<std::string> setup_warnings;
+    // Lighting II: the virtual objects' influence (B - B~), incremental between full updates.
+    std::unique_ptr<VirtualInfluence> influence;
+    std::vector<bool> present;                            // by virtual object
+    std::vector<std::optional<Eigen::Vector3d>> emission;  // by virtual object: scene units; nullopt: the scene's
+    std::optional<Rigid3d> viewer;                        // the camera the refinement works for
+    std::uint64_t frames_at_fit = 0;                      // observations when B~ was last solved
+    bool force_full = false;
+    bool direction_fitted = false;                        // a distant light's direction was (re)fitted this full update
+    LightingSnapshot last;                                // the last full update's snapshot (lights, warnings)
+    std::vector<std::optional<FaceModulation>> face_cache;  // by real face
+    std::vector<ProbeLight> probe_lights;
+    std::vector<Eigen::Vector3d> solve_emission;          // Le per element of the last full update
 };
 
 Estimator::Estimator(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -145,6 +158,11 @@ Result<std::unique_ptr<Estimator>> Estimator::create(const Scene& scene, const C
     CL_TRY(out->rays_, RayScene::build(d.real_faces, d.light_geometry, shapes));
     out->radiosity_ = std::make_unique<Radiosity>(d.real_faces, d.virtual_faces, d.sphere_radius, *out->rays_,
                                                   out->options_.radiosity);
+    InfluenceOptions influence = out->options_.influence;
+    influence.max_leaves = out->options_.radiosity.max_elements;
+    d.influence = std::make_unique<VirtualInfluence>(*out->radiosity_, *out->rays_, influence);
+    d.present.assign(scene.virtual_objects.size(), true);
+    d.emission.assign(scene.virtual_objects.size(), std::nullopt);
     out->observations_ = std::make_unique<Observations>(d.real_faces, scene, camera, options.response,
                                                         options.observation_stride, out->options_.observation_cell);
     d.poses = scenePoses(scene, 0.0);
@@ -210,9 +228,32 @@ void Estimator::setVirtualPoses(const std::vector<Rigid3d>& world_from_object) {
     if (changed || !d.mesh_built) d.poses_changed = true;
 }
 
+void Estimator::setVirtualPresent(int index, bool present) {
+    Impl& d = *impl_;
+    if (index >= 0 && static_cast<std::size_t>(index) < d.present.size()) d.present[static_cast<std::size_t>(index)] = present;
+}
+
+void Estimator::setVirtualEmission(int index, const std::optional<Eigen::Vector3d>& emission) {
+    Impl& d = *impl_;
+    if (index < 0 || static_cast<std::size_t>(index) >= d.emission.size()) return;
+    if (emission && !(emission->allFinite() && emission->minCoeff() >= 0.0)) return;  // hard case: keep the last good one
+    d.emission[static_cast<std::size_t>(index)] = emission;
+}
+
+void Estimator::setViewer(const std::optional<Rigid3d>& cam_from_world) {
+    if (cam_from_world && !cam_from_world->isValid()) return;
+    impl_->viewer = cam_from_world;
+}
+
+void Estimator::requestFullUpdate() { impl_->force_full = true; }
+
+VirtualInfluence& Estimator::influence() noexcept { return *impl_->influence; }
+const VirtualInfluence& Estimator::influence() const noexcept { return *impl_->influence; }
+
 Result<void> Estimator::observe(const ImageView& rgb8, const Rigid3d& cam_from_world, double exposure_s,
                                 double analog_gain, std::int64_t) {
     Impl& d = *impl_;
+    if (cam_from_world.isValid()) d.viewer = cam_from_world;
     if (d.poses_changed) {
         for (std::size_t v = 0; v < d.poses.size(); ++v) rays_->setVirtualPose(static_cast<int>(v), d.poses[v]);
         CL_TRY_VOID(rays_->commitVirtual());
@@ -306,6 +347,16 @@ double unoccluded(const DirectSource& s, const Eigen::Vector3d& x, const Eigen::
 // The whole update; see estimator.h for the cases.
 Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_world_from_object) {
     Impl& d = *impl_;
+    // Between full updates (a new fit of lights and reflectances, B~ solved again) only what the
+    // virtual objects change is updated, incrementally (lighting/influence.h).
+    const std::uint64_t frames = observations_->frames();
+    const bool refit = frames > d.frames_at_fit && frames >= 2 * d.frames_at_fit;
+    if (d.update_depth == 0 && d.mesh_built && d.influence->hasBase() && !d.force_full && !refit) {
+        setVirtualPoses(virtual_world_from_object);
+        return incrementalUpdate();
+    }
+    d.force_full = false;
+    if (d.update_depth == 0) d.direction_fitted = false;
     warnings_ = d.setup_warnings;
     if (d.update_depth == 0) stats_ = {};
     ++d.update_depth;
@@ -317,25 +368,20 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     Radiosity& rad = *radiosity_;
     Hierarchy& h = rad.hierarchy();
     const RadiosityOptions& ro = options_.radiosity;
+    // The base changes (refinement, links, B~): the influence's elements go first.
+    d.influence->collapseAll();
+    stats_.full = true;
 
     // A tag's white ring anchors the scale when seen in enough pure pixels, hardly any clipped.
     const auto ringUsable = [&](const RadianceStats& white) {
         return white.pixels >= static_cast<std::uint32_t>(options_.min_ring_pixels) && uncensored(white);
     };
 
-    // Step 1: the virtual objects where they are now.
-    if (d.poses_changed) {
-        for (std::size_t v = 0; v < d.poses.size(); ++v) rays_->setVirtualPose(static_cast<int>(v), d.poses[v]);
-        CL_TRY_VOID(rays_->commitVirtual());
-        rad.setVirtualPoses(d.poses);
-    }
-
-    // Columns of every source for the leaves that lack them (all leaves when the virtual objects
-    // moved: their `all` part changed).
+    // Step 1: columns of every source (real occluders) for the real leaves that lack them.
     const auto refresh_columns = [&](bool all_leaves) {
         d.column_valid.resize(h.elements().size(), 0);
         std::vector<int> todo;
-        for (int e : rad.leaves(Mode::kAll)) {
+        for (int e : rad.leaves(Mode::kReal)) {
             if (all_leaves || !d.column_valid[static_cast<std::size_t>(e)]) todo.push_back(e);
         }
         if (todo.empty()) return;
@@ -440,7 +486,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
             for (const Face& f : d.real_faces) area += f.area;
             size = std::clamp(std::sqrt(area / std::max(1.0, ro.max_elements / 16.0)), 0.05, 1.0);
         }
-        rad.subdivideTo(size, 0.05);
+        rad.subdivideTo(size, 1e9);  // virtual faces stay whole: the objects are clusters (lighting/influence.h)
         rad.markBuried();
         stats_.leaves_initial = h.leafCount();
         refresh_columns(true);
@@ -470,44 +516,9 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         }
     }
 
-    // Step 3: links touching the virtual objects, and their shadows refined.
-    if (d.poses_changed) {
-        {
-            ScopedMs timer(stats_.ms_links);
-            rad.updateVirtualLinks();
-        }
-        rad.markBuried();
-        refresh_columns(true);
-        if (options_.refine_by_virtual) {
-            for (int round = 0; round < 6; ++round) {
-                int split = 0;
-                for (int e : rad.leaves(Mode::kReal)) {
-                    if (h.leafCount() + 4 >= ro.max_elements) break;
-                    if (!h.canSubdivide(e, ro.min_element_size)) continue;
-                    // The light the leaf gets with and without the virtual objects, each source
-                    // weighted by its last estimate (unit emission before the first fit).
-                    const auto i = static_cast<std::size_t>(e);
-                    double total_real = 0.0, total_all = 0.0;
-                    for (std::size_t k = 0; k < d.sources.size(); ++k) {
-                        const Source& src = d.sources[k];
-                        const double w = k < d.last_emission.size() ? luma(d.last_emission[k]) : (src.estimate ? 1.0 : luma(src.known));
-                        total_real += w * src.column.real[i];
-                        total_all += w * src.column.all[i];
-                    }
-                    // A virtual shadow's penumbra, or the border of a full one (deep inside it the
-                    // light is uniformly zero and needs no elements).
-                    bool shadowed = total_real > 0.0 && total_all < 0.98 * total_real &&
-                                    (total_all > 0.02 * total_real || std::min(h[e].size_s, h[e].size_t_) > 4.0 * ro.min_element_size);
-                    if (shadowed && h.subdivide(e, ro.min_element_size)) ++split;
-                }
-                rad.markBuried();
-                refresh_columns(false);
-                if (split == 0) break;
-            }
-        }
-        d.poses_changed = false;
-        stats_.leaves_virtual = h.leafCount();
-    }
+    // Step 3 (Lighting I: links to the virtual objects and their shadows' refinement) is the
+    // influence's now: lighting/influence.h, after B~.
+    d.poses_changed = false;
 
     // Step 4: what was observed, per real leaf.
     const std::size_t n = h.elements().size();
@@ -614,11 +625,6 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     const auto direct_real = [&](int e) {
         Eigen::Vector3d sum = Eigen::Vector3d::Zero();
         for (std::size_t k = 0; k < d.sources.size(); ++k) sum += source_emission[k] * d.sources[k].column.real[static_cast<std::size_t>(e)];
-        return sum;
-    };
-    const auto direct_all = [&](int e) {
-        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-        for (std::size_t k = 0; k < d.sources.size(); ++k) sum += source_emission[k] * d.sources[k].column.all[static_cast<std::size_t>(e)];
         return sum;
     };
 
@@ -878,6 +884,9 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
                         d.tag_columns[t][k] = sum / static_cast<double>(std::max<std::size_t>(1, tags[t].ring_points.size()));
                     }
                     d.dominant[static_cast<int>(li)] = fit.direction;
+                    // Its shadows are refined, and the direction searched again on the finer
+                    // elements, by the next update: a full one.
+                    d.direction_fitted = true;
                     d.dominant_frames[static_cast<int>(li)] = std::max<std::uint64_t>(1, observations_->frames());
                 }
             }
@@ -896,14 +905,26 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         return update(virtual_world_from_object);
     }
 
-    // Step 6: the two solutions.
+    // Step 6: B~, and the virtual objects' influence on it from scratch (lighting/influence.h).
     {
-        std::vector<Eigen::Vector3d> dr(n, Eigen::Vector3d::Zero()), da(n, Eigen::Vector3d::Zero());
+        std::vector<Eigen::Vector3d> dr(n, Eigen::Vector3d::Zero());
         for (int e : rad.leaves(Mode::kReal)) dr[static_cast<std::size_t>(e)] = direct_real(e);
-        for (int e : rad.leaves(Mode::kAll)) da[static_cast<std::size_t>(e)] = direct_all(e);
         ScopedMs timer(stats_.ms_solve);
         without_ = rad.solve(Mode::kReal, rho_, emission_le, dr);
-        with_ = rad.solve(Mode::kAll, rho_, emission_le, da);
+    }
+    {
+        InfluenceBase base;
+        for (std::size_t k = 0; k < d.sources.size(); ++k) {
+            base.lights.push_back(InfluenceLight{&d.sources[k].direct, &d.sources[k].column, source_emission[k]});
+        }
+        base.rho = rho_;
+        base.emission = emission_le;
+        base.radiance = without_.radiance;
+        base.indirect = without_.indirect;
+        base.radiance_scale = radiance_scale_;
+        CL_TRY_VOID(d.influence->setBase(std::move(base)));
+        d.frames_at_fit = observations_->frames();
+        d.solve_emission = emission_le;
     }
 
     // Step 7: the estimates and warnings, per light.
@@ -978,18 +999,16 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         if (sum.sum() > 0.0) d.illuminant = sum;
     }
 
-    // Step 8: the snapshot.
-    ScopedMs snapshot_timer(stats_.ms_snapshot);
-    snapshot.faces = buildFaceModulations(rad, d.scene, without_, with_, rho_);
-    std::vector<ProbeLight> probe_lights;
+    // Step 8: the snapshot's lights and warnings (kept for the incremental updates until the next
+    // full one), then the influence, the textures and the probes (finishUpdate()).
+    d.probe_lights.clear();
     for (std::size_t k = 0; k < d.sources.size(); ++k) {
         ProbeLight pl;
         pl.source = d.sources[k].direct;
         pl.emission = source_emission[k];
         pl.indirect = d.sources[k].direct.kind == DirectSource::Kind::kCell;
-        probe_lights.push_back(pl);
+        d.probe_lights.push_back(pl);
     }
-    snapshot.virtual_objects = buildProbes(rad, d.scene, with_, probe_lights);
     for (const LightEstimate& est : estimates_) {
         const Light& light = d.scene.lights[static_cast<std::size_t>(est.light)];
         EstimatedLight out;
@@ -1020,15 +1039,68 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         }
         snapshot.lights.push_back(out);
     }
-    snapshot.solve = with_.summary;
-    snapshot.solve.elements = static_cast<int>(rad.leaves(Mode::kAll).size());
-    snapshot.solve.links = rad.linkCount(Mode::kAll);
     snapshot.warnings = warnings_;
+    d.last = std::move(snapshot);
+    if (d.direction_fitted) d.force_full = true;
+    d.face_cache.clear();
+    return finishUpdate();
+}
+
+Result<LightingSnapshot> Estimator::incrementalUpdate() {
+    stats_ = {};
+    return finishUpdate();
+}
+
+// The virtual objects' influence brought up to date (incrementally: lighting/influence.h), then
+// the snapshot: the textures of the faces that changed, the probes, the solve's summary.
+Result<LightingSnapshot> Estimator::finishUpdate() {
+    Impl& d = *impl_;
+    Radiosity& rad = *radiosity_;
+    std::vector<InfluenceObject> objects(d.poses.size());
+    for (std::size_t v = 0; v < d.poses.size(); ++v) {
+        objects[v].world_from_object = d.poses[v];
+        objects[v].present = d.present[v];
+        objects[v].emission = d.emission[v];
+    }
+    std::optional<InfluenceViewer> viewer;
+    if (d.viewer) viewer = InfluenceViewer{d.camera, *d.viewer};
+    {
+        ScopedMs timer(stats_.ms_influence);
+        CL_TRY(stats_.influence, d.influence->update(objects, viewer));
+    }
+    const VirtualInfluence& inf = *d.influence;
+    with_.radiance = inf.radiance();
+    with_.summary.iterations = stats_.influence.rounds;
+    with_.summary.residual = stats_.influence.residual;
+    with_.summary.converged = stats_.influence.residual <= options_.influence.residual;
+    with_.summary.elements = static_cast<int>(rad.leaves(Mode::kAll).size());
+    with_.summary.links = rad.linkCount(Mode::kReal) + stats_.influence.corrections + stats_.influence.cluster_links;
+    ScopedMs snapshot_timer(stats_.ms_snapshot);
+    LightingSnapshot snapshot = d.last;
+    snapshot.frames_used = observations_->frames();
+    // Textures: every face after a full update, then the faces the influence changed.
+    const std::size_t faces = rad.realFaceCount();
+    std::vector<int> todo;
+    if (d.face_cache.size() != faces) {
+        d.face_cache.assign(faces, std::nullopt);
+        for (std::size_t f = 0; f < faces; ++f) todo.push_back(static_cast<int>(f));
+    } else {
+        todo = inf.changedFaces();
+    }
+    std::vector<std::optional<FaceModulation>> built = buildFaceModulations(rad, d.scene, inf.original(), inf.radiance(), inf.reflectance(), todo);
+    for (std::size_t i = 0; i < todo.size(); ++i) d.face_cache[static_cast<std::size_t>(todo[i])] = std::move(built[i]);
+    snapshot.faces.reserve(faces);
+    for (const auto& f : d.face_cache) {
+        if (f) snapshot.faces.push_back(*f);
+    }
+    snapshot.virtual_objects = buildProbes(rad, d.scene, inf.radiance(), d.probe_lights);
+    snapshot.solve = with_.summary;
     stats_.ms_observe = last_observe_ms_;
-    if (std::getenv("CL_LIGHTING_DEBUG") && d.update_depth == 1) {
-        std::fprintf(stderr, "lighting update: observe %.1f columns %.1f links %.1f fit %.1f solve %.1f snapshot %.1f ms; leaves %d\n",
-                     stats_.ms_observe, stats_.ms_columns, stats_.ms_links, stats_.ms_fit, stats_.ms_solve, stats_.ms_snapshot,
-                     h.leafCount());
+    stats_.leaves = with_.summary.elements;
+    if (std::getenv("CL_LIGHTING_DEBUG")) {
+        std::fprintf(stderr, "lighting update (%s): observe %.1f columns %.1f links %.1f fit %.1f solve %.1f influence %.1f snapshot %.1f ms; leaves %d\n",
+                     stats_.full ? "full" : "incremental", stats_.ms_observe, stats_.ms_columns, stats_.ms_links, stats_.ms_fit,
+                     stats_.ms_solve, stats_.ms_influence, stats_.ms_snapshot, rad.hierarchy().leafCount());
     }
     return snapshot;
 }
@@ -1049,6 +1121,10 @@ Result<void> Estimator::solveWith(const std::vector<Eigen::Vector3d>& emission, 
     }
     // The radiosity system reads albedos from its own faces: rebuild it with the new ones.
     radiosity_ = std::make_unique<Radiosity>(d.real_faces, d.virtual_faces, d.sphere_radius, *rays_, options_.radiosity);
+    InfluenceOptions influence = options_.influence;
+    influence.max_leaves = options_.radiosity.max_elements;
+    d.influence = std::make_unique<VirtualInfluence>(*radiosity_, *rays_, influence);
+    d.face_cache.clear();
     d.mesh_built = false;
     d.links_from_fit = false;
     d.poses_changed = true;

@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "lighting/direct.h"
+#include "lighting/influence.h"
 #include "lighting/light_fit.h"
 #include "lighting/observations.h"
 #include "lighting/radiosity.h"
@@ -30,6 +31,7 @@ namespace commonlight::lighting {
 
 struct EstimatorOptions {
     RadiosityOptions radiosity;
+    InfluenceOptions influence;         // the virtual objects' influence (max_leaves: the scene's element budget)
     double initial_element_size = 0.0;  // metres; 0: from the scene's area and the element budget (1/16 of it)
     double light_refinement_size = 0.04;  // metres: refinement by light and observations stops here
     double observation_cell = 0.01;     // metres
@@ -42,7 +44,6 @@ struct EstimatorOptions {
     bool refine_by_light = true;        // split leaves where direct light varies (shadow boundaries)
     bool refine_unobserved = false;     // ... also where no frame has looked (benchmarks of the solver)
     bool refine_by_observation = true;  // split observed leaves whose radiance varies
-    bool refine_by_virtual = true;      // split leaves in the virtual objects' shadows and light
     double mean_albedo_prior = 0.5;     // scale of reflectances when nothing of known albedo is seen
 };
 
@@ -66,7 +67,6 @@ struct EstimatorStats {
     int leaves_initial = 0;       // after the initial mesh
     int leaves_light = 0;         // after refinement where direct light varies
     int leaves_links = 0;         // after link refinement
-    int leaves_virtual = 0;       // after refinement in the virtual objects' shadows
     int leaves_observation = 0;   // after refinement where the observations vary
     int observed_leaves = 0;
     double ms_columns = 0.0;      // direct-light columns (visibility rays)
@@ -75,6 +75,10 @@ struct EstimatorStats {
     double ms_solve = 0.0;        // the radiosity solves
     double ms_snapshot = 0.0;     // textures and probes
     double ms_observe = 0.0;      // the last frame's observation (ray cast and accumulation)
+    double ms_influence = 0.0;    // the virtual objects' influence (lighting/influence.h)
+    bool full = false;            // a full update (fit, B~); else only the influence, incrementally
+    int leaves = 0;               // leaves in use, real and virtual
+    InfluenceStats influence;
 };
 
 class Estimator final : public SceneLighting {
@@ -85,16 +89,31 @@ public:
     ~Estimator() override;
 
     void setVirtualPoses(const std::vector<Rigid3d>& world_from_object) override;
+    // A virtual object taken out of the scene (false) or put back; its emission changed (scene
+    // units, W/(m^2 sr); nullopt: the scene's). Both take effect at the next update(), which
+    // updates incrementally like a move (a virtual light turned on is an update like any other).
+    void setVirtualPresent(int index, bool present);
+    void setVirtualEmission(int index, const std::optional<Eigen::Vector3d>& emission);
+    // The camera whose resolution the refinement follows (observe() sets it to the newest frame's);
+    // nullopt: none, elements down to InfluenceOptions::min_size.
+    void setViewer(const std::optional<Rigid3d>& cam_from_world);
+    // The next update() is a full one (fit, B~, the influence from scratch) even if no new frame
+    // asks for it. Full updates otherwise happen when the observations have doubled since the last.
+    void requestFullUpdate();
+    VirtualInfluence& influence() noexcept;
+    const VirtualInfluence& influence() const noexcept;
     Result<void> observe(const ImageView& rgb8, const Rigid3d& cam_from_world, double exposure_s, double analog_gain,
                          std::int64_t timestamp_ns) override;
     Result<LightingSnapshot> update(const std::vector<Rigid3d>& virtual_world_from_object) override;
+
+    bool lastUpdateFull() const override { return stats_.full; }
 
     // After update(): the estimates and solutions it used.
     const std::vector<LightEstimate>& lights() const noexcept { return estimates_; }
     const Radiosity& radiosity() const noexcept { return *radiosity_; }
     const Observations& observations() const noexcept { return *observations_; }
-    const Solution& without() const noexcept { return without_; }   // B~
-    const Solution& with() const noexcept { return with_; }         // B
+    const Solution& without() const noexcept { return without_; }   // B~ (the base's leaves; influence().original() adds the refined)
+    const Solution& with() const noexcept { return with_; }         // B: radiance by element (every leaf, refined ones too)
     const std::vector<Eigen::Vector3d>& reflectance() const noexcept { return rho_; }  // per element
     const std::vector<std::string>& warnings() const noexcept { return warnings_; }
     const EstimatorStats& stats() const noexcept { return stats_; }
@@ -119,6 +138,8 @@ public:
 
 private:
     explicit Estimator(std::unique_ptr<Impl> impl);
+    Result<LightingSnapshot> incrementalUpdate();
+    Result<LightingSnapshot> finishUpdate();
 
     std::unique_ptr<Impl> impl_;
     EstimatorOptions options_;

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "lighting/sampling.h"
+
 namespace commonlight::lighting {
 
 bool insideUnit(double a, double b, bool triangle, double tolerance) {
@@ -76,7 +78,32 @@ bool Hierarchy::subdivide(int element, double min_size) {
             for (int i = 0; i < ns; ++i) children.push_back(makeElement(face, e.face, e.st + i * cs + j * ct, cs, ct, false));
         }
     }
+    // A collapsed element whose retired children are this very split: bring them back.
+    if (e.retired_count == static_cast<int>(children.size())) {
+        bool same = true;
+        for (std::size_t c = 0; c < children.size() && same; ++c) {
+            const Element& old = elements_[static_cast<std::size_t>(e.retired_first) + c];
+            same = (old.st - children[c].st).norm() < 1e-12 && (old.ds - children[c].ds).norm() < 1e-12 &&
+                   (old.dt - children[c].dt).norm() < 1e-12;
+        }
+        if (same) {
+            Element& parent = elements_[static_cast<std::size_t>(element)];
+            parent.first_child = e.retired_first;
+            parent.child_count = e.retired_count;
+            parent.retired_first = -1;
+            parent.retired_count = 0;
+            for (int c = 0; c < parent.child_count; ++c) {
+                Element& child = elements_[static_cast<std::size_t>(parent.first_child + c)];
+                child.retired = false;
+                child.buried = child.buried || e.buried;
+            }
+            leaf_count_ += parent.child_count - 1;
+            return true;
+        }
+    }
     Element& parent = elements_[static_cast<std::size_t>(element)];
+    parent.retired_first = -1;  // a different split: the old children stay retired for good
+    parent.retired_count = 0;
     parent.first_child = static_cast<int>(elements_.size());
     parent.child_count = static_cast<int>(children.size());
     for (Element& c : children) {
@@ -87,6 +114,33 @@ bool Hierarchy::subdivide(int element, double min_size) {
     }
     leaf_count_ += static_cast<int>(children.size()) - 1;
     return true;
+}
+
+std::uint64_t Hierarchy::key(int element) const {
+    const Element& e = elements_[static_cast<std::size_t>(element)];
+    const auto q = [](double v) { return static_cast<std::uint64_t>(std::llround(v * 1073741824.0)); };  // 2^30
+    std::uint64_t h = hash64(static_cast<std::uint64_t>(e.face) + 0x9e3779b97f4a7c15ull);
+    for (double v : {e.st.x(), e.st.y(), e.ds.x(), e.ds.y(), e.dt.x(), e.dt.y()}) h = hashCombine(h, q(v));
+    return h;
+}
+
+int Hierarchy::collapse(int element) {
+    Element& e = elements_[static_cast<std::size_t>(element)];
+    if (e.child_count == 0) return 0;
+    int removed = 0;
+    const int first = e.first_child, count = e.child_count;
+    for (int c = 0; c < count; ++c) {
+        removed += collapse(first + c);  // each child a leaf first: one level kept per element
+        elements_[static_cast<std::size_t>(first + c)].retired = true;
+    }
+    Element& parent = elements_[static_cast<std::size_t>(element)];
+    parent.retired_first = first;
+    parent.retired_count = count;
+    parent.first_child = -1;
+    parent.child_count = 0;
+    removed += count - 1;
+    leaf_count_ -= count - 1;
+    return removed;
 }
 
 ElementGeometry Hierarchy::geometry(const Element& e, const Face& face) {

@@ -8,6 +8,7 @@
 // root is element `roots[face]`.
 #pragma once
 
+#include <cstdint>
 #include <vector>
 
 #include <Eigen/Core>
@@ -34,8 +35,11 @@ struct Element {
     // Fraction of the area outside other proxies (a floor element under a cabinet's edge: the part
     // under the cabinet is no surface). Negative until Radiosity::markBuried() has measured it.
     float exposed = -1.0f;
+    bool retired = false;     // under a collapsed element (see the file comment)
+    int retired_first = -1;   // a collapsed element: its children, kept for the next subdivide()
+    int retired_count = 0;
 
-    bool leaf() const { return child_count == 0; }
+    bool leaf() const { return child_count == 0 && !retired; }
 };
 
 // The element's polygon in world coordinates: corner, edge vectors.
@@ -61,9 +65,20 @@ public:
     int leafCount() const noexcept { return leaf_count_; }
 
     // Splits a leaf into 2 or 4 children; returns false (and does nothing) when the element is not
-    // a leaf or its children would be smaller than `min_size` metres along a split side.
+    // a leaf or its children would be smaller than `min_size` metres along a split side. A
+    // collapsed element gets its retired children back when they are the split asked for (else
+    // new ones; the old stay retired).
     bool subdivide(int element, double min_size);
     bool canSubdivide(int element, double min_size) const;
+    // Makes an element a leaf again: everything under it is retired (kept for subdivide()).
+    // Nothing happens to a leaf. Returns the number of leaves removed (leaves before - 1).
+    int collapse(int element);
+    // A key of an element's place (its face and (s, t) parallelogram), the same however the
+    // hierarchy was built: what random sample streams of an element are seeded with, so that an
+    // element made again in another order (the influence's refinement) samples the same.
+    std::uint64_t key(int element) const;
+    // Elements ever made (active and retired), for bounds on memory.
+    std::size_t storedCount() const noexcept { return elements_.size(); }
 
     // World geometry of an element with its face placed by `face` (for virtual faces: the posed face).
     static ElementGeometry geometry(const Element& e, const Face& face);

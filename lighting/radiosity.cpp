@@ -122,7 +122,6 @@ void Radiosity::setVirtualPoses(const std::vector<Rigid3d>& world_from_object) {
     for (std::size_t f = real_count_; f < faces_.size(); ++f) {
         posed_[f] = transformed(faces_[f], poses_[static_cast<std::size_t>(faces_[f].object_index)]);
     }
-    virtual_links_dirty_ = true;
 }
 
 Eigen::Vector3d Radiosity::surfacePoint(int element, double a, double b) const {
@@ -168,42 +167,44 @@ void Radiosity::subdivideTo(double size, double virtual_size) {
     }
 }
 
+void Radiosity::measureExposure(int e) {
+    const Element& el = hierarchy_[e];
+    if (!el.leaf() || el.exposed >= 0.0f) return;
+    if (isVirtualFace(el.face) || el.buried || (boxes_.empty() && contact_faces_.size() < 2)) {
+        hierarchy_.setExposed(e, el.buried ? 0.0f : 1.0f);
+        return;
+    }
+    const double lift = 4.0 * rays_->epsilon();
+    const ElementGeometry g = geometry(e);
+    const Face& f = faces_[static_cast<std::size_t>(el.face)];
+    // An 8 x 8 grid of probes: a small box resting inside the element (books on a desk) is
+    // caught, not only one across its corners. A leaf partly inside is not split along the
+    // box's outline: its light is that of its exposed part (hidden(), exposedRule()), which
+    // is what a camera sees of it (measured: splitting to 4 cm along contact lines made the
+    // room 35% more elements for no gain in element radiance against the path tracer).
+    constexpr int kGrid = 8;
+    int inside_count = 0, probes = 0;
+    for (int j = 0; j < kGrid; ++j) {
+        for (int i = 0; i < kGrid; ++i) {
+            const double a = (i + 0.5) / kGrid, b = (j + 0.5) / kGrid;
+            if (g.triangle && a + b > 1.0) continue;
+            inside_count += insideOtherBox(g.corner + a * g.edge_s + b * g.edge_t + lift * g.normal, g.normal, f.object_index) ? 1 : 0;
+            ++probes;
+        }
+    }
+    const float exposed = probes > 0 ? static_cast<float>(probes - inside_count) / static_cast<float>(probes) : 1.0f;
+    hierarchy_.setExposed(e, exposed);
+    if (inside_count == probes) hierarchy_.setBuried(e, true);
+}
+
 void Radiosity::markBuried() {
     // Geometry never changes, so each element is measured once.
-    const double lift = 4.0 * rays_->epsilon();
-    for (std::size_t e = 0; e < hierarchy_.elements().size(); ++e) {
-        const Element& el = hierarchy_.elements()[e];
-        if (!el.leaf() || el.exposed >= 0.0f) continue;
-        if (isVirtualFace(el.face) || el.buried || (boxes_.empty() && contact_faces_.size() < 2)) {
-            hierarchy_.setExposed(static_cast<int>(e), el.buried ? 0.0f : 1.0f);
-            continue;
-        }
-        const ElementGeometry g = geometry(static_cast<int>(e));
-        const Face& f = faces_[static_cast<std::size_t>(el.face)];
-        // An 8 x 8 grid of probes: a small box resting inside the element (books on a desk) is
-        // caught, not only one across its corners. A leaf partly inside is not split along the
-        // box's outline: its light is that of its exposed part (hidden(), exposedRule()), which
-        // is what a camera sees of it (measured: splitting to 4 cm along contact lines made the
-        // room 35% more elements for no gain in element radiance against the path tracer).
-        constexpr int kGrid = 8;
-        int inside_count = 0, probes = 0;
-        for (int j = 0; j < kGrid; ++j) {
-            for (int i = 0; i < kGrid; ++i) {
-                const double a = (i + 0.5) / kGrid, b = (j + 0.5) / kGrid;
-                if (g.triangle && a + b > 1.0) continue;
-                inside_count += insideOtherBox(g.corner + a * g.edge_s + b * g.edge_t + lift * g.normal, g.normal, f.object_index) ? 1 : 0;
-                ++probes;
-            }
-        }
-        const float exposed = probes > 0 ? static_cast<float>(probes - inside_count) / static_cast<float>(probes) : 1.0f;
-        hierarchy_.setExposed(static_cast<int>(e), exposed);
-        if (inside_count == probes) hierarchy_.setBuried(static_cast<int>(e), true);
-    }
+    for (std::size_t e = 0; e < hierarchy_.elements().size(); ++e) measureExposure(static_cast<int>(e));
     // Parents: the area-weighted exposure of their children (children follow their parents).
     const auto& elements = hierarchy_.elements();
     for (std::size_t i = elements.size(); i-- > 0;) {
         const Element& el = elements[i];
-        if (el.leaf()) continue;
+        if (el.child_count == 0) continue;  // leaves, and retired elements (kept as they were)
         double sum = 0.0;
         for (int c = 0; c < el.child_count; ++c) {
             const Element& child = elements[static_cast<std::size_t>(el.first_child + c)];
@@ -273,7 +274,7 @@ void Radiosity::enforceConsistency() {
         // Step 1: every leaf's F x V summed over its links and its ancestors'.
         std::vector<double> own(elements.size(), 0.0);
         for (const Link& l : links_) {
-            if (!l.touches_virtual) own[static_cast<std::size_t>(l.receiver)] += l.form_factor * l.vis_real;
+            own[static_cast<std::size_t>(l.receiver)] += l.form_factor * l.vis_real;
         }
         for (std::size_t i = 0; i < elements.size(); ++i) {
             for (int c = 0; c < elements[i].child_count; ++c) own[static_cast<std::size_t>(elements[i].first_child + c)] += own[i];
@@ -296,7 +297,7 @@ void Radiosity::enforceConsistency() {
         kept.reserve(links_.size());
         pending_pairs_.clear();
         for (const Link& l : links_) {
-            if (l.touches_virtual || !push[static_cast<std::size_t>(l.receiver)]) {
+            if (!push[static_cast<std::size_t>(l.receiver)]) {
                 kept.push_back(l);
                 continue;
             }
@@ -538,14 +539,14 @@ void Radiosity::setSourceRadiance(const std::vector<double>& radiance) {
 
 void Radiosity::addLink(int receiver, int source) { pending_pairs_.emplace_back(receiver, source); }
 
-void Radiosity::computeLink(Link& link, bool virtual_only) const {
+void Radiosity::computeLink(Link& link) const {
     const int r = link.receiver, s = link.source;
     const ElementGeometry gr = geometry(r), gs = geometry(s);
     const Element& er = hierarchy_[r];
     const Element& es = hierarchy_[s];
     const double rsize = std::sqrt(er.area), ssize = std::sqrt(es.area);
     const double distance = (gr.centroid - gs.centroid).norm();
-    if (!virtual_only) {
+    {
         // F: Gauss rule over the receiver, exact point form factor to the source polygon.
         const int order = formFactorRule(distance, rsize, ssize);
         const auto poly = gs.polygon();
@@ -555,26 +556,24 @@ void Radiosity::computeLink(Link& link, bool virtual_only) const {
         }
         link.form_factor = static_cast<float>(f);
     }
-    // V: jittered pairs of points, the same pairs for both worlds. Four pairs first; a link seen in
-    // part gets sixteen (the largest a link keeps: its real occlusion is remembered per pair, so
-    // that the virtual objects' part can be recomputed alone when they move). Each pair counts by
-    // its kernel cos_r cos_s / d^2 (V = sum of the unblocked pairs' kernels over the sum of all):
-    // a pair that squeezes through a narrow gap at a grazing angle (a wall behind a cabinet seeing
-    // the ceiling) carries almost none of the form factor, and a plain fraction of unblocked pairs
+    // V: jittered pairs of points. Four pairs first; a link seen in part gets sixteen (the
+    // largest a link keeps: its occlusion is remembered per pair). Each pair counts by its kernel
+    // cos_r cos_s / d^2 (V = sum of the unblocked pairs' kernels over the sum of all): a pair that
+    // squeezes through a narrow gap at a grazing angle (a wall behind a cabinet seeing the
+    // ceiling) carries almost none of the form factor, and a plain fraction of unblocked pairs
     // would count it fully. Hard case: the kernel diverges where two elements touch; the distance
     // is floored at 5% of the smaller element's size (the weights only rank pairs within a link).
     const std::uint64_t seed =
         hashCombine(options_.seed, hashCombine(static_cast<std::uint64_t>(r), static_cast<std::uint64_t>(s)));
-    const bool touches_virtual = isVirtualElement(r) || isVirtualElement(s);
     const double floor2 = std::pow(0.05 * std::min(rsize, ssize), 2);
     const bool receiver_partial = exposure(r) < 1.0;
     struct Tally {
-        int valid = 0, unblocked_real = 0, unblocked_all = 0;
-        double total = 0.0, real = 0.0, all = 0.0;
+        int valid = 0, unblocked = 0;
+        double total = 0.0, open = 0.0;
     };
     const auto trace = [&](int n, Tally& tally, std::uint16_t& blocked_mask, std::uint64_t pair_seed) {
         tally = {};
-        if (!virtual_only) blocked_mask = 0;
+        blocked_mask = 0;
         for (int k = 0; k < n; ++k) {
             const SamplePair pair = stratifiedPair(pair_seed, k, n);
             const Eigen::Vector3d xr = surfacePoint(r, pair.first.x(), pair.first.y());
@@ -582,7 +581,7 @@ void Radiosity::computeLink(Link& link, bool virtual_only) const {
             // The receiver's light is that of its exposed part: a pair starting under a box is
             // no part of it (a source point under a box is blocked by the box, which is right).
             if (receiver_partial && hidden(r, xr)) {
-                if (!virtual_only) blocked_mask = static_cast<std::uint16_t>(blocked_mask | (1u << k));
+                blocked_mask = static_cast<std::uint16_t>(blocked_mask | (1u << k));
                 continue;
             }
             ++tally.valid;
@@ -590,52 +589,34 @@ void Radiosity::computeLink(Link& link, bool virtual_only) const {
             const double d2 = std::max(d.squaredNorm(), floor2);
             const double w = std::max(0.0, gr.normal.dot(d)) * std::max(0.0, -gs.normal.dot(d)) / (d2 * d2);
             tally.total += w;
-            bool blocked_real;
-            if (virtual_only) {
-                blocked_real = (blocked_mask >> k) & 1u;
+            if (rays_->occludedReal(xr, gr.normal, xs, gs.normal)) {
+                blocked_mask = static_cast<std::uint16_t>(blocked_mask | (1u << k));
             } else {
-                blocked_real = rays_->occludedReal(xr, gr.normal, xs, gs.normal);
-                if (blocked_real) blocked_mask = static_cast<std::uint16_t>(blocked_mask | (1u << k));
-            }
-            if (!blocked_real) {
-                ++tally.unblocked_real;
-                tally.real += w;
-                if (!rays_->occludedVirtual(xr, gr.normal, xs, gs.normal)) {
-                    ++tally.unblocked_all;
-                    tally.all += w;
-                }
+                ++tally.unblocked;
+                tally.open += w;
             }
         }
     };
+    // How many pairs a link gets is decided by a pilot of its own, not by the pairs that then
+    // estimate V: stopping at four clear pairs would read a link 20% blocked as clear 41% of the
+    // time (0.8^4), and every partly blocked link would come out too visible (measured: +8% of
+    // the light a desk element under the monitor gathered).
+    int n = std::clamp(options_.visibility_rays, 1, 16);
+    Tally pilot;
+    std::uint16_t pilot_mask = 0;
+    trace(n, pilot, pilot_mask, hash64(seed ^ 0x9f1e7ull));
+    const bool partial = pilot.unblocked > 0 && pilot.unblocked < pilot.valid;
+    // A receiver partly under a box loses the pairs that start there: it always gets sixteen.
+    if (partial || receiver_partial) n = 16;
     Tally tally;
-    std::uint16_t blocked_mask = virtual_only ? link.real_blocked : 0;
-    int n = virtual_only ? link.samples : std::clamp(options_.visibility_rays, 1, 16);
-    if (!virtual_only) {
-        // How many pairs a link gets is decided by a pilot of its own, not by the pairs that then
-        // estimate V: stopping at four clear pairs would read a link 20% blocked as clear 41% of
-        // the time (0.8^4), and every partly blocked link would come out too visible (measured:
-        // +8% of the light a desk element under the monitor gathered).
-        Tally pilot;
-        std::uint16_t pilot_mask = 0;
-        trace(n, pilot, pilot_mask, hash64(seed ^ 0x9f1e7ull));
-        const bool partial = (pilot.unblocked_real > 0 && pilot.unblocked_real < pilot.valid) ||
-                             (pilot.unblocked_all > 0 && pilot.unblocked_all < pilot.valid);
-        // A receiver partly under a box loses the pairs that start there: it always gets sixteen.
-        if (partial || receiver_partial) n = 16;
-    }
+    std::uint16_t blocked_mask = 0;
     trace(n, tally, blocked_mask, seed);
     link.samples = static_cast<std::uint8_t>(n);
     link.real_blocked = blocked_mask;
-    if (tally.total > 0.0) {
-        link.vis_real = static_cast<float>(tally.real / tally.total);
-        link.vis_all = static_cast<float>(tally.all / tally.total);
-    } else {
-        // Hard case: every pair lies beyond one end's horizon (a source crossing the receiver's
-        // plane, sampled on its hidden part only): the plain fraction of unblocked pairs.
-        link.vis_real = static_cast<float>(tally.unblocked_real) / static_cast<float>(std::max(1, tally.valid));
-        link.vis_all = static_cast<float>(tally.unblocked_all) / static_cast<float>(std::max(1, tally.valid));
-    }
-    link.touches_virtual = touches_virtual;
+    // Hard case: every pair lies beyond one end's horizon (a source crossing the receiver's
+    // plane, sampled on its hidden part only): the plain fraction of unblocked pairs.
+    link.vis_real = tally.total > 0.0 ? static_cast<float>(tally.open / tally.total)
+                                      : static_cast<float>(tally.unblocked) / static_cast<float>(std::max(1, tally.valid));
 }
 
 std::vector<Link> Radiosity::takePendingLinks() {
@@ -651,8 +632,8 @@ std::vector<Link> Radiosity::takePendingLinks() {
         out.push_back(l);
     }
     pending_pairs_.clear();
-    tbb::parallel_for(std::size_t{0}, out.size(), [&](std::size_t i) { computeLink(out[i], false); });
-    std::erase_if(out, [](const Link& l) { return l.form_factor <= 0.0f || l.vis_real + l.vis_all <= 0.0f; });
+    tbb::parallel_for(std::size_t{0}, out.size(), [&](std::size_t i) { computeLink(out[i]); });
+    std::erase_if(out, [](const Link& l) { return l.form_factor <= 0.0f || l.vis_real <= 0.0f; });
     return out;
 }
 
@@ -677,58 +658,7 @@ void Radiosity::buildRealLinks() {
     }
     links_ = takePendingLinks();
     if (options_.hierarchical) enforceConsistency();
-    virtual_links_dirty_ = true;
     sortLinks();
-}
-
-void Radiosity::updateVirtualLinks() {
-    if (!virtual_links_dirty_) return;
-    // Step 1: drop the links touching virtual elements; recompute the real links' virtual part.
-    std::erase_if(links_, [](const Link& l) { return l.touches_virtual; });
-    tbb::parallel_for(std::size_t{0}, links_.size(), [&](std::size_t i) { computeLink(links_[i], true); });
-    // Step 2 (against the spread shadow, seed 000 sec. 6.2): a real link that a virtual object
-    // blocks in part would darken its whole receiver, however coarse. Such links are replaced by
-    // links from each leaf under the receiver, each with its own visibility.
-    pending_pairs_.clear();
-    {
-        std::vector<Link> kept;
-        kept.reserve(links_.size());
-        std::vector<int> leaves_under;
-        for (const Link& l : links_) {
-            const bool shadowed = l.vis_all < l.vis_real - 1e-6f;
-            if (!shadowed || hierarchy_[l.receiver].leaf()) {
-                kept.push_back(l);
-                continue;
-            }
-            leaves_under.clear();
-            hierarchy_.leavesUnder(l.receiver, leaves_under);
-            for (int leaf : leaves_under) {
-                if (!hierarchy_[leaf].buried) pending_pairs_.emplace_back(leaf, l.source);
-            }
-        }
-        links_ = std::move(kept);
-        std::vector<Link> pushed = takePendingLinks();
-        links_.insert(links_.end(), pushed.begin(), pushed.end());
-    }
-    // Step 3: links between virtual elements and everything else, by the same oracle, both ways.
-    pending_pairs_.clear();
-    for (std::size_t fv = real_count_; fv < faces_.size(); ++fv) {
-        for (std::size_t f = 0; f < faces_.size(); ++f) {
-            if (f == fv) continue;
-            const int rv = hierarchy_.root(static_cast<int>(fv)), rf = hierarchy_.root(static_cast<int>(f));
-            if (f >= real_count_) {
-                // Between virtual faces: each ordered pair once (from the loop over fv), other objects only.
-                if (faces_[f].object_index != faces_[fv].object_index) refine(rv, rf, 0);
-                continue;
-            }
-            refine(rv, rf, 0);
-            refine(rf, rv, 0);
-        }
-    }
-    std::vector<Link> added = takePendingLinks();
-    links_.insert(links_.end(), added.begin(), added.end());
-    sortLinks();
-    virtual_links_dirty_ = false;
 }
 
 void Radiosity::sortLinks() {
@@ -738,10 +668,7 @@ void Radiosity::sortLinks() {
     for (std::size_t i = 1; i < link_offsets_.size(); ++i) link_offsets_[i] += link_offsets_[i - 1];
 }
 
-int Radiosity::linkCount(Mode mode) const {
-    if (mode == Mode::kAll) return static_cast<int>(links_.size());
-    return static_cast<int>(std::count_if(links_.begin(), links_.end(), [](const Link& l) { return !l.touches_virtual; }));
-}
+int Radiosity::linkCount(Mode) const { return static_cast<int>(links_.size()); }
 
 std::vector<int> Radiosity::leaves(Mode mode) const {
     std::vector<int> out;
@@ -775,7 +702,7 @@ void Radiosity::pull(std::vector<Eigen::Vector3d>& radiance) const {
 
 namespace {
 
-// The links of one mode as the solve reads them: per receiver (CSR), each term its source and
+// The links as the solve reads them: per receiver (CSR), each term its source and
 // pi F V, in single precision (a third of a Link's bytes: the gather is memory-bound).
 struct GatherTerms {
     std::vector<int> offsets;
@@ -783,7 +710,7 @@ struct GatherTerms {
     std::vector<float> weight;
 };
 
-GatherTerms gatherTerms(const std::vector<Link>& links, const std::vector<int>& link_offsets, std::size_t n, Mode mode) {
+GatherTerms gatherTerms(const std::vector<Link>& links, const std::vector<int>& link_offsets, std::size_t n) {
     GatherTerms t;
     t.offsets.assign(n + 1, 0);
     t.source.reserve(links.size());
@@ -793,8 +720,7 @@ GatherTerms gatherTerms(const std::vector<Link>& links, const std::vector<int>& 
         const int end = e < link_offsets.size() - 1 ? link_offsets[e + 1] : 0;
         for (int k = begin; k < end; ++k) {
             const Link& l = links[static_cast<std::size_t>(k)];
-            if (mode == Mode::kReal && l.touches_virtual) continue;
-            const float fv = l.form_factor * (mode == Mode::kReal ? l.vis_real : l.vis_all);
+            const float fv = l.form_factor * l.vis_real;
             if (!(fv > 0.0f)) continue;
             t.source.push_back(l.source);
             t.weight.push_back(static_cast<float>(kPi) * fv);
@@ -831,9 +757,9 @@ void gatherWith(const GatherTerms& t, const Hierarchy& hierarchy, const std::vec
 
 }  // namespace
 
-std::vector<Eigen::Vector3d> Radiosity::gatherIndirect(Mode mode, const std::vector<Eigen::Vector3d>& radiance) const {
+std::vector<Eigen::Vector3d> Radiosity::gatherIndirect(Mode, const std::vector<Eigen::Vector3d>& radiance) const {
     std::vector<Eigen::Vector3d> gathered;
-    gatherWith(gatherTerms(links_, link_offsets_, hierarchy_.elements().size(), mode), hierarchy_, radiance, gathered);
+    gatherWith(gatherTerms(links_, link_offsets_, hierarchy_.elements().size()), hierarchy_, radiance, gathered);
     return gathered;
 }
 
@@ -846,7 +772,7 @@ Solution Radiosity::solve(Mode mode, const std::vector<Eigen::Vector3d>& rho, co
     out.irradiance.assign(n, Eigen::Vector3d::Zero());
     out.indirect.assign(n, Eigen::Vector3d::Zero());
     const std::vector<int> active = leaves(mode);
-    const GatherTerms terms = gatherTerms(links_, link_offsets_, n, mode);
+    const GatherTerms terms = gatherTerms(links_, link_offsets_, n);
     // Step 1: the first estimate: emission plus reflected direct light.
     for (int e : active) {
         const auto i = static_cast<std::size_t>(e);

@@ -11,9 +11,11 @@
 // level and push-pull carries it to the leaves (push: irradiance down, pull: area-weighted
 // radiance up).
 //
-// Two worlds share the links: the real scene alone (`Mode::kReal`: visibility through real
-// proxies only, virtual elements take no part) gives B~; with the virtual objects (`kAll`:
-// virtual elements reflect and emit, and block) gives B. Each link keeps both visibilities.
+// The links are the real scene's (visibility through the real proxies only): their solve is B~.
+// What the virtual objects change (they block, reflect and emit) is lighting/influence.h's: it
+// keeps B - B~ on these links and elements, and updates it incrementally as objects move.
+// `Mode::kAll` adds the virtual objects' leaves to the leaves a solve covers (they have no links:
+// their radiance is their emission plus reflected direct light).
 #pragma once
 
 #include <array>
@@ -79,11 +81,9 @@ struct Link {
     int receiver = 0;
     int source = 0;
     float form_factor = 0.0f;  // F(receiver -> source), area average over the receiver
-    float vis_real = 1.0f;     // unblocked fraction, real occluders only
-    float vis_all = 1.0f;      // unblocked fraction, real and virtual occluders
+    float vis_real = 1.0f;     // unblocked fraction (kernel-weighted), real occluders
     std::uint16_t real_blocked = 0;  // which of the jittered samples the real scene blocks
     std::uint8_t samples = 0;
-    bool touches_virtual = false;     // receiver or source is a virtual element
 };
 
 // A solution: radiance per element (every level), irradiance per leaf.
@@ -105,7 +105,7 @@ public:
     const RadiosityOptions& options() const noexcept { return options_; }
     void setOptions(const RadiosityOptions& options) { options_ = options; }
 
-    // Poses the virtual faces (by virtual object index) and marks the links touching them stale.
+    // Poses the virtual faces (by virtual object index).
     void setVirtualPoses(const std::vector<Rigid3d>& world_from_object);
     const std::vector<Rigid3d>& virtualPoses() const noexcept { return poses_; }
 
@@ -160,6 +160,9 @@ public:
     // alone, and its radiance counts by its exposed area when pulled up the hierarchy). Call after
     // subdividing; buried leaves stay buried.
     void markBuried();
+    // The same for one leaf alone (its parents are left as they are): for elements made later
+    // (lighting/influence.h's refinement under the real scene's leaves).
+    void measureExposure(int leaf);
 
     // An estimate of each leaf's radiance (direct light x a nominal reflectance is enough) for the
     // oracles: each node's largest radiance and spread of radiance, relative to the scene's
@@ -169,9 +172,6 @@ public:
 
     // Step 2: links among real elements (F, V_real) by the refinement oracle. Clears every link.
     void buildRealLinks();
-    // Step 3: links touching virtual elements (rebuilt on every pose change) and the virtual part of
-    // the real links' visibility. Cheap when no virtual object moved.
-    void updateVirtualLinks();
 
     // The solve: Jacobi gathering over links with push-pull, to options().residual.
     // rho, emission and direct are indexed by element (only leaves are read); emission is Le.
@@ -193,7 +193,7 @@ private:
     double sourceStat(const std::vector<double>& stat, int element) const;
     void addLink(int receiver, int source);
     std::vector<Link> takePendingLinks();  // computes F and V of the pending pairs
-    void computeLink(Link& link, bool virtual_only) const;
+    void computeLink(Link& link) const;
     bool facing(int a, int b) const;
     void sortLinks();
 
@@ -230,7 +230,6 @@ private:
     std::vector<Rigid3d> poses_;
     std::vector<Link> links_;            // sorted by receiver
     std::vector<int> link_offsets_;      // CSR over elements: links_[offsets[e], offsets[e+1]) have receiver e
-    bool virtual_links_dirty_ = true;
     std::vector<std::pair<int, int>> pending_pairs_;  // during refinement
     std::vector<double> source_range_;                // per element: radiance spread / scene maximum
     std::vector<double> source_peak_;                 // per element: largest radiance under it / scene maximum

@@ -102,6 +102,8 @@ struct RayScene::Impl {
     std::vector<std::vector<int>> virtual_face_of_prim;  // per virtual object: primitive -> face (-1: sphere)
     std::vector<Eigen::Matrix4f> pending_poses;
     std::vector<bool> pose_dirty;
+    std::vector<bool> enabled;        // by virtual index: in the scenes
+    std::vector<bool> enabled_dirty;
 
     ~Impl() {
         for (RTCScene s : {all_top, virtual_top, real_top, real}) {
@@ -169,7 +171,8 @@ struct RayScene::Impl {
         return decode(rh, top);
     }
 
-    bool occluded(RTCScene top, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar) const {
+    bool occluded(RTCScene top, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar,
+                  std::uint32_t mask = 0xFFFFFFFFu) const {
         if (!(tfar > 0.0)) return false;
         RTCIntersectContext context;
         rtcInitIntersectContext(&context);
@@ -182,7 +185,7 @@ struct RayScene::Impl {
         ray.dir_z = static_cast<float>(direction.z());
         ray.tnear = 0.0f;
         ray.tfar = static_cast<float>(std::min(tfar, 1e30));
-        ray.mask = 0xFFFFFFFFu;
+        ray.mask = mask;
         rtcOccluded1(top, &context, &ray);
         return ray.tfar < 0.0f;  // Embree sets tfar to -inf on a hit
     }
@@ -284,6 +287,9 @@ Result<std::unique_ptr<RayScene>> RayScene::build(const std::vector<Face>& real_
     }
     for (std::size_t v = 0; v < virtual_shapes.size(); ++v) {
         RTCGeometry a = instanceOf(impl->device, impl->virtual_scenes[v], identity);
+        // Each object its bit: a ray may be blocked by some objects only (lighting/influence.h).
+        rtcSetGeometryMask(a, virtualBit(static_cast<int>(v)));
+        rtcCommitGeometry(a);
         const unsigned id_v = rtcAttachGeometry(impl->virtual_top, a);
         impl->virtual_instances.push_back(a);  // borrowed: the scene holds the reference
         rtcReleaseGeometry(a);
@@ -298,6 +304,8 @@ Result<std::unique_ptr<RayScene>> RayScene::build(const std::vector<Face>& real_
     }
     impl->pending_poses.assign(virtual_shapes.size(), identity);
     impl->pose_dirty.assign(virtual_shapes.size(), false);
+    impl->enabled.assign(virtual_shapes.size(), true);
+    impl->enabled_dirty.assign(virtual_shapes.size(), false);
     rtcCommitScene(impl->real_top);
     rtcCommitScene(impl->virtual_top);
     rtcCommitScene(impl->all_top);
@@ -316,8 +324,27 @@ void RayScene::setVirtualPose(int index, const Rigid3d& world_from_object) {
     impl_->pose_dirty[i] = true;
 }
 
+void RayScene::setVirtualEnabled(int index, bool enabled) {
+    const auto i = static_cast<std::size_t>(index);
+    if (impl_->enabled.at(i) == enabled) return;
+    impl_->enabled[i] = enabled;
+    impl_->enabled_dirty[i] = true;
+}
+
 Result<void> RayScene::commitVirtual() {
     bool any = false;
+    for (std::size_t i = 0; i < impl_->enabled.size(); ++i) {
+        if (!impl_->enabled_dirty[i]) continue;
+        for (RTCGeometry inst : {impl_->virtual_instances[i], impl_->all_virtual_instances[i]}) {
+            if (impl_->enabled[i]) {
+                rtcEnableGeometry(inst);
+            } else {
+                rtcDisableGeometry(inst);
+            }
+        }
+        impl_->enabled_dirty[i] = false;
+        any = true;
+    }
     for (std::size_t i = 0; i < impl_->pending_poses.size(); ++i) {
         if (!impl_->pose_dirty[i]) continue;
         for (RTCGeometry inst : {impl_->virtual_instances[i], impl_->all_virtual_instances[i]}) {
@@ -346,7 +373,7 @@ Eigen::Vector3d lifted(const Eigen::Vector3d& from, const Eigen::Vector3d& norma
 }  // namespace
 
 bool RayScene::occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
-                               const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const {
+                               const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal, std::uint32_t mask) const {
     if (virtual_scene && impl_->virtual_scenes.empty()) return false;
     const Eigen::Vector3d d = to - from;
     const double length = d.norm();
@@ -358,17 +385,18 @@ bool RayScene::occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, 
     const double span_length = span.norm();
     if (!(span_length > 0.0)) return false;
     const double tfar = to_normal.squaredNorm() > 0.0 ? span_length : span_length - epsilon_;
-    return impl_->occluded(virtual_scene ? impl_->virtual_top : impl_->real_top, o, span / span_length, tfar);
+    return impl_->occluded(virtual_scene ? impl_->virtual_top : impl_->real_top, o, span / span_length, tfar, mask);
 }
 
 bool RayScene::occludedReal(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,
                             const Eigen::Vector3d& to_normal) const {
-    return occludedSegment(false, from, from_normal, to, to_normal);
+    return occludedSegment(false, from, from_normal, to, to_normal, 0xFFFFFFFFu);
 }
 
 bool RayScene::occludedVirtual(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
-                               const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const {
-    return occludedSegment(true, from, from_normal, to, to_normal);
+                               const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal, std::uint32_t mask) const {
+    if (mask == 0u) return false;
+    return occludedSegment(true, from, from_normal, to, to_normal, mask);
 }
 
 bool RayScene::occludedRealRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
@@ -377,9 +405,9 @@ bool RayScene::occludedRealRay(const Eigen::Vector3d& from, const Eigen::Vector3
 }
 
 bool RayScene::occludedVirtualRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
-                                  const Eigen::Vector3d& direction) const {
-    if (impl_->virtual_scenes.empty()) return false;
-    return impl_->occluded(impl_->virtual_top, lifted(from, from_normal, direction, epsilon_), direction, 1e30);
+                                  const Eigen::Vector3d& direction, std::uint32_t mask) const {
+    if (impl_->virtual_scenes.empty() || mask == 0u) return false;
+    return impl_->occluded(impl_->virtual_top, lifted(from, from_normal, direction, epsilon_), direction, 1e30, mask);
 }
 
 RayHit RayScene::intersectReal(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,

@@ -12,6 +12,7 @@
 // A segment is blocked "with the virtual objects" when either the real or the virtual scene blocks it.
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -52,6 +53,9 @@ public:
 
     // Moves virtual object `index`; takes effect at the next commitVirtual(). Lighting thread only.
     void setVirtualPose(int index, const Rigid3d& world_from_object);
+    // Takes virtual object `index` out of every scene (false) or puts it back (true); takes effect
+    // at the next commitVirtual(). Lighting thread only.
+    void setVirtualEnabled(int index, bool enabled);
     // Recommits the top-level scenes after pose changes (microseconds: no BVH of the real scene is rebuilt).
     Result<void> commitVirtual();
 
@@ -61,13 +65,16 @@ public:
     // at grazing angles (adjacent faces, a light in a ceiling).
     bool occludedReal(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,
                       const Eigen::Vector3d& to_normal = Eigen::Vector3d::Zero()) const;
+    // Virtual occluders: only the objects whose bits are in `mask` (Embree ray masks: object v
+    // has bit virtualBit(v)).
     bool occludedVirtual(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,
-                         const Eigen::Vector3d& to_normal = Eigen::Vector3d::Zero()) const;
+                         const Eigen::Vector3d& to_normal = Eigen::Vector3d::Zero(), std::uint32_t mask = ~0u) const;
+    static std::uint32_t virtualBit(int index) { return std::uint32_t{1} << (static_cast<unsigned>(index) % 32u); }
     // Same for a ray towards infinity along `direction` (unit): distant lights.
     bool occludedRealRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
                          const Eigen::Vector3d& direction) const;
     bool occludedVirtualRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
-                            const Eigen::Vector3d& direction) const;
+                            const Eigen::Vector3d& direction, std::uint32_t mask = ~0u) const;
 
     // First hit along a ray (unit direction) in the real scene, in the virtual scene, or in both.
     RayHit intersectReal(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
@@ -87,7 +94,7 @@ public:
 
 private:
     bool occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
-                         const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const;
+                         const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal, std::uint32_t mask) const;
 
     struct Impl;
     explicit RayScene(std::unique_ptr<Impl> impl, double epsilon);

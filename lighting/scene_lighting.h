@@ -44,6 +44,10 @@ public:
     // The snapshot's version, timestamps and timing are left for the caller to fill in.
     virtual Result<LightingSnapshot> update(const std::vector<Rigid3d>& virtual_world_from_object) = 0;
 
+    // Whether the last update() estimated and solved everything again (a full update: the light
+    // fit, B~), or only brought the virtual objects' influence up to date (incremental).
+    virtual bool lastUpdateFull() const { return true; }
+
     // The ratio B/B~ a snapshot predicts for a view (lighting/estimator.h ratioImage()).
     virtual Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride) const = 0;
 

@@ -2,6 +2,7 @@
 // modulation textures, per virtual object the irradiance probes.
 #pragma once
 
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -12,13 +13,16 @@
 
 namespace commonlight::lighting {
 
-// Modulation textures of every real face that takes part in transport. `without` is B~ (real scene
-// alone), `with` is B; `rho` per element. Texels are as fine as the face's finest leaf (at most
-// `max_texels` per side); values are box-filtered over the local leaf size, which interpolates
-// linearly between element centres (smooth across element borders).
-std::vector<FaceModulation> buildFaceModulations(const Radiosity& radiosity, const Scene& scene, const Solution& without,
-                                                 const Solution& with, const std::vector<Eigen::Vector3d>& rho,
-                                                 int max_texels = 256);
+// Modulation textures of the real faces `faces` (real face indices), in that order; nullopt for a
+// face that takes no part in transport (every leaf buried). `without` is B~ (real scene alone),
+// `with` is B, `rho` the reflectance, all by element. Texels are as fine as the face's finest leaf
+// (at most `max_texels` per side); values are box-filtered over the local leaf size, which
+// interpolates linearly between element centres (smooth across element borders).
+std::vector<std::optional<FaceModulation>> buildFaceModulations(const Radiosity& radiosity, const Scene& scene,
+                                                                const std::vector<Eigen::Vector3d>& without,
+                                                                const std::vector<Eigen::Vector3d>& with,
+                                                                const std::vector<Eigen::Vector3d>& rho, const std::vector<int>& faces,
+                                                                int max_texels = 256);
 
 // A light as the probes see it: its unit-emission source and its emission (relative units, RGB).
 // `indirect`: counted in the probes' indirect part (an unknown environment's residual, which the
@@ -29,11 +33,24 @@ struct ProbeLight {
     bool indirect = false;
 };
 
-// Irradiance probes over each virtual object's bounds (lighting/snapshot.h VirtualIrradiance):
-// `indirect` from every surface the probe sees (leaf radiances of `with`, other virtual objects,
-// the environment's residual), `direct` from `lights`, through real and virtual occluders except
-// the object itself. `directions`: sampled directions per probe.
-std::vector<VirtualIrradiance> buildProbes(const Radiosity& radiosity, const Scene& scene, const Solution& with,
+// The irradiance arriving at point `p` (world) as order-2 SH (lighting/snapshot.h IrradianceSh):
+// `indirect` from every surface a ray from `p` meets (the leaf's value in `radiance`, by element:
+// real leaves and the other virtual objects' faces), and the environment's residual (distant
+// cells flagged `indirect`); `direct` from the other `lights`, sampled on their geometry, through
+// real and virtual occluders. Virtual object `object` itself is transparent to these rays (the
+// point lies inside it); -1: none. `directions`: sampled directions (Fibonacci sphere).
+// `other_objects` false: the other virtual objects are not there at all (neither seen nor blocking).
+struct ProbeIrradiance {
+    IrradianceSh indirect;
+    IrradianceSh direct;
+};
+ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3d& p, int object,
+                                const std::vector<Eigen::Vector3d>& radiance, const std::vector<ProbeLight>& lights,
+                                int directions, std::uint64_t seed, bool other_objects = true);
+
+// Irradiance probes over each virtual object's bounds (lighting/snapshot.h VirtualIrradiance),
+// each probeIrradiance() with `radiance` the solution with the virtual objects (B).
+std::vector<VirtualIrradiance> buildProbes(const Radiosity& radiosity, const Scene& scene, const std::vector<Eigen::Vector3d>& radiance,
                                            const std::vector<ProbeLight>& lights, int directions = 256);
 
 }  // namespace commonlight::lighting

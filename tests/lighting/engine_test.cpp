@@ -168,6 +168,56 @@ TEST(LightingEngine, RealTimeProducerAt120HzNeverWaitsAndReaderSeesIncreasingVer
     RecordProperty("worst_submit_ms", std::to_string(worst_submit_ms));
 }
 
+// Between full updates (when the observations double) the engine only brings the virtual
+// objects' influence up to date (lighting/influence.h): a ball moving across the floor in sync
+// mode gets a snapshot per frame, most of them incremental, and its shadow (the floor texel with
+// the lowest ratio B/B~) follows it.
+TEST(LightingEngine, MovingObjectUpdatesIncrementallyAndItsShadowFollows) {
+    EngineOptions options;
+    options.sync = true;
+    auto engine = LightingEngine::create(smallScene(), smallCamera(), options);
+    ASSERT_TRUE(engine);
+    LightingEngine& e = **engine;
+    e.start();
+    const Image frame = greyFrame(smallCamera(), 90);
+    for (int i = 0; i < 12; ++i) {
+        const double x = -0.3 + 0.05 * i;
+        e.setVirtualPoses({Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, 0.2, 0.1))});
+        Observation obs;
+        obs.rgb8 = frame.view();
+        obs.timestamp_ns = i * 33333333LL;
+        obs.cam_from_world = lookingDown();
+        obs.exposure_us = 10000;
+        obs.analog_gain = 1;
+        ASSERT_TRUE(e.submit(obs));
+        const SnapshotPtr s = e.latest();
+        ASSERT_EQ(s->version, static_cast<std::uint64_t>(i + 1));
+        const FaceModulation* floor = s->findFace(0, 0);
+        ASSERT_NE(floor, nullptr);
+        // The floor plane spans [-1, 1] in x and y; the panel is straight above the origin at
+        // 1.5 m, so the shadow (the centroid of 1 - ratio over the floor's texels) lies near the
+        // ball's position scaled by 1.5 / (1.5 - 0.1).
+        std::size_t darkest = 0;
+        double weight = 0.0, moment = 0.0;
+        for (std::size_t k = 0; k < floor->ratio.size(); ++k) {
+            if (floor->ratio[k].y() < floor->ratio[darkest].y()) darkest = k;
+            const double s_coord = (static_cast<double>(k % static_cast<std::size_t>(floor->width)) + 0.5) / floor->width;
+            const double w = std::max(0.0, 1.0 - static_cast<double>(floor->ratio[k].y()));
+            weight += w;
+            moment += w * (floor->corners[0].x() + s_coord * (floor->corners[1].x() - floor->corners[0].x()));
+        }
+        ASSERT_GT(weight, 0.0);
+        EXPECT_NEAR(moment / weight, x * 1.5 / 1.4, 0.03) << "frame " << i;
+        EXPECT_LT(floor->ratio[darkest].y(), 0.5f);
+    }
+    e.stop();
+    const EngineStats stats = e.stats();
+    EXPECT_EQ(stats.updates, 12u);
+    // Full updates when the observations have doubled: after frames 1, 2, 4 and 8.
+    EXPECT_EQ(stats.full_updates, 4u);
+    EXPECT_EQ(stats.incremental_ms.size(), 8u);
+}
+
 TEST(LightingEngine, StopIsIdempotentAndSubmitAfterStopFails) {
     auto engine = LightingEngine::create(smallScene(), smallCamera(), {});
     ASSERT_TRUE(engine);

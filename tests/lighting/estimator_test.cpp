@@ -288,7 +288,6 @@ lights:
     EstimatorOptions eo;
     eo.refine_unobserved = true;
     eo.refine_by_light = false;
-    eo.refine_by_virtual = false;
     eo.initial_element_size = 0.6;
     eo.radiosity.link_epsilon = 0.01;
     eo.radiosity.min_link_size = 0.3;

@@ -1,0 +1,202 @@
+// Internal state of lighting/influence.h, shared by influence.cpp (structure: candidates,
+// refinement, transmissions), influence_objects.cpp (the virtual objects as clusters) and
+// influence_solve.cpp (propagation and the dense reference). Not part of the module's interface.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <span>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "lighting/influence.h"
+
+namespace commonlight::lighting {
+
+inline double lumaOf(const Eigen::Vector3d& v) { return 0.2126 * v.x() + 0.7152 * v.y() + 0.0722 * v.z(); }
+
+// A base link's change at one leaf: w (t - 1), w = pi F V of the link, t the virtual transmission
+// of the shaft from the leaf to the link's source.
+struct Correction {
+    int source = -1;
+    double coef = 0.0;
+};
+
+// What the virtual objects do to one element (lighting/influence.h): at a leaf dDirect and the
+// objects' light; at the "link level" (an element about link_size across, or a larger leaf) the
+// corrections of the base links they block, with their current sum C, for everything under it
+// (indirect shadows are smooth: a leaf per pixel would multiply the work, not the accuracy).
+struct LeafTerms {
+    Eigen::Vector3d direct = Eigen::Vector3d::Zero();
+    Eigen::Vector3d cluster = Eigen::Vector3d::Zero();
+    Eigen::Vector3d cl = Eigen::Vector3d::Zero();  // sum coef (B~_s + D_s - U_s): what was shot so far
+    std::vector<Correction> corrections;
+    void clear() {
+        direct.setZero();
+        cluster.setZero();
+        cl.setZero();
+        corrections.clear();
+    }
+};
+
+// Which visibility pairs the real scene blocks, kept per leaf and light (key -1 - k) or per leaf
+// and link source (key s): the real scene never changes, so a move costs virtual rays only.
+struct RealMask {
+    int key = 0;
+    std::uint64_t pilot = 0;
+    std::uint64_t full = 0;
+    std::uint8_t have = 0;  // bit 0: pilot known, bit 1: full known
+};
+
+// A base leaf's blockers worth computing (lighting/influence.h `link_epsilon`): lights and base
+// links, and the objects whose light reaches it at leaf level.
+struct Selection {
+    std::vector<int> lights;
+    std::vector<int> links;
+    std::vector<int> objects;
+};
+
+// A real element's (or a posed virtual face's) geometry, cached (the shaft tests run thousands
+// of times per move).
+struct ElementShape {
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    double radius = 0.0;  // largest distance from the centroid to a corner
+    std::array<Eigen::Vector3d, 4> corners;
+    int count = 0;
+    std::span<const Eigen::Vector3d> polygon() const { return {corners.data(), static_cast<std::size_t>(count)}; }
+};
+
+// A virtual object: where it is, what it is made of, what it touched.
+struct ObjectState {
+    bool present = false;
+    bool known = false;  // has been placed at least once since the base
+    Rigid3d pose;
+    Eigen::Vector3d emission = Eigen::Vector3d::Zero();  // relative radiance of its faces (uniform)
+    bool emission_given = false;
+    Ball ball;                      // world
+    Eigen::Vector3d centre_local = Eigen::Vector3d::Zero();
+    double radius = 0.0;            // of the bounding ball
+    std::vector<int> faces;         // global face indices
+    std::vector<int> touched;       // base leaves it affected last time (sorted)
+    std::vector<int> cluster_leaves;  // base leaves whose own leaves link to it (sorted)
+    std::vector<std::pair<int, Eigen::Vector3d>> cluster_links;  // above base leaves: element, irradiance
+    std::vector<Eigen::Vector3d> face_radiance;  // per face in `faces`
+    std::vector<ElementShape> face_shape;         // per face, posed (world)
+    std::vector<Eigen::Vector3d> face_normal;
+    std::vector<Eigen::Vector3d> exitance;       // per table direction: radiance towards it
+    std::vector<double> projected;               // per table direction: projected area, m^2
+    double projected_max = 0.0;
+    double luma_max = 0.0;                        // largest face radiance (luminance)
+};
+
+struct VirtualInfluence::Impl {
+    VirtualInfluence& self;
+    explicit Impl(VirtualInfluence& s) : self(s) {}
+
+    InfluenceBase base;
+    double scale = 1.0;        // largest B~ leaf radiance (max over channels)
+    double luma_scale = 1.0;   // largest B~ leaf luminance
+    double mean_luma = 0.0;    // area-weighted mean B~ of the real leaves (luminance)
+
+    // By element (grown with the hierarchy by grow()).
+    std::vector<char> sub;        // made here
+    std::vector<char> base_leaf;  // a leaf of the base
+    std::vector<double> up;       // pull weight towards the parent
+    std::vector<Eigen::Vector3d> G, V, U, pending;
+    std::vector<char> queued, pending_flag, column_known;
+    std::vector<LeafTerms> terms;
+    std::vector<char> has_terms;  // any element (active): direct or cluster (leaves), corrections (link level)
+    std::vector<std::vector<RealMask>> masks;
+    std::vector<Selection> selection;                      // base leaves
+    std::vector<std::vector<std::pair<int, int>>> entries;  // base leaves: (object, base link)
+    std::vector<int> bound_level;                           // base leaves: the footprint level used
+    std::vector<ElementShape> shape;                        // real elements
+    std::vector<double> rho_max, rho_mean, den_min;         // base elements: over the leaves under them (luminance)
+    // B~ as the objects' irradiance reads it: an element made here reads as its base leaf (so an
+    // object's light does not depend on the refinement that others left), virtual faces as black.
+    std::vector<Eigen::Vector3d> probe_radiance;
+
+    // Base links by source (CSR), corrections by source (rebuilt after each refinement).
+    std::vector<int> link_offsets, link_by_source;
+    std::vector<int> corr_offsets;
+    std::vector<std::pair<int, int>> corr_by_source;  // (leaf, index in its corrections)
+    std::vector<char> corr_source;                    // by element: has corrections leaving it
+
+    // Shafts: ids [0, link_shafts) are base links, then (base leaf, light) pairs.
+    std::unique_ptr<ShaftIndex> index;
+    int link_shafts = 0;
+    std::vector<std::pair<int, int>> light_shafts;
+    std::vector<int> shaft_link;  // link shafts: the base link (only links strong enough to matter are indexed)
+    std::vector<int> far_lights;  // directional lights and distant cells (not in the index)
+
+    std::vector<ObjectState> objects;
+    std::vector<Eigen::Vector3d> table;  // directions of the objects' exitance tables
+    std::optional<InfluenceViewer> viewer;
+
+    std::vector<int> worklist, pending_list;
+    std::vector<char> face_dirty;
+    int shots = 0;
+
+    // --- influence.cpp ---
+    void grow();
+    int baseLeafOf(int element) const;
+    // The B~ (luminance) a change at an element is measured against: its own, floored at a
+    // twentieth of its face's mean (below a fiftieth the renderer adds the difference B - B~
+    // instead of multiplying by the ratio: Debevec's rule, lighting/snapshot.h), and at 1e-3 of
+    // the scene's largest.
+    double floorLuma(int element) const;
+    std::vector<double> face_floor;  // by face
+    int boundLevel(int element) const;  // footprint bound as min_size * 2^level; large: out of view
+    double boundSize(int level) const;
+    Shaft elementShaft(int element, int other) const;
+    Shaft lightShaft(int element, int light) const;
+    std::span<const Eigen::Vector3d> lightPolygon(int light) const;
+    void cacheShape(int element);
+    // The tight tests (cone of balls first, then the hull's planes).
+    bool linkMeetsBall(int element, int source, const Ball& ball) const;
+    bool lightMeetsBall(int element, int light, const Ball& ball) const;
+    bool farLightMeetsBall(int element, int light, const Ball& ball) const;
+    double radiusOf(int element) const { return shape[static_cast<std::size_t>(element)].radius; }
+    void candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links);
+    double denominator(int element) const;  // B~ (luminance) a change is relative to: floored
+    double objectBlocks(int object, int element, double omega) const;  // fraction of a solid angle it can cover
+    double lightSignificance(int b, int light, int object) const;
+    double linkSignificance(int b, int link, int object) const;
+    std::uint32_t objectMask(int b) const;  // objects significant at base leaf b (ray mask bits)
+    void select(int b);
+    struct LeafResult {
+        double variation = 0.0;       // direct light and the objects' own light
+        double link_variation = 0.0;  // blocked base links
+    };
+    LeafResult computeTerms(int c, int b, bool links);
+    double linkSize(int b) const;  // elements of about this size carry the corrections
+    double transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask);
+    double transmissionToSource(int c, int s, bool& mixed, std::uint32_t mask);
+    RealMask& mask(int element, int key);
+    void refine(const std::vector<int>& touched);
+    void rebuildCorrectionIndex();
+
+    // --- influence_objects.cpp ---
+    void placeObject(int o, const InfluenceObject& in);
+    void objectRadiance(int o);
+    void clusterLinks(int o, std::vector<int>& leaf_level);
+    void removeClusterLinks(int o);
+    Eigen::Vector3d clusterAt(int o, int element, double* variation, std::uint32_t mask);  // irradiance; variation of rho F L / B~
+    double pointFormFactor(int o, const Eigen::Vector3d& x, const Eigen::Vector3d& n, Eigen::Vector3d* radiance) const;
+    double clusterVisibility(int o, int element, int pairs, bool& mixed, std::uint32_t mask) const;
+
+    // --- influence_solve.cpp ---
+    Eigen::Vector3d value(int leaf) const;
+    void addUnshot(int element, const Eigen::Vector3d& delta);
+    Eigen::Vector3d pushDown(int element, const Eigen::Vector3d& irradiance);
+    void propagateUp(int element, Eigen::Vector3d delta);
+    void pullSubtree(int element);
+    void propagate(InfluenceStats& stats);
+    void resync();
+    void finish();
+};
+
+}  // namespace commonlight::lighting

@@ -1,0 +1,224 @@
+#include "lighting/shaft_index.h"
+
+#include <embree3/rtcore.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <string>
+
+namespace commonlight::lighting {
+
+bool shaftMeetsBall(const Shaft& shaft, const Ball& ball) {
+    // g(u) = |c - p(u)| - r(u), p(u) = a + u (b - a), r(u) = ra + u (rb - ra): the ball meets the
+    // cone of balls when min over u in [0, 1] of g(u) <= ball.radius. g is convex (a distance to a
+    // line point minus a linear function): its minimum is at an end or where g'(u) = 0, i.e.
+    // (A u - B) / |c - p(u)| = dr with A = |b - a|^2, B = (c - a).(b - a), C = |c - a|^2, which
+    // gives u* = B / A + dr sqrt(A C - B^2) / (A sqrt(A - dr^2)) when A > dr^2 (otherwise one end's
+    // ball holds the other's and g is monotone: the ends decide).
+    const Eigen::Vector3d d = shaft.b - shaft.a;
+    const Eigen::Vector3d q = ball.centre - shaft.a;
+    const double dr = shaft.rb - shaft.ra;
+    const auto g = [&](double u) { return (q - u * d).norm() - (shaft.ra + u * dr); };
+    double best = std::min(g(0.0), g(1.0));
+    const double A = d.squaredNorm(), B = q.dot(d), C = q.squaredNorm();
+    if (A > dr * dr && A > 0.0) {
+        const double u = B / A + dr * std::sqrt(std::max(0.0, A * C - B * B)) / (A * std::sqrt(A - dr * dr));
+        if (u > 0.0 && u < 1.0) best = std::min(best, g(u));
+    }
+    return best <= ball.radius;
+}
+
+bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b, const Ball& ball) {
+    const auto separates = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
+        const double length = n.norm();
+        if (!(length > 1e-15)) return false;
+        n /= length;
+        // A plane the ball straddles separates nothing, face plane or not (most planes: no need
+        // to look at the vertices).
+        const double c = (ball.centre - origin).dot(n);
+        if (std::abs(c) <= ball.radius) return false;
+        // A face plane has every vertex on one side (a tolerance for round-off: ends that touch).
+        double lo = 0.0, hi = 0.0;
+        for (const Eigen::Vector3d& x : a) {
+            const double s = (x - origin).dot(n);
+            lo = std::min(lo, s);
+            hi = std::max(hi, s);
+        }
+        for (const Eigen::Vector3d& x : b) {
+            const double s = (x - origin).dot(n);
+            lo = std::min(lo, s);
+            hi = std::max(hi, s);
+        }
+        const double tol = 1e-9 * std::max(1.0, hi - lo);
+        if (hi <= tol) return c > ball.radius;   // every vertex below: outward is +n
+        if (lo >= -tol) return -c > ball.radius;  // every vertex above: outward is -n
+        return false;                             // not a face plane
+    };
+    for (int pass = 0; pass < 2; ++pass) {
+        const std::span<const Eigen::Vector3d> p = pass == 0 ? a : b, q = pass == 0 ? b : a;
+        const std::size_t n = p.size();
+        if (n >= 3 && separates(p[0], (p[1] - p[0]).cross(p[2] - p[0]))) return false;
+        if (n < 2) continue;
+        for (std::size_t i = 0; i < (n == 2 ? 1 : n); ++i) {
+            const Eigen::Vector3d& e0 = p[i];
+            const Eigen::Vector3d& e1 = p[(i + 1) % n];
+            for (const Eigen::Vector3d& r : q) {
+                if (separates(e0, (e1 - e0).cross(r - e0))) return false;
+            }
+        }
+    }
+    return true;
+}
+
+namespace {
+
+// One node of the hierarchy, in memory of the BVH's allocator (freed with it). Inner nodes have
+// two children with their boxes; leaves a list of shaft ids.
+struct Node {
+    bool leaf = false;
+    float lo[2][3] = {};
+    float hi[2][3] = {};
+    Node* child[2] = {nullptr, nullptr};
+    std::uint32_t count = 0;
+    std::uint32_t* ids = nullptr;
+};
+
+void* createNode(RTCThreadLocalAllocator alloc, unsigned int child_count, void*) {
+    (void)child_count;  // maxBranchingFactor is 2
+    void* memory = rtcThreadLocalAlloc(alloc, sizeof(Node), alignof(Node));
+    return new (memory) Node();
+}
+
+void setChildren(void* node, void** children, unsigned int count, void*) {
+    auto* n = static_cast<Node*>(node);
+    for (unsigned i = 0; i < count && i < 2; ++i) n->child[i] = static_cast<Node*>(children[i]);
+}
+
+void setBounds(void* node, const RTCBounds** bounds, unsigned int count, void*) {
+    auto* n = static_cast<Node*>(node);
+    for (unsigned i = 0; i < count && i < 2; ++i) {
+        n->lo[i][0] = bounds[i]->lower_x;
+        n->lo[i][1] = bounds[i]->lower_y;
+        n->lo[i][2] = bounds[i]->lower_z;
+        n->hi[i][0] = bounds[i]->upper_x;
+        n->hi[i][1] = bounds[i]->upper_y;
+        n->hi[i][2] = bounds[i]->upper_z;
+    }
+}
+
+void* createLeaf(RTCThreadLocalAllocator alloc, const RTCBuildPrimitive* prims, size_t count, void*) {
+    void* memory = rtcThreadLocalAlloc(alloc, sizeof(Node), alignof(Node));
+    auto* n = new (memory) Node();
+    n->leaf = true;
+    n->count = static_cast<std::uint32_t>(count);
+    n->ids = static_cast<std::uint32_t*>(rtcThreadLocalAlloc(alloc, std::max<std::size_t>(1, count) * sizeof(std::uint32_t),
+                                                             alignof(std::uint32_t)));
+    for (std::size_t i = 0; i < count; ++i) n->ids[i] = prims[i].primID;
+    return n;
+}
+
+struct Errors {
+    std::mutex mutex;
+    std::string first;
+    static void callback(void* user, RTCError code, const char* message) {
+        auto* self = static_cast<Errors*>(user);
+        const std::lock_guard lock(self->mutex);
+        if (self->first.empty()) self->first = "Embree error " + std::to_string(static_cast<int>(code)) + ": " + message;
+    }
+};
+
+}  // namespace
+
+struct ShaftIndex::Impl {
+    Errors errors;
+    RTCDevice device = nullptr;
+    RTCBVH bvh = nullptr;
+    Node* root = nullptr;
+    ~Impl() {
+        if (bvh) rtcReleaseBVH(bvh);
+        if (device) rtcReleaseDevice(device);
+    }
+};
+
+ShaftIndex::ShaftIndex(std::unique_ptr<Impl> impl, std::vector<Shaft> shafts) : impl_(std::move(impl)), shafts_(std::move(shafts)) {}
+ShaftIndex::~ShaftIndex() = default;
+
+Result<std::unique_ptr<ShaftIndex>> ShaftIndex::build(std::vector<Shaft> shafts) {
+    auto impl = std::make_unique<Impl>();
+    impl->device = rtcNewDevice("verbose=0");
+    if (!impl->device) return fail(ErrorCode::kInternal, "lighting: the shaft index could not create an Embree device");
+    rtcSetDeviceErrorFunction(impl->device, &Errors::callback, &impl->errors);
+    if (!shafts.empty()) {
+        // Step 1: each shaft's bounding box (of its two end balls: the cone of balls lies in it).
+        std::vector<RTCBuildPrimitive> prims(shafts.size());
+        for (std::size_t i = 0; i < shafts.size(); ++i) {
+            const Shaft& s = shafts[i];
+            const Eigen::Vector3d lo = (s.a.array() - s.ra).min(s.b.array() - s.rb);
+            const Eigen::Vector3d hi = (s.a.array() + s.ra).max(s.b.array() + s.rb);
+            RTCBuildPrimitive& p = prims[i];
+            // Rounded outwards to single precision.
+            p.lower_x = std::nextafter(static_cast<float>(lo.x()), -std::numeric_limits<float>::infinity());
+            p.lower_y = std::nextafter(static_cast<float>(lo.y()), -std::numeric_limits<float>::infinity());
+            p.lower_z = std::nextafter(static_cast<float>(lo.z()), -std::numeric_limits<float>::infinity());
+            p.upper_x = std::nextafter(static_cast<float>(hi.x()), std::numeric_limits<float>::infinity());
+            p.upper_y = std::nextafter(static_cast<float>(hi.y()), std::numeric_limits<float>::infinity());
+            p.upper_z = std::nextafter(static_cast<float>(hi.z()), std::numeric_limits<float>::infinity());
+            p.geomID = 0;
+            p.primID = static_cast<unsigned>(i);
+        }
+        // Step 2: Embree's SAH builder with our node layout (binary, up to 8 shafts per leaf).
+        impl->bvh = rtcNewBVH(impl->device);
+        RTCBuildArguments args = rtcDefaultBuildArguments();
+        args.buildQuality = RTC_BUILD_QUALITY_MEDIUM;
+        args.maxBranchingFactor = 2;
+        args.maxDepth = 1024;
+        args.minLeafSize = 1;
+        args.maxLeafSize = 8;
+        args.bvh = impl->bvh;
+        args.primitives = prims.data();
+        args.primitiveCount = prims.size();
+        args.primitiveArrayCapacity = prims.size();
+        args.createNode = createNode;
+        args.setNodeChildren = setChildren;
+        args.setNodeBounds = setBounds;
+        args.createLeaf = createLeaf;
+        impl->root = static_cast<Node*>(rtcBuildBVH(&args));
+        if (!impl->root || !impl->errors.first.empty()) {
+            return fail(ErrorCode::kInternal, "lighting: building the shaft index: " +
+                                                  (impl->errors.first.empty() ? std::string("no hierarchy") : impl->errors.first));
+        }
+    }
+    return std::unique_ptr<ShaftIndex>(new ShaftIndex(std::move(impl), std::move(shafts)));
+}
+
+void ShaftIndex::query(const Ball& ball, std::vector<int>& out) const {
+    const Node* root = impl_->root;
+    if (!root) return;
+    const float lo[3] = {static_cast<float>(ball.centre.x() - ball.radius), static_cast<float>(ball.centre.y() - ball.radius),
+                         static_cast<float>(ball.centre.z() - ball.radius)};
+    const float hi[3] = {static_cast<float>(ball.centre.x() + ball.radius), static_cast<float>(ball.centre.y() + ball.radius),
+                         static_cast<float>(ball.centre.z() + ball.radius)};
+    // Depth-first with an explicit stack; a child is visited when its box meets the ball's box.
+    std::vector<const Node*> stack{root};
+    while (!stack.empty()) {
+        const Node* n = stack.back();
+        stack.pop_back();
+        if (n->leaf) {
+            for (std::uint32_t i = 0; i < n->count; ++i) {
+                const int id = static_cast<int>(n->ids[i]);
+                if (shaftMeetsBall(shafts_[static_cast<std::size_t>(id)], ball)) out.push_back(id);
+            }
+            continue;
+        }
+        for (int c = 0; c < 2; ++c) {
+            if (!n->child[c]) continue;
+            const bool overlap = n->lo[c][0] <= hi[0] && n->hi[c][0] >= lo[0] && n->lo[c][1] <= hi[1] && n->hi[c][1] >= lo[1] &&
+                                 n->lo[c][2] <= hi[2] && n->hi[c][2] >= lo[2];
+            if (overlap) stack.push_back(n->child[c]);
+        }
+    }
+}
+
+}  // namespace commonlight::lighting

@@ -1,0 +1,428 @@
+// The virtual objects' influence updated incrementally (lighting/influence.h) against the same
+// system solved from scratch, and its hard cases: a contact shadow, an object crossing a face
+// boundary and a box edge, a tiny object far from everything, a virtual light 100x brighter than
+// the real ones, objects removed, many random moves.
+//
+// "From scratch" is a second estimator on the same scene (the base is deterministic, so its
+// elements are the same) whose influence is rebuilt from nothing for each configuration
+// (VirtualInfluence::rebuild(): every shaft scanned, dense Jacobi sweeps), and, on the same
+// elements, denseDifference(). The incremental solution stops when no unshot difference is above
+// `residual` x the largest radiance; the tolerance of the comparisons is 20 times that (the
+// unshot remainders of many elements reach a leaf through several links and bounces).
+#include "lighting/influence.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <map>
+#include <numbers>
+#include <random>
+#include <tuple>
+
+#include "core/scene_io.h"
+#include "lighting/estimator.h"
+#include "lighting/form_factor.h"
+
+namespace commonlight::lighting {
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+
+// A table against a wall on a floor, under a panel and a small lamp; a ball and a cube on the table.
+const char* kScene = R"(
+real:
+  - {name: floor, plane: {size: [2, 2]}, albedo: [0.5, 0.5, 0.5]}
+  - {name: table, box: {size: [0.8, 0.6, 0.5]}, world_from_object: {t: [0, 0, 0.25]}, albedo: [0.6, 0.5, 0.4]}
+  - {name: wall, plane: {size: [2, 1.5]}, world_from_object: {t: [0, 1, 0.75], rpy_deg: [90, 0, 0]}, albedo: [0.7, 0.7, 0.7]}
+lights:
+  - {name: panel, area: {size: [0.4, 0.4]}, world_from_object: {t: [0, 0, 1.6], rpy_deg: [180, 0, 0]}, radiance: [20, 20, 20]}
+  - {name: lamp, area: {size: [0.08, 0.08]}, world_from_object: {t: [0.3, -0.2, 0.9], rpy_deg: [180, 20, 0]}, radiance: [80, 80, 80]}
+virtual:
+  - {name: ball, sphere: {radius: 0.05}, material: {albedo: [0.8, 0.8, 0.8]}, world_from_object: {t: [0, 0, 0.56]}}
+  - {name: cube, box: {size: [0.08, 0.08, 0.08]}, material: {albedo: [0.5, 0.5, 0.5]}, world_from_object: {t: [0.2, 0.1, 0.54]}}
+lighting: {max_elements: 3000}
+)";
+
+Scene parse(const std::string& yaml) {
+    auto scene = parseScene(yaml, "influence.yaml");
+    EXPECT_TRUE(scene) << scene.error().message;
+    return scene ? *scene : Scene{};
+}
+
+CameraModel camera() {
+    CameraModel c;
+    c.width = 64;
+    c.height = 48;
+    c.fx = c.fy = 51.2;
+    c.cx = 31.5;
+    c.cy = 23.5;
+    return c;
+}
+
+// Small test meshes: a coarse base, elements of the influence down to 2 cm.
+EstimatorOptions testOptions() {
+    EstimatorOptions o;
+    o.refine_unobserved = true;
+    o.initial_element_size = 0.25;
+    o.light_refinement_size = 0.08;
+    o.influence.min_size = 0.02;
+    o.influence.link_size = 0.08;
+    return o;
+}
+
+std::unique_ptr<Estimator> make(const Scene& scene, EstimatorOptions options = testOptions()) {
+    auto est = Estimator::create(scene, camera(), {}, options);
+    EXPECT_TRUE(est) << est.error().message;
+    std::vector<Eigen::Vector3d> emission, albedo;
+    for (const Light& l : scene.lights) emission.push_back(*l.emission.value);
+    for (const RealObject& r : scene.real_objects) albedo.push_back(r.albedo.value.value_or(Eigen::Vector3d::Constant(0.5)));
+    auto solved = (*est)->solveWith(emission, albedo, SceneLighting::scenePoses(scene, 0.0));
+    EXPECT_TRUE(solved) << solved.error().message;
+    return std::move(*est);
+}
+
+// A configuration of the virtual objects.
+struct Config {
+    std::vector<Rigid3d> poses;
+    std::vector<bool> present;
+    std::vector<std::optional<Eigen::Vector3d>> emission;
+};
+
+std::vector<InfluenceObject> objectsOf(const Config& c) {
+    std::vector<InfluenceObject> out(c.poses.size());
+    for (std::size_t i = 0; i < c.poses.size(); ++i) {
+        out[i].world_from_object = c.poses[i];
+        out[i].present = c.present[i];
+        out[i].emission = c.emission[i];
+    }
+    return out;
+}
+
+Result<LightingSnapshot> apply(Estimator& est, const Config& c) {
+    for (std::size_t i = 0; i < c.poses.size(); ++i) {
+        est.setVirtualPresent(static_cast<int>(i), c.present[i]);
+        est.setVirtualEmission(static_cast<int>(i), c.emission[i]);
+    }
+    return est.update(c.poses);
+}
+
+// A leaf by its place: face and (s, t) rectangle (element indices differ between two estimators
+// that refined in different orders; places do not).
+using Place = std::tuple<int, long, long, long, long>;
+Place placeOf(const Element& e) {
+    const auto q = [](double v) { return std::lround(v * 1e7); };
+    return {e.face, q(e.st.x()), q(e.st.y()), q(e.ds.x() + e.dt.x()), q(e.ds.y() + e.dt.y())};
+}
+
+std::map<Place, Eigen::Vector3d> differenceByPlace(const Estimator& est) {
+    std::map<Place, Eigen::Vector3d> out;
+    const Radiosity& rad = est.radiosity();
+    for (int e : rad.leaves(Mode::kReal)) out[placeOf(rad.hierarchy()[e])] = est.influence().difference()[static_cast<std::size_t>(e)];
+    return out;
+}
+
+double scaleOf(const Estimator& est) {
+    double s = 0.0;
+    for (int e : est.radiosity().leaves(Mode::kReal)) s = std::max(s, est.influence().original()[static_cast<std::size_t>(e)].maxCoeff());
+    return s;
+}
+
+// The incremental state against the dense solve of its own system, and against a second
+// estimator rebuilt from scratch for the same configuration: the same leaves, the same B - B~.
+void expectEqualsFresh(Estimator& incremental, Estimator& fresh, const Config& config, const std::string& what) {
+    const double scale = scaleOf(incremental);
+    const double tolerance = 20.0 * incremental.influence().options().residual * scale;
+    // Step 1: the propagation against Jacobi sweeps on the same elements.
+    const std::vector<Eigen::Vector3d> dense = incremental.influence().denseDifference(1e-10);
+    double worst_dense = 0.0;
+    for (int e : incremental.radiosity().leaves(Mode::kReal)) {
+        worst_dense = std::max(worst_dense, (dense[static_cast<std::size_t>(e)] - incremental.influence().difference()[static_cast<std::size_t>(e)]).cwiseAbs().maxCoeff());
+    }
+    EXPECT_LE(worst_dense, tolerance) << what << ": propagation against dense sweeps";
+    // Step 2: against the from-scratch rebuild.
+    std::optional<InfluenceViewer> none;
+    auto rebuilt = fresh.influence().rebuild(objectsOf(config), none);
+    ASSERT_TRUE(rebuilt) << rebuilt.error().message;
+    const std::map<Place, Eigen::Vector3d> a = differenceByPlace(incremental);
+    std::map<Place, Eigen::Vector3d> b;
+    {
+        const Radiosity& rad = fresh.radiosity();
+        for (int e : rad.leaves(Mode::kReal)) {
+            b[placeOf(rad.hierarchy()[e])] = fresh.influence().difference()[static_cast<std::size_t>(e)];
+        }
+    }
+    ASSERT_EQ(a.size(), b.size()) << what << ": the same elements";
+    double worst = 0.0;
+    int missing = 0;
+    for (const auto& [place, d] : a) {
+        const auto it = b.find(place);
+        if (it == b.end()) {
+            ++missing;
+            continue;
+        }
+        worst = std::max(worst, (d - it->second).cwiseAbs().maxCoeff());
+    }
+    EXPECT_EQ(missing, 0) << what << ": leaves the fresh solve does not have";
+    EXPECT_LE(worst, tolerance) << what << ": incremental against from scratch (scale " << scale << ")";
+}
+
+Config sceneConfig(const Scene& s) {
+    Config c;
+    c.poses = SceneLighting::scenePoses(s, 0.0);
+    c.present.assign(c.poses.size(), true);
+    c.emission.assign(c.poses.size(), std::nullopt);
+    return c;
+}
+
+TEST(Influence, IncrementalEqualsFromScratchOverRandomMoves) {
+    const Scene scene = parse(kScene);
+    auto inc = make(scene);
+    auto fresh = make(scene);
+    Config config = sceneConfig(scene);
+    std::mt19937 rng(12);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    for (int step = 0; step < 24; ++step) {
+        // Moves on and around the table; now and then one leaves, comes back or glows.
+        const int o = step % 2;
+        Rigid3d& p = config.poses[static_cast<std::size_t>(o)];
+        p.translation = Eigen::Vector3d(0.5 * u(rng), 0.4 * u(rng), step % 5 == 4 ? 0.2 + 0.1 * u(rng) : 0.56 + 0.05 * std::abs(u(rng)));
+        p.rotation = Eigen::Quaterniond(Eigen::AngleAxisd(kPi * u(rng), Eigen::Vector3d(u(rng), u(rng), 1.0).normalized()));
+        if (step % 7 == 3) config.present[static_cast<std::size_t>(1 - o)] = !config.present[static_cast<std::size_t>(1 - o)];
+        if (step % 11 == 5) config.emission[0] = Eigen::Vector3d(30, 25, 20);
+        if (step % 11 == 9) config.emission[0].reset();
+        auto s = apply(*inc, config);
+        ASSERT_TRUE(s) << s.error().message;
+        EXPECT_FALSE(inc->stats().full) << "step " << step << ": moves alone update incrementally";
+        if (step % 4 == 3) expectEqualsFresh(*inc, *fresh, config, "step " + std::to_string(step));
+    }
+}
+
+// The minimum ratio B/B~ over a face's leaves, and the leaves' count.
+double lowestRatio(const Estimator& est, int object, int face) {
+    double lowest = 1e300;
+    const Radiosity& rad = est.radiosity();
+    for (int e : rad.leaves(Mode::kReal)) {
+        const Face& f = rad.face(rad.hierarchy()[e].face);
+        if (f.object_index != object || f.face_index != face || rad.hierarchy()[e].buried) continue;
+        const double b0 = est.influence().original()[static_cast<std::size_t>(e)].y();
+        if (b0 > 0.0) lowest = std::min(lowest, est.with().radiance[static_cast<std::size_t>(e)].y() / b0);
+    }
+    return lowest;
+}
+
+// A virtual box standing on the floor (its bottom face on the floor's plane, no gap): the floor
+// under it gets no light at all (direct or indirect, no leak through the contact), the floor
+// right beside it its penumbra, and the floor far from it is unchanged.
+TEST(Influence, ContactShadowDoesNotLeak) {
+    Scene scene = parse(R"(
+real:
+  - {name: floor, plane: {size: [2, 2]}, albedo: [0.5, 0.5, 0.5]}
+  - {name: wall, plane: {size: [2, 1.5]}, world_from_object: {t: [0, 1, 0.75], rpy_deg: [90, 0, 0]}, albedo: [0.7, 0.7, 0.7]}
+lights:
+  - {name: panel, area: {size: [0.3, 0.3]}, world_from_object: {t: [0, 0, 1.5], rpy_deg: [180, 0, 0]}, radiance: [20, 20, 20]}
+virtual:
+  - {name: crate, box: {size: [0.3, 0.3, 0.2]}, material: {albedo: [0.5, 0.5, 0.5]}, world_from_object: {t: [0.1, 0.0, 0.1]}}
+  - {name: ball, sphere: {radius: 0.1}, material: {albedo: [0.5, 0.5, 0.5]}, world_from_object: {t: [-0.5, -0.3, 0.1]}}
+lighting: {max_elements: 3000}
+)");
+    auto est = make(scene);
+    ASSERT_TRUE(apply(*est, sceneConfig(scene)));
+    const Radiosity& rad = est->radiosity();
+    int under = 0, far = 0, near_ball = 0;
+    for (int e : rad.leaves(Mode::kReal)) {
+        const Face& f = rad.face(rad.hierarchy()[e].face);
+        if (f.object_index != 0) continue;
+        const ElementGeometry g = rad.geometry(e);
+        const double b0 = est->influence().original()[static_cast<std::size_t>(e)].y();
+        const double b = est->with().radiance[static_cast<std::size_t>(e)].y();
+        ASSERT_GT(b0, 0.0);
+        // Wholly under the crate (every corner at least 1 cm inside its footprint).
+        bool inside = true;
+        for (const Eigen::Vector3d& c : g.polygon()) inside = inside && std::abs(c.x() - 0.1) < 0.14 && std::abs(c.y()) < 0.14;
+        if (inside) {
+            EXPECT_LT(b, 0.02 * b0) << "floor under the crate at " << g.centroid.transpose() << ": B " << b << " B~ " << b0;
+            ++under;
+        }
+        // Under the ball's contact point: the ball hides most of the panel and half the hemisphere.
+        if ((g.centroid - Eigen::Vector3d(-0.5, -0.3, 0.0)).norm() < 0.02) {
+            EXPECT_LT(b, 0.5 * b0) << "floor at the ball's contact point";
+            ++near_ball;
+        }
+        // Far from both (and from the panel's shadow cones): within the link bound of B~.
+        if ((g.centroid - Eigen::Vector3d(0.1, 0, 0)).norm() > 0.8 && (g.centroid - Eigen::Vector3d(-0.5, -0.3, 0)).norm() > 0.6) {
+            EXPECT_NEAR(b / b0, 1.0, 0.03) << g.centroid.transpose();
+            ++far;
+        }
+    }
+    EXPECT_GT(under, 0);
+    EXPECT_GT(near_ball, 0);
+    EXPECT_GT(far, 0);
+}
+
+// A ball moving from above the table, across its edge, down its side, onto the floor: its shadows
+// cross from the table's top to the floor and the table's side. At every step the incremental
+// solution equals the fresh one, and the shadow is there.
+TEST(Influence, MovingAcrossAFaceBoundaryAndABoxEdge) {
+    const Scene scene = parse(kScene);
+    auto inc = make(scene);
+    auto fresh = make(scene);
+    Config config = sceneConfig(scene);
+    config.present[1] = false;
+    for (int step = 0; step <= 10; ++step) {
+        // From (0.3, -0.1, 0.56) over the table's +x edge (x = 0.4) and down to the floor.
+        const double t = step / 10.0;
+        const double x = 0.3 + 0.2 * std::min(1.0, 2.0 * t);
+        const double z = t < 0.5 ? 0.56 : 0.56 - (t - 0.5) * 2.0 * 0.5;
+        config.poses[0].translation = Eigen::Vector3d(x, -0.1, z);
+        ASSERT_TRUE(apply(*inc, config));
+        expectEqualsFresh(*inc, *fresh, config, "step " + std::to_string(step));
+        // The shadow: somewhere the ratio is well below 1, on the table's top or the floor.
+        const double lowest = std::min(lowestRatio(*inc, 1, 4), lowestRatio(*inc, 0, 0));
+        EXPECT_LT(lowest, 0.8) << "step " << step;
+    }
+}
+
+// A 1 cm ball in a far corner, 3 m from the camera: no explosion of elements (the pixel footprint
+// there is larger than the shadow), and the count comes back when it leaves.
+TEST(Influence, TinyFarObjectKeepsTheElementCountBounded) {
+    Scene scene = parse(kScene);
+    std::get<SphereShape>(scene.virtual_objects[0].shape).radius = 0.005;
+    auto est = make(scene);
+    // The camera 3 m from the corner the ball goes to.
+    est->setViewer(Rigid3d::fromRpyDeg(Eigen::Vector3d(0.0, -2.0, 1.0), Eigen::Vector3d(-100, 0, 0)).inverse());
+    Config config = sceneConfig(scene);
+    config.present[1] = false;
+    config.present[0] = false;
+    ASSERT_TRUE(apply(*est, config));
+    const int before = est->stats().influence.leaves;
+    config.present[0] = true;
+    config.poses[0].translation = Eigen::Vector3d(0.95, 0.95, 0.02);
+    ASSERT_TRUE(apply(*est, config));
+    const int with = est->stats().influence.leaves;
+    EXPECT_LE(with, before + 16) << "a 1 cm ball in the far corner";
+    // And at the table's centre (nearer the camera, still tiny): bounded by its footprint too.
+    config.poses[0].translation = Eigen::Vector3d(0.0, 0.0, 0.51);
+    ASSERT_TRUE(apply(*est, config));
+    EXPECT_LE(est->stats().influence.leaves, before + 64);
+    config.present[0] = false;
+    ASSERT_TRUE(apply(*est, config));
+    EXPECT_EQ(est->stats().influence.leaves, before);
+}
+
+// A glowing virtual ball 100 times the panel's radiance, 0.3 m above the floor: the floor under
+// it gets its light by the sphere's form factor (a point facing a sphere of radius R at distance
+// d sees F = R^2 / d^2), the ratio stays finite (capped at kMaxRatio where B~ is small next to it)
+// and the difference carries the rest; turned off, every ratio is 1 again.
+TEST(Influence, VirtualLightHundredTimesBrighter) {
+    const Scene scene = parse(R"(
+real:
+  - {name: floor, plane: {size: [2, 2]}, albedo: [0.5, 0.5, 0.5]}
+lights:
+  - {name: panel, area: {size: [0.3, 0.3]}, world_from_object: {t: [0.6, 0.6, 1.5], rpy_deg: [180, 0, 0]}, radiance: [20, 20, 20]}
+virtual:
+  - {name: glow, sphere: {radius: 0.05}, material: {albedo: [0.5, 0.5, 0.5]}, world_from_object: {t: [0, 0, 0.3]}}
+lighting: {max_elements: 3000}
+)");
+    auto est = make(scene);
+    Config config = sceneConfig(scene);
+    config.emission[0] = Eigen::Vector3d::Constant(2000.0);
+    auto snap = apply(*est, config);
+    ASSERT_TRUE(snap) << snap.error().message;
+    EXPECT_FALSE(est->stats().full);
+    const Radiosity& rad = est->radiosity();
+    int checked = 0;
+    for (int e : rad.leaves(Mode::kReal)) {
+        const ElementGeometry g = rad.geometry(e);
+        const auto i = static_cast<std::size_t>(e);
+        const Eigen::Vector3d diff = est->with().radiance[i] - est->influence().original()[i];
+        ASSERT_TRUE(diff.allFinite());
+        EXPECT_GE(diff.y(), -1e-9) << "a light only adds";
+        if (g.centroid.head<2>().norm() < 0.03) {
+            // Direct light of the sphere on the floor below it, reflected: rho / pi * pi * L F.
+            const double d = 0.3 - g.centroid.z();
+            const double expected = 0.5 * 2000.0 * (0.05 * 0.05) / (d * d);
+            EXPECT_NEAR(diff.y(), expected, 0.1 * expected) << g.centroid.transpose();
+            ++checked;
+        }
+    }
+    EXPECT_GT(checked, 0);
+    const FaceModulation* floor = snap->findFace(0, 0);
+    ASSERT_NE(floor, nullptr);
+    float highest = 0.0f;
+    for (std::size_t k = 0; k < floor->ratio.size(); ++k) {
+        ASSERT_TRUE(floor->ratio[k].allFinite());
+        ASSERT_TRUE(floor->difference[k].allFinite());
+        EXPECT_LE(floor->ratio[k].maxCoeff(), kMaxRatio);
+        highest = std::max(highest, floor->ratio[k].y());
+    }
+    EXPECT_GT(highest, 4.0f);
+    // Off again: an update like any other.
+    config.emission[0] = Eigen::Vector3d::Zero();
+    config.present[0] = false;
+    snap = apply(*est, config);
+    ASSERT_TRUE(snap);
+    for (const FaceModulation& f : snap->faces) {
+        for (const Rgb& r : f.ratio) EXPECT_NEAR(r.y(), 1.0f, 1e-3f);
+    }
+}
+
+// Objects moved about and then removed: every ratio returns to 1 within the residual bound, and
+// the elements to the base's.
+TEST(Influence, RemovedObjectsReturnEveryRatioToOne) {
+    const Scene scene = parse(kScene);
+    auto est = make(scene);
+    Config config = sceneConfig(scene);
+    config.present = {false, false};
+    ASSERT_TRUE(apply(*est, config));
+    const int base_leaves = est->stats().influence.leaves;
+    config.present = {true, true};
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> u(-0.3, 0.3);
+    for (int step = 0; step < 6; ++step) {
+        config.poses[static_cast<std::size_t>(step % 2)].translation = Eigen::Vector3d(u(rng), u(rng), 0.56);
+        ASSERT_TRUE(apply(*est, config));
+    }
+    EXPECT_GT(est->stats().influence.leaves, base_leaves);
+    config.present = {false, false};
+    auto snap = apply(*est, config);
+    ASSERT_TRUE(snap);
+    const double bound = 20.0 * est->influence().options().residual;
+    for (const FaceModulation& f : snap->faces) {
+        for (std::size_t k = 0; k < f.ratio.size(); ++k) {
+            ASSERT_NEAR(f.ratio[k].y(), 1.0f, bound * std::max(1.0f, f.mean_original / std::max(1e-6f, luminance(f.original[k]))))
+                << f.object << " face " << f.face;
+        }
+    }
+    EXPECT_EQ(est->stats().influence.leaves, base_leaves);
+}
+
+// Many random moves: the element count stays bounded (the refinement follows the objects and
+// collapses behind them), the elements stored stop growing once the table has been covered, and
+// the end state equals a fresh solve. (10,000 moves are run by `commonlight bench lighting
+// --incremental`; this is the test-size version.)
+TEST(Influence, ManyRandomMovesKeepTheElementCountBounded) {
+    const Scene scene = parse(kScene);
+    auto inc = make(scene);
+    auto fresh = make(scene);
+    Config config = sceneConfig(scene);
+    std::mt19937 rng(99);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    int most = 0;
+    std::size_t stored_half = 0;
+    const int moves = 160;
+    for (int step = 0; step < moves; ++step) {
+        Rigid3d& p = config.poses[static_cast<std::size_t>(step % 2)];
+        p.translation = Eigen::Vector3d(0.35 * u(rng), 0.25 * u(rng), 0.56);
+        ASSERT_TRUE(apply(*inc, config));
+        most = std::max(most, inc->stats().influence.leaves);
+        if (step == moves / 2) stored_half = inc->stats().influence.stored;
+    }
+    // Fresh for the last configuration: its element count is what one configuration needs.
+    expectEqualsFresh(*inc, *fresh, config, "after the moves");
+    const int one = fresh->influence().stats().leaves;
+    EXPECT_LE(most, 2 * one) << "no configuration needed far more elements than another";
+    EXPECT_LE(inc->stats().influence.stored, stored_half * 5 / 4) << "retired elements are reused";
+}
+
+}  // namespace
+}  // namespace commonlight::lighting

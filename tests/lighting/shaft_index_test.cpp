@@ -1,0 +1,136 @@
+// The shaft index (lighting/shaft_index.h) against a brute-force scan, and the cone of balls as a
+// conservative bound of the hull of a shaft's two ends; the hierarchy's collapse and re-activation.
+#include "lighting/shaft_index.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <random>
+
+#include "lighting/hierarchy.h"
+
+namespace commonlight::lighting {
+namespace {
+
+TEST(ShaftIndex, QueryEqualsABruteForceScan) {
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> u(-2.0, 2.0), r(0.0, 0.4);
+    std::vector<Shaft> shafts;
+    for (int i = 0; i < 5000; ++i) {
+        Shaft s;
+        s.a = {u(rng), u(rng), u(rng)};
+        s.b = {u(rng), u(rng), u(rng)};
+        s.ra = r(rng);
+        s.rb = r(rng);
+        shafts.push_back(s);
+    }
+    auto index = ShaftIndex::build(shafts);
+    ASSERT_TRUE(index) << index.error().message;
+    for (int q = 0; q < 200; ++q) {
+        const Ball ball{{u(rng), u(rng), u(rng)}, 0.02 + 0.2 * r(rng)};
+        std::vector<int> found;
+        (*index)->query(ball, found);
+        std::sort(found.begin(), found.end());
+        std::vector<int> expected;
+        for (std::size_t i = 0; i < shafts.size(); ++i) {
+            if (shaftMeetsBall(shafts[i], ball)) expected.push_back(static_cast<int>(i));
+        }
+        ASSERT_EQ(found, expected) << "query " << q;
+    }
+    // No shafts: an empty index answers nothing.
+    auto empty = ShaftIndex::build({});
+    ASSERT_TRUE(empty);
+    std::vector<int> none;
+    (*empty)->query(Ball{{0, 0, 0}, 10.0}, none);
+    EXPECT_TRUE(none.empty());
+}
+
+// Hard case of conservativeness: every point of the hull of two squares (random convex
+// combinations of their points), with a tiny ball around it, is reported as meeting the shaft.
+TEST(ShaftIndex, ConeOfBallsHoldsTheHullOfTheTwoEnds) {
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    for (int trial = 0; trial < 50; ++trial) {
+        // Two squares of different sizes, far apart and tilted, one much larger than the other.
+        const Eigen::Vector3d ca(u(rng), u(rng), u(rng)), cb(3 + u(rng), u(rng), 2 * u(rng));
+        const double ha = 0.05 + u(rng), hb = 0.01 + 0.1 * u(rng);
+        const Eigen::Vector3d ea = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized(), fa = ea.unitOrthogonal();
+        const Eigen::Vector3d eb = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized(), fb = eb.unitOrthogonal();
+        const Shaft s{ca, cb, ha * std::sqrt(2.0), hb * std::sqrt(2.0)};
+        for (int k = 0; k < 200; ++k) {
+            const Eigen::Vector3d x = ca + ha * (2 * u(rng) - 1) * ea + ha * (2 * u(rng) - 1) * fa;
+            const Eigen::Vector3d y = cb + hb * (2 * u(rng) - 1) * eb + hb * (2 * u(rng) - 1) * fb;
+            const double t = u(rng);
+            ASSERT_TRUE(shaftMeetsBall(s, Ball{(1 - t) * x + t * y, 1e-9})) << trial << " " << k;
+        }
+        // And a point well off the line between them is not.
+        const Eigen::Vector3d off = 0.5 * (ca + cb) + 5.0 * (cb - ca).unitOrthogonal();
+        EXPECT_FALSE(shaftMeetsBall(s, Ball{off, 0.1}));
+        // The hull's face planes (both tests bound the hull; the influence asks both): every hull
+        // point meets, the far point does not.
+        const std::vector<Eigen::Vector3d> pa{ca - ha * ea - ha * fa, ca + ha * ea - ha * fa, ca + ha * ea + ha * fa, ca - ha * ea + ha * fa};
+        const std::vector<Eigen::Vector3d> pb{cb - hb * eb - hb * fb, cb + hb * eb - hb * fb, cb + hb * eb + hb * fb, cb - hb * eb + hb * fb};
+        for (int k = 0; k < 200; ++k) {
+            const Eigen::Vector3d x = ca + ha * (2 * u(rng) - 1) * ea + ha * (2 * u(rng) - 1) * fa;
+            const Eigen::Vector3d y = cb + hb * (2 * u(rng) - 1) * eb + hb * (2 * u(rng) - 1) * fb;
+            const double t = u(rng);
+            ASSERT_TRUE(hullMeetsBall(pa, pb, Ball{(1 - t) * x + t * y, 1e-9})) << trial << " " << k;
+        }
+        EXPECT_FALSE(hullMeetsBall(pa, pb, Ball{off, 0.1}));
+        // A point light: the hull of a square and a point (a pyramid).
+        const std::vector<Eigen::Vector3d> apex{cb};
+        EXPECT_TRUE(hullMeetsBall(pa, apex, Ball{0.5 * (ca + cb), 1e-9}));
+        EXPECT_FALSE(hullMeetsBall(pa, apex, Ball{off, 0.1}));
+    }
+}
+
+TEST(Hierarchy, CollapseRetiresAndSubdivideBringsTheSameChildrenBack) {
+    Face f;
+    f.edge_s = Eigen::Vector3d(1, 0, 0);
+    f.edge_t = Eigen::Vector3d(0, 1, 0);
+    Hierarchy h({f});
+    ASSERT_TRUE(h.subdivide(0, 0.01));
+    const int first = h[0].first_child;
+    ASSERT_TRUE(h.subdivide(first, 0.01));
+    ASSERT_TRUE(h.subdivide(h[first].first_child, 0.01));
+    EXPECT_EQ(h.leafCount(), 10);
+    const std::size_t stored = h.storedCount();
+    EXPECT_EQ(h.collapse(0), 9);
+    EXPECT_EQ(h.leafCount(), 1);
+    EXPECT_TRUE(h[0].leaf());
+    for (std::size_t e = 1; e < stored; ++e) {
+        EXPECT_TRUE(h[static_cast<int>(e)].retired) << e;
+        EXPECT_FALSE(h[static_cast<int>(e)].leaf()) << e;  // a retired element is no leaf
+    }
+    std::vector<int> leaves;
+    h.leavesUnder(0, leaves);
+    EXPECT_EQ(leaves, std::vector<int>{0});
+    EXPECT_EQ(h.leafAt(0, Eigen::Vector2d(0.1, 0.1)), 0);
+    // The same split brings the same elements back, one level at a time; nothing new is stored.
+    ASSERT_TRUE(h.subdivide(0, 0.01));
+    EXPECT_EQ(h[0].first_child, first);
+    EXPECT_EQ(h.leafCount(), 4);
+    EXPECT_TRUE(h[first].leaf());
+    ASSERT_TRUE(h.subdivide(first, 0.01));
+    EXPECT_EQ(h.storedCount(), stored);
+    // Repeated collapse and refinement stores nothing more.
+    for (int round = 0; round < 100; ++round) {
+        h.collapse(0);
+        h.subdivide(0, 0.01);
+        h.subdivide(h[0].first_child + round % 4, 0.01);
+    }
+    EXPECT_EQ(h.storedCount(), stored + 4 * 3);  // the three other children's splits, once each
+    // A different split (coarser minimum size: the long side only) makes new children.
+    Face thin = f;
+    thin.edge_t = Eigen::Vector3d(0, 0.7, 0);
+    Hierarchy g({thin});
+    ASSERT_TRUE(g.subdivide(0, 0.01));
+    EXPECT_EQ(g[0].child_count, 4);
+    g.collapse(0);
+    ASSERT_TRUE(g.subdivide(0, 0.4));
+    EXPECT_EQ(g[0].child_count, 2);
+    EXPECT_EQ(g.leafCount(), 2);
+}
+
+}  // namespace
+}  // namespace commonlight::lighting
