@@ -678,6 +678,19 @@ TEST_F(CompositorTest, VirtualObjectsAreShadedInRelativeRadiance) {
     EXPECT_NEAR(brightest, expected, 0.02 * expected + 1.0);
 }
 
+// A snapshot with one point lamp (relative intensity `intensity`) and nothing else.
+lighting::LightingSnapshot pointLampSnapshot(const Eigen::Vector3d& at, double intensity) {
+    lighting::LightingSnapshot snapshot;
+    snapshot.version = 1;
+    lighting::EstimatedLight lamp;
+    lamp.name = "lamp";
+    lamp.kind = lighting::LightKind::kPoint;
+    lamp.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), at);
+    lamp.emission = Eigen::Vector3d::Constant(intensity);
+    snapshot.lights.push_back(lamp);
+    return snapshot;
+}
+
 // Shadow maps: a virtual floor tile under a point light is darker under a virtual box and under a
 // real box (real proxies are occluders too) than in the open.
 TEST_F(CompositorTest, ShadowMapsHaveRealAndVirtualOccluders) {
@@ -697,14 +710,7 @@ TEST_F(CompositorTest, ShadowMapsHaveRealAndVirtualOccluders) {
     block.shape = BoxShape{Eigen::Vector3d(0.2, 0.2, 0.2)};
     block.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.4, 0.0, 0.4));
     scene.real_objects.push_back(block);
-    lighting::LightingSnapshot snapshot;
-    snapshot.version = 1;
-    lighting::EstimatedLight lamp;
-    lamp.name = "lamp";
-    lamp.kind = lighting::LightKind::kPoint;
-    lamp.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 1.2));
-    lamp.emission = Eigen::Vector3d::Constant(0.8);
-    snapshot.lights.push_back(lamp);
+    const lighting::LightingSnapshot snapshot = pointLampSnapshot(Eigen::Vector3d(0, 0, 1.2), 0.8);
     // A camera off to the side so the tile under the boxes is in view.
     const Rigid3d pose(Eigen::Quaterniond(Eigen::AngleAxisd(std::numbers::pi, Eigen::Vector3d::UnitX())) *
                            Eigen::Quaterniond(Eigen::AngleAxisd(0.35, Eigen::Vector3d::UnitX())),
@@ -745,14 +751,7 @@ TEST_F(CompositorTest, RealShadowsFollowAVirtualObjectThatMoves) {
     block.shape = BoxShape{Eigen::Vector3d(0.1, 0.1, 0.1)};
     block.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.0, 0.0, 0.45));
     scene.real_objects.push_back(block);
-    lighting::LightingSnapshot snapshot;
-    snapshot.version = 1;
-    lighting::EstimatedLight lamp;
-    lamp.name = "lamp";
-    lamp.kind = lighting::LightKind::kPoint;
-    lamp.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 1.2));
-    lamp.emission = Eigen::Vector3d::Constant(0.8);
-    snapshot.lights.push_back(lamp);
+    const lighting::LightingSnapshot snapshot = pointLampSnapshot(Eigen::Vector3d(0, 0, 1.2), 0.8);
     const CameraModel camera = smallCamera(200, 150);
     auto moving = make(scene, camera, ResponseCurve::linear());
     ASSERT_TRUE(moving);
