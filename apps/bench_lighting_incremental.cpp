@@ -12,6 +12,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <map>
 #include <numbers>
 #include <random>
@@ -39,6 +40,14 @@ constexpr double kPi = std::numbers::pi;
 
 double msSince(std::chrono::steady_clock::time_point t0) {
     return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// CPU time of the process (every thread), milliseconds: steadier than the wall clock on a machine
+// other work shares.
+double cpuMs() {
+    timespec t{};
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+    return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
 }
 
 // A scene of the case: its files, the base mesh, the path of its first virtual object.
@@ -171,6 +180,7 @@ struct SweepPoint {
     std::string scene;
     double refine_epsilon = 0.0;
     double footprint = 0.0;
+    double link_size = 0.0;
     double p50 = 0.0, p95 = 0.0;
     double rms = 0.0;
     int leaves_max = 0;
@@ -204,7 +214,8 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
     CL_TRY(std::unique_ptr<Estimator> full, makeEstimator(s, ps, nullptr, posesAt(s, ps, 0, n)));
     const int base_leaves = static_cast<int>(inc->radiosity().leaves(Mode::kReal).size());
     const int base_links = inc->radiosity().linkCount(Mode::kReal);
-    std::vector<double> update_ms, influence_ms, snapshot_ms, full_ms, rebuild_ms, agreement, candidates_ms, refine_ms, solve_ms, touched;
+    std::vector<double> cpu_ms;
+    std::vector<double> update_ms, influence_ms, snapshot_ms, full_ms, rebuild_ms, agreement, candidates_ms, refine_ms, solve_ms, touched, evaluated;
     Series ser;
     ser.scene = ps.name;
     std::vector<RatioFigures> inc_ratio, full_ratio;
@@ -213,8 +224,10 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
         const int step = k % n;  // back to the start: the loop closes
         const std::vector<Rigid3d> poses = posesAt(s, ps, step, n);
         const auto t0 = std::chrono::steady_clock::now();
+        const double c0 = cpuMs();
         CL_TRY(LightingSnapshot snapshot, inc->update(poses));
         update_ms.push_back(msSince(t0));
+        cpu_ms.push_back(cpuMs() - c0);
         if (inc->stats().full) return fail(ErrorCode::kInternal, "bench: a move made a full update");
         influence_ms.push_back(inc->stats().ms_influence);
         snapshot_ms.push_back(inc->stats().ms_snapshot);
@@ -223,6 +236,7 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
         refine_ms.push_back(is.ms_refine);
         solve_ms.push_back(is.ms_solve);
         touched.push_back(is.touched);
+        evaluated.push_back(is.evaluated);
         ser.leaves.push_back(is.leaves);
         ser.links.push_back(base_links + is.corrections + is.cluster_links);
         most_leaves = std::max(most_leaves, is.leaves);
@@ -272,8 +286,10 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
     std::printf("        incremental update ms p50 %.1f p95 %.1f max %.1f (influence p50 %.1f, textures and probes p50 %.1f)\n",
                 percentile(update_ms, 50), percentile(update_ms, 95), *std::max_element(update_ms.begin(), update_ms.end()),
                 percentile(influence_ms, 50), percentile(snapshot_ms, 50));
-    std::printf("        influence p50: candidates %.1f ms, refinement %.1f ms (%.0f base leaves recomputed), propagation %.1f ms\n",
-                percentile(candidates_ms, 50), percentile(refine_ms, 50), percentile(touched, 50), percentile(solve_ms, 50));
+    std::printf("        CPU time per update (all threads) p50 %.1f ms p95 %.1f ms\n", percentile(cpu_ms, 50), percentile(cpu_ms, 95));
+    std::printf("        influence p50: candidates %.1f ms, refinement %.1f ms (%.0f base leaves recomputed, %.0f elements evaluated), "
+                "propagation %.1f ms\n",
+                percentile(candidates_ms, 50), percentile(refine_ms, 50), percentile(touched, 50), percentile(evaluated, 50), percentile(solve_ms, 50));
     std::printf("        full re-solve ms p50 %.0f (influence from scratch alone p50 %.0f): %.0fx (%.0fx) the incremental p50\n",
                 percentile(full_ms, 50), percentile(rebuild_ms, 50), percentile(full_ms, 50) / percentile(update_ms, 50),
                 percentile(rebuild_ms, 50) / percentile(update_ms, 50));
@@ -281,20 +297,22 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
                 agreement.empty() ? 0.0 : *std::max_element(agreement.begin(), agreement.end()));
     std::printf("        ratio B/B~ over masks/changed, %zu steps: incremental RMS %.4f mean %+.4f (against the frames %.4f); full re-solve RMS %.4f\n",
                 inc_ratio.size(), inc_rms, mean_signed(inc_ratio), inc_frame_rms, full_rms);
-    sweep.push_back({ps.name, inc->influence().options().refine_epsilon, inc->influence().options().footprint_pixels, percentile(update_ms, 50),
-                     percentile(update_ms, 95), inc_rms, most_leaves, false});
-    sweep.push_back({ps.name, 0.0, 0.0, percentile(full_ms, 50), percentile(full_ms, 95), full_rms, most_leaves, true});
+    sweep.push_back({ps.name, inc->influence().options().refine_epsilon, inc->influence().options().footprint_pixels,
+                     inc->influence().options().link_size, percentile(update_ms, 50), percentile(update_ms, 95), inc_rms, most_leaves, false});
+    sweep.push_back({ps.name, 0.0, 0.0, 0.0, percentile(full_ms, 50), percentile(full_ms, 95), full_rms, most_leaves, true});
     nlohmann::json out{{"scene", ps.name},
                        {"base_leaves", base_leaves},
                        {"base_links", base_links},
                        {"steps", n},
                        {"update_ms", stats(update_ms)},
+                       {"update_cpu_ms", stats(cpu_ms)},
                        {"influence_ms", stats(influence_ms)},
                        {"snapshot_ms", stats(snapshot_ms)},
                        {"candidates_ms", stats(candidates_ms)},
                        {"refine_ms", stats(refine_ms)},
                        {"propagation_ms", stats(solve_ms)},
                        {"touched_base_leaves", stats(touched)},
+                       {"evaluated_elements", stats(evaluated)},
                        {"full_resolve_ms", stats(full_ms)},
                        {"influence_rebuild_ms", stats(rebuild_ms)},
                        {"speedup_full_over_incremental_p50", percentile(full_ms, 50) / percentile(update_ms, 50)},
@@ -309,12 +327,20 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
     // Step 3: the thresholds swept (a fifth of the path's steps, the checkpoints among them).
     if (o.sweep) {
         nlohmann::json rows = nlohmann::json::array();
-        std::printf("        refine_epsilon footprint_px  update ms p50/p95   ratio RMS  leaves max\n");
+        std::printf("        refine_epsilon footprint_px link_size  update ms p50/p95   ratio RMS  leaves max\n");
+        // refine_epsilon x link_size at the default footprint, then the footprint at the defaults.
+        const lighting::InfluenceOptions defaults;
+        std::vector<std::tuple<double, double, double>> configs;
         for (double eps : {0.005, 0.01, 0.02, 0.05, 0.1}) {
-            for (double fp : {1.0, 2.0, 4.0}) {
+            for (double link : {0.04, 0.08, 0.16}) configs.emplace_back(eps, defaults.footprint_pixels, link);
+        }
+        for (double fp : {1.0, 4.0, 8.0}) configs.emplace_back(defaults.refine_epsilon, fp, defaults.link_size);
+        for (const auto& [eps, fp, link] : configs) {
+            {
                 lighting::InfluenceOptions io;
                 io.refine_epsilon = eps;
                 io.footprint_pixels = fp;
+                io.link_size = link;
                 io.max_leaves = s.truth.lighting.max_elements;
                 CL_TRY(std::unique_ptr<Estimator> est, makeEstimator(s, ps, &io, posesAt(s, ps, 0, n)));
                 std::vector<double> ms;
@@ -331,9 +357,10 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
                     if (checkpoint) rf.push_back(ratioAgainst(*est, snapshot, truth.at(step), s.world_from_cam));
                 }
                 const double rms = mean_of(rf, &RatioFigures::rms);
-                std::printf("        %-14.3f %-12.0f  %6.1f / %-8.1f  %.4f     %d\n", eps, fp, percentile(ms, 50), percentile(ms, 95), rms, leaves);
-                sweep.push_back({ps.name, eps, fp, percentile(ms, 50), percentile(ms, 95), rms, leaves, false});
-                rows.push_back({{"refine_epsilon", eps}, {"footprint_pixels", fp}, {"update_ms_p50", percentile(ms, 50)},
+                std::printf("        %-14.3f %-12.0f %-9.2f  %6.1f / %-8.1f  %.4f     %d\n", eps, fp, link, percentile(ms, 50), percentile(ms, 95), rms,
+                            leaves);
+                sweep.push_back({ps.name, eps, fp, link, percentile(ms, 50), percentile(ms, 95), rms, leaves, false});
+                rows.push_back({{"refine_epsilon", eps}, {"footprint_pixels", fp}, {"link_size", link}, {"update_ms_p50", percentile(ms, 50)},
                                 {"update_ms_p95", percentile(ms, 95)}, {"ratio_rms", rms}, {"leaves_max", leaves}});
             }
         }
@@ -379,7 +406,7 @@ Result<nlohmann::json> stressCheck(const BenchLightingOptions& o, const PathScen
 }
 
 void drawPlot(const std::vector<SweepPoint>& sweep, const std::vector<Series>& series, const fs::path& file) {
-    const int w = 1300, h = 560;
+    const int w = 1360, h = 600;
     cv::Mat img(h, w, CV_8UC3, cv::Scalar(255, 255, 255));
     const cv::Scalar black(0, 0, 0), grey(215, 215, 215), red(40, 40, 200);
     const cv::Scalar colours[] = {{200, 60, 20}, {20, 120, 220}};
@@ -416,7 +443,8 @@ void drawPlot(const std::vector<SweepPoint>& sweep, const std::vector<Series>& s
             const cv::Point at(X(p.p50), Y(p.rms));
             if (p.full) {
                 cv::rectangle(img, at - cv::Point(5, 5), at + cv::Point(5, 5), c, cv::FILLED);
-            } else if (p.refine_epsilon == lighting::InfluenceOptions{}.refine_epsilon && p.footprint == lighting::InfluenceOptions{}.footprint_pixels) {
+            } else if (p.refine_epsilon == lighting::InfluenceOptions{}.refine_epsilon && p.footprint == lighting::InfluenceOptions{}.footprint_pixels &&
+                       p.link_size == lighting::InfluenceOptions{}.link_size) {
                 cv::circle(img, at, 7, c, 2);
             } else {
                 cv::circle(img, at, 4, c, cv::FILLED);
@@ -428,31 +456,38 @@ void drawPlot(const std::vector<SweepPoint>& sweep, const std::vector<Series>& s
             y += 20;
         }
     }
-    // Right: leaves and links over the path's steps.
+    // Right: leaves (top) and links (bottom) over the path's steps.
     {
-        const int left = 730, right = w - 30, top = 40, bottom = h - 60;
-        int max_leaves = 1, max_links = 1;
+        const int left = 760, right = w - 30;
         std::size_t steps = 1;
-        for (const Series& s : series) {
-            for (int v : s.leaves) max_leaves = std::max(max_leaves, v);
-            for (int v : s.links) max_links = std::max(max_links, v);
-            steps = std::max(steps, s.leaves.size());
-        }
+        for (const Series& s : series) steps = std::max(steps, s.leaves.size());
         const auto X = [&](std::size_t k) { return left + static_cast<int>((right - left) * static_cast<double>(k) / static_cast<double>(steps)); };
-        const auto Yl = [&](double v) { return bottom - static_cast<int>((bottom - top) * v / (1.15 * max_leaves)); };
-        const auto Yk = [&](double v) { return bottom - static_cast<int>((bottom - top) * v / (1.15 * max_links)); };
-        cv::rectangle(img, {left, top}, {right, bottom}, black);
-        for (const Series& s : series) {
-            const cv::Scalar c = colours[colour[s.scene]];
-            for (std::size_t k = 1; k < s.leaves.size(); ++k) {
-                cv::line(img, {X(k - 1), Yl(s.leaves[k - 1])}, {X(k), Yl(s.leaves[k])}, c, 2);
-                cv::line(img, {X(k - 1), Yk(s.links[k - 1])}, {X(k), Yk(s.links[k])}, c, 1);
+        const auto panel = [&](int top, int bottom, const char* what, auto values) {
+            double lo = 1e300, hi = 0.0;
+            for (const Series& s : series) {
+                for (int v : values(s)) {
+                    lo = std::min(lo, static_cast<double>(v));
+                    hi = std::max(hi, static_cast<double>(v));
+                }
             }
-        }
-        cv::putText(img, "leaves (thick, 0.." + std::to_string(max_leaves * 115 / 100) + ") and links (thin, 0.." +
-                             std::to_string(max_links * 115 / 100) + ") along the path",
-                    {left, 25}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black);
-        cv::putText(img, "step", {(left + right) / 2, h - 20}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black);
+            lo = std::max(0.0, lo - 0.05 * (hi - lo + 1.0));
+            hi = hi + 0.05 * (hi - lo + 1.0);
+            const auto Y = [&](double v) { return bottom - static_cast<int>((bottom - top) * (v - lo) / (hi - lo)); };
+            cv::rectangle(img, {left, top}, {right, bottom}, black);
+            for (int k = 0; k <= 4; ++k) {
+                const double v = lo + (hi - lo) * k / 4;
+                cv::line(img, {left, Y(v)}, {right, Y(v)}, grey);
+                cv::putText(img, fmt(v, "%.0f"), {left - 70, Y(v) + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black);
+            }
+            for (const Series& s : series) {
+                const auto& vs = values(s);
+                for (std::size_t k = 1; k < vs.size(); ++k) cv::line(img, {X(k - 1), Y(vs[k - 1])}, {X(k), Y(vs[k])}, colours[colour[s.scene]], 2);
+            }
+            cv::putText(img, what, {left + 10, top + 18}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black);
+        };
+        panel(40, 270, "leaves along the path", [](const Series& s) -> const std::vector<int>& { return s.leaves; });
+        panel(300, h - 60, "links (base + corrections + cluster) along the path", [](const Series& s) -> const std::vector<int>& { return s.links; });
+        cv::putText(img, "step", {(left + right) / 2, h - 25}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black);
     }
     cv::imwrite(file.string(), img);
 }

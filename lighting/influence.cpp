@@ -348,7 +348,12 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
         const double strength = d.rho_max[static_cast<std::size_t>(l.receiver)] / kPi * w *
                                 lumaOf(d.base.radiance[static_cast<std::size_t>(l.source)]) / d.den_min[static_cast<std::size_t>(l.receiver)];
         if (strength < 0.1 * options_.link_epsilon) continue;
-        shafts.push_back(d.elementShaft(l.receiver, l.source));
+        // Above the base leaves, twice the receiver's radius: the shaft of every element under it
+        // lies inside (a descendant's ball is within 2 r of the centroid), so the index misses no
+        // base leaf whose own shaft meets a ball.
+        Shaft shaft = d.elementShaft(l.receiver, l.source);
+        if (!d.base_leaf[static_cast<std::size_t>(l.receiver)]) shaft.ra *= 2.0;
+        shafts.push_back(shaft);
         d.shaft_link.push_back(static_cast<int>(i));
     }
     d.link_shafts = static_cast<int>(shafts.size());
@@ -387,6 +392,7 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
             }
         }
         obj.centre_local = box.isEmpty() ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : Eigen::Vector3d(box.center());
+        obj.sphere = radiosity_.sphereRadius(static_cast<int>(o)) > 0.0;
         for (const Eigen::Vector3d& c : corners) obj.radius = std::max(obj.radius, (c - obj.centre_local).norm());
         // Rays are lifted off surfaces by the scene's epsilon: a little margin on the ball.
         obj.radius += 4.0 * rays_.epsilon();
@@ -432,9 +438,18 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
     const auto estimate = [&](int n, std::uint64_t sample_seed, bool full, double& open_real, double& open_all, bool& any_blocked,
                               bool& any_open) {
         std::uint64_t& bits = full ? m.full : m.pilot;
+        std::uint64_t& hidden_bits = full ? m.full_hidden : m.pilot_hidden;
         const std::uint8_t flag = full ? 2 : 1;
         const bool known = (m.have & flag) != 0;
-        std::uint64_t computed = 0;
+        std::uint64_t computed = 0, computed_hidden = 0;
+        // A pair starting on the leaf's hidden part is none of its light (kept with the real answers).
+        const auto hidden = [&](int k, const Eigen::Vector3d& x) {
+            if (!partial) return false;
+            if (known) return ((hidden_bits >> k) & 1u) != 0;
+            if (!rad.hidden(c, x)) return false;
+            computed_hidden |= std::uint64_t{1} << k;
+            return true;
+        };
         open_real = open_all = 0.0;
         any_blocked = any_open = false;
         for (int k = 0; k < n && k < 64; ++k) {
@@ -445,7 +460,7 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
                 case DirectSource::Kind::kPolygon: {
                     const SamplePair u = stratifiedPair(sample_seed, k, n);
                     x = samplePolygon(g.corner, g.edge_s, g.edge_t, g.triangle, u.first.x(), u.first.y());
-                    if (partial && rad.hidden(c, x)) continue;
+                    if (hidden(k, x)) continue;
                     y = sampleLight(*s.polygon, u.second);
                     const Eigen::Vector3d dv = y - x;
                     const double floor2 = std::pow(0.05 * std::sqrt(std::min(el.area, s.polygon->area)), 2);
@@ -456,7 +471,7 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
                 case DirectSource::Kind::kPoint: {
                     const Eigen::Vector2d u = stratified2d(sample_seed, k, n);
                     x = samplePolygon(g.corner, g.edge_s, g.edge_t, g.triangle, u.x(), u.y());
-                    if (partial && rad.hidden(c, x)) continue;
+                    if (hidden(k, x)) continue;
                     y = s.position;
                     const Eigen::Vector3d dv = y - x;
                     const double d2 = dv.squaredNorm();
@@ -467,7 +482,7 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
                 case DirectSource::Kind::kCell: {
                     const SamplePair u = stratifiedPair(sample_seed, k, n);
                     x = samplePolygon(g.corner, g.edge_s, g.edge_t, g.triangle, u.first.x(), u.first.y());
-                    if (partial && rad.hidden(c, x)) continue;
+                    if (hidden(k, x)) continue;
                     w = s.kind == DirectSource::Kind::kDirection ? Eigen::Vector3d(-s.direction.normalized()) : s.cellDirection(u.second);
                     f = std::max(0.0, g.normal.dot(w));
                     to_point = false;
@@ -499,6 +514,7 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
         }
         if (!known) {
             bits = computed;
+            hidden_bits = computed_hidden;
             m.have = static_cast<std::uint8_t>(m.have | flag);
         }
     };
@@ -528,10 +544,17 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0x5eedull, rad.hierarchy().key(c)), rad.hierarchy().key(s));
     double open_real = 0.0, open_all = 0.0;
     bool any_blocked = false, any_open = false;
+    std::uint64_t computed_hidden = 0;
     for (int k = 0; k < n; ++k) {
         const SamplePair pair = stratifiedPair(seed, k, n);
         const Eigen::Vector3d xr = rad.surfacePoint(c, pair.first.x(), pair.first.y());
-        if (partial && rad.hidden(c, xr)) continue;
+        if (partial) {
+            // A pair starting on the leaf's hidden part (under a box) is none of its light.
+            if (known ? ((m.pilot_hidden >> k) & 1u) != 0 : rad.hidden(c, xr)) {
+                if (!known) computed_hidden |= std::uint64_t{1} << k;
+                continue;
+            }
+        }
         const Eigen::Vector3d xs = rad.surfacePoint(s, pair.second.x(), pair.second.y());
         const Eigen::Vector3d dv = xs - xr;
         const double d2 = std::max(dv.squaredNorm(), floor2);
@@ -555,6 +578,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     }
     if (!known) {
         m.pilot = computed;
+        m.pilot_hidden = computed_hidden;
         m.have = static_cast<std::uint8_t>(m.have | 1u);
     }
     mixed = any_blocked && any_open;
@@ -682,8 +706,7 @@ double VirtualInfluence::Impl::linkSize(int b) const {
 
 // Element c under base leaf b: its terms (transmissions of the selected lights and links, cluster
 // light), and how much B/B~ may vary across it (the oracle).
-VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, int b, bool with_links) {
-    const Radiosity& rad = self.radiosity_;
+VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, int b) {
     LeafTerms& t = terms[static_cast<std::size_t>(c)];
     t.clear();
     LeafResult out;
@@ -709,18 +732,7 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
         t.direct += (tr - 1.0) * col * l.emission;
         if (mixed) out.variation += lumaOf(rho.cwiseProduct(l.emission)) * col / kPi / den;
     }
-    // Step 2: base links whose shaft from c they block: corrections.
-    const std::vector<Link>& links = rad.links();
-    for (int li : with_links ? sel.links : std::vector<int>{}) {
-        const Link& l = links[static_cast<std::size_t>(li)];
-        if (!meets([&](const Ball& ball) { return linkMeetsBall(c, l.source, ball); })) continue;
-        bool mixed = false;
-        const double tr = transmissionToSource(c, l.source, mixed, mask);
-        const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
-        if (tr < 1.0) t.corrections.push_back(Correction{l.source, w * (tr - 1.0)});
-        if (mixed) out.link_variation += lumaOf(rho) / kPi * w * lumaOf(base.radiance[static_cast<std::size_t>(l.source)]) / den;
-    }
-    // Step 3: light from the objects that reach b at leaf level.
+    // Step 2: light from the objects that reach b at leaf level.
     for (int o : sel.objects) {
         double variation = 0.0;
         t.cluster += clusterAt(o, c, &variation, mask & ~RayScene::virtualBit(o));
@@ -729,38 +741,65 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
     return out;
 }
 
-// The base leaves where object o (at `ball`) is significant: the sum of its largest effects on
-// B/B~ there, through each light and base link whose shaft it meets, reaches link_epsilon (each
-// effect below a twentieth of that is not counted: under a box standing on the floor every link
-// is blocked, and many small ones add up; links are followed from their receivers down to
-// the base leaves, pruned by a bound on that effect). Recorded per base leaf: the object, and the
-// links through which it matters. `scan`: every shaft instead of the index (the from-scratch baseline).
-void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links) {
+// Element c's corrections of the base links the objects block (lighting/influence.h C), and how
+// much they may vary across it.
+double VirtualInfluence::Impl::computeLinks(int c, int b) {
+    const Radiosity& rad = self.radiosity_;
+    LeafTerms& t = terms[static_cast<std::size_t>(c)];
+    t.corrections.clear();
+    const Selection& sel = selection[static_cast<std::size_t>(b)];
+    const Eigen::Vector3d& rho = self.rho_[static_cast<std::size_t>(c)];
+    const double den = denominator(c);
+    const std::uint32_t mask = objectMask(b);
+    const std::vector<Link>& links = rad.links();
+    double variation = 0.0;
+    for (int li : sel.links) {
+        const Link& l = links[static_cast<std::size_t>(li)];
+        bool meets = false;
+        for (const auto& [object, link] : entries[static_cast<std::size_t>(b)]) {
+            if (link < 0 && linkMeetsBall(c, l.source, objects[static_cast<std::size_t>(object)].ball)) {
+                meets = true;
+                break;
+            }
+        }
+        if (!meets) continue;
+        bool mixed = false;
+        const double tr = transmissionToSource(c, l.source, mixed, mask);
+        const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
+        if (tr < 1.0) t.corrections.push_back(Correction{l.source, w * (tr - 1.0)});
+        if (mixed) variation += lumaOf(rho) / kPi * w * lumaOf(base.radiance[static_cast<std::size_t>(l.source)]) / den;
+    }
+    return variation;
+}
+
+// The (base leaf, link or light) pairs whose shaft meets the ball `query` and whose effect there
+// could reach a tenth of link_epsilon for an object anywhere inside it: the shaft index's
+// candidates (cones), links followed from their receivers down to the base leaves (pruned by a bound
+// on that effect), the hull of the two ends tested at the base leaves. `scan`: every shaft instead
+// of the index (the from-scratch baseline). Directional lights and distant cells by a scan of the
+// base leaves.
+void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool scan, std::vector<std::pair<int, int>>& pairs) {
     const Radiosity& rad = self.radiosity_;
     const Hierarchy& h = rad.hierarchy();
     const double item = 0.1 * self.options_.link_epsilon;
+    (void)object;
+    pairs.clear();
     std::vector<int> ids;
     if (scan) {
         for (std::size_t i = 0; i < index->size(); ++i) {
-            if (shaftMeetsBall(index->shaft(static_cast<int>(i)), ball)) ids.push_back(static_cast<int>(i));
+            if (shaftMeetsBall(index->shaft(static_cast<int>(i)), query)) ids.push_back(static_cast<int>(i));
         }
     } else {
-        index->query(ball, ids);
+        index->query(query, ids);
     }
     const std::vector<Link>& links = rad.links();
-    std::vector<std::pair<int, double>> sums;       // base leaf, significance
-    std::vector<std::pair<int, int>> link_entries;  // base leaf, link
     std::vector<int> stack;
-    const ObjectState& obj = objects[static_cast<std::size_t>(object)];
     for (int id : ids) {
         if (id >= link_shafts) {
             const auto [b, k] = light_shafts[static_cast<std::size_t>(id - link_shafts)];
-            if (!hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), ball)) continue;
-            const double sig = lightSignificance(b, k, object);
-            if (sig >= item) sums.emplace_back(b, sig);
+            if (hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) pairs.emplace_back(b, -1 - k);
             continue;
         }
-        // A link: the base leaves under its receiver whose own shaft to the source meets the ball.
         const int link = shaft_link[static_cast<std::size_t>(id)];
         const Link& l = links[static_cast<std::size_t>(link)];
         const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
@@ -774,34 +813,69 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             const Element& el = h[e];
             if (el.buried) continue;
             const ElementShape& es = shape[static_cast<std::size_t>(e)];
-            if (e != l.receiver && !shaftMeetsBall(elementShaft(e, l.source), ball)) continue;
-            // Bound of the effect anywhere under e: the most the ball can cover over the least the
-            // source can subtend (its cosine floored as in linkSignificance()).
-            const double near = std::max((ball.centre - es.centroid).norm() - es.radius, ball.radius);
-            const double far = (src.centroid - es.centroid).norm() + es.radius + src.radius;
-            const double beta = std::min(1.0, ballSolidAngle(obj.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
+            // Above the base leaves every test uses twice the element's radius, which holds every
+            // element under it: a test passed by a base leaf is passed by its ancestors, so the pairs
+            // found do not depend on the ball the search started from (the cache's or the object's).
+            const bool leaf = base_leaf[static_cast<std::size_t>(e)];
+            const double radius = leaf ? es.radius : 2.0 * es.radius;
+            if (e != l.receiver && !shaftMeetsBall(Shaft{es.centroid, src.centroid, radius, src.radius}, query)) continue;
+            // Bound of the effect anywhere under e of anything inside the query ball: the most it
+            // can cover over the least the source can subtend (its cosine floored as in
+            // linkSignificance()).
+            const double near = std::max((query.centre - es.centroid).norm() - radius, query.radius);
+            const double far = (src.centroid - es.centroid).norm() + radius + src.radius;
+            const double beta = std::min(1.0, ballSolidAngle(query.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
             if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
-            if (base_leaf[static_cast<std::size_t>(e)]) {
-                if (!hullMeetsBall(es.polygon(), src.polygon(), ball)) continue;
-                const double sig = linkSignificance(e, link, object);
-                if (sig < item) continue;
-                sums.emplace_back(e, sig);
-                link_entries.emplace_back(e, link);
+            if (leaf) {
+                if (hullMeetsBall(es.polygon(), src.polygon(), query)) pairs.emplace_back(e, link);
                 continue;
             }
             for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);
         }
     }
-    // Directional lights and distant cells: a scan of the base leaves.
     if (!far_lights.empty()) {
         for (int e : rad.leaves(Mode::kReal)) {
             if (!base_leaf[static_cast<std::size_t>(e)]) continue;
             for (int k : far_lights) {
-                if (!farLightMeetsBall(e, k, ball)) continue;
-                const double sig = lightSignificance(e, k, object);
-                if (sig >= item) sums.emplace_back(e, sig);
+                if (farLightMeetsBall(e, k, query)) pairs.emplace_back(e, -1 - k);
             }
         }
+    }
+}
+
+// The base leaves where object o (at `ball`) is significant: the sum of its largest effects on
+// B/B~ there, through each light and base link whose shaft it meets, reaches link_epsilon (each
+// effect below a tenth of that is not counted: under a box standing on the floor every link is
+// blocked, and many small ones add up). Recorded per base leaf: the object, and the links through
+// which it matters. The pairs come from the object's cache while it stays inside its cache ball
+// (the same pairs the index would give: the cache holds a superset, filtered here), else from the
+// index again.
+void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links) {
+    const double item = 0.1 * self.options_.link_epsilon;
+    ObjectState& obj = objects[static_cast<std::size_t>(object)];
+    if (scan) {
+        obj.cache_valid = false;
+        collectPairs(object, ball, true, obj.cache_pairs);
+    } else if (!obj.cache_valid || (ball.centre - obj.cache_ball.centre).norm() + ball.radius > obj.cache_ball.radius) {
+        obj.cache_ball = Ball{ball.centre, ball.radius + self.options_.shaft_margin};
+        collectPairs(object, obj.cache_ball, false, obj.cache_pairs);
+        obj.cache_valid = true;
+    }
+    const std::vector<Link>& links = self.radiosity_.links();
+    std::vector<std::pair<int, double>> sums;       // base leaf, significance
+    std::vector<std::pair<int, int>> link_entries;  // base leaf, link
+    // (The significance first: it is cheaper than the shaft tests.)
+    for (const auto& [b, what] : obj.cache_pairs) {
+        if (what < 0) {
+            const int k = -1 - what;
+            const double sig = lightSignificance(b, k, object);
+            if (sig >= item && lightMeetsBall(b, k, ball)) sums.emplace_back(b, sig);
+            continue;
+        }
+        const double sig = linkSignificance(b, what, object);
+        if (sig < item || !linkMeetsBall(b, links[static_cast<std::size_t>(what)].source, ball)) continue;
+        sums.emplace_back(b, sig);
+        link_entries.emplace_back(b, what);
     }
     // Significant where the sum reaches link_epsilon.
     std::sort(sums.begin(), sums.end());
@@ -845,7 +919,9 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
     std::vector<int> base_of(frontier.begin(), frontier.end());
     std::vector<char> links_open(frontier.size(), 1);
     std::vector<int> done;  // elements whose terms stand (leaves and link-level elements)
+    evaluated = link_evaluated = 0;
     while (!frontier.empty()) {
+        evaluated += static_cast<int>(frontier.size());
         std::vector<LeafResult> results(frontier.size());
         tbb::parallel_for(std::size_t{0}, frontier.size(), [&](std::size_t i) {
             const int c = frontier[i];
@@ -853,8 +929,20 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
                 terms[static_cast<std::size_t>(c)].clear();
                 return;
             }
-            results[i] = computeTerms(c, base_of[i], links_open[i]);
+            const int b = base_of[i];
+            results[i] = computeTerms(c, b);
+            // The corrections where they stay: at the link level, or on an element larger than
+            // that which its direct light and the objects' light do not split (where the blocked
+            // links' own variation may still split it).
+            const Element& el = h[c];
+            const double size = std::max(el.size_s, el.size_t_);
+            const bool split_anyway = results[i].variation > opt.refine_epsilon && size > boundSize(bound_level[static_cast<std::size_t>(b)]);
+            if (links_open[i] && (size <= linkSize(b) || !split_anyway)) {
+                results[i].link_variation = computeLinks(c, b);
+                results[i].links = true;
+            }
         });
+        for (const LeafResult& r : results) link_evaluated += r.links ? 1 : 0;
         std::vector<int> next, next_base, fresh;
         std::vector<char> next_open;
         for (std::size_t i = 0; i < frontier.size(); ++i) {
@@ -1032,6 +1120,8 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
     d.refine(touched);
     stats_.ms_refine = msSince(tr);
     stats_.touched = static_cast<int>(touched.size());
+    stats_.evaluated = d.evaluated;
+    stats_.link_evaluated = d.link_evaluated;
     const auto ts = std::chrono::steady_clock::now();
     d.propagate(stats_);
     stats_.ms_solve = msSince(ts);

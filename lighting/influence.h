@@ -64,7 +64,8 @@ struct InfluenceOptions {
                                     // blocked links and lights, the faintest virtual light)
     double min_size = 0.01;         // metres: the smallest element (and the split pattern's minimum)
     double footprint_pixels = 2.0;  // an element need not be smaller than this many of the camera's pixels
-    double link_size = 0.04;        // metres: blocked base links are corrected on elements about this size (or
+    double shaft_margin = 0.03;     // metres: the shafts near a moving object are kept for moves within this
+    double link_size = 0.08;        // metres: blocked base links are corrected on elements about this size (or
                                     // twice the camera's resolution), and everything under them
     int max_leaves = 8000;          // leaf budget, real and virtual, base included
     int pilot_pairs = 16;           // visibility pairs per leaf and light (a pilot) ...
@@ -114,6 +115,8 @@ struct InfluenceStats {
     double ms_solve = 0.0;       // propagation (or the dense solve)
     int moved = 0;               // objects that changed
     int touched = 0;             // base leaves recomputed
+    int evaluated = 0;           // elements whose terms were computed (every level of the recomputed base leaves)
+    int link_evaluated = 0;      // of them, with the corrections of blocked links
     int leaves = 0;              // real leaves in use (base and refined)
     int refined = 0;             // of them, under the base leaves
     int corrections = 0;         // blocked base links corrected at leaves

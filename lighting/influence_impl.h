@@ -48,6 +48,8 @@ struct RealMask {
     int key = 0;
     std::uint64_t pilot = 0;
     std::uint64_t full = 0;
+    std::uint64_t pilot_hidden = 0;  // and which pairs start on the leaf's hidden part (under a box)
+    std::uint64_t full_hidden = 0;
     std::uint8_t have = 0;  // bit 0: pilot known, bit 1: full known
 };
 
@@ -79,6 +81,7 @@ struct ObjectState {
     Ball ball;                      // world
     Eigen::Vector3d centre_local = Eigen::Vector3d::Zero();
     double radius = 0.0;            // of the bounding ball
+    bool sphere = false;            // an exact sphere (its cluster form factor is exact above the horizon)
     std::vector<int> faces;         // global face indices
     std::vector<int> touched;       // base leaves it affected last time (sorted)
     std::vector<int> cluster_leaves;  // base leaves whose own leaves link to it (sorted)
@@ -90,6 +93,12 @@ struct ObjectState {
     std::vector<double> projected;               // per table direction: projected area, m^2
     double projected_max = 0.0;
     double luma_max = 0.0;                        // largest face radiance (luminance)
+    // The shafts near the object: (base leaf, base link; or -1 - light) pairs whose shaft meets
+    // `cache_ball`, a ball `margin` larger than the object's. A move that stays inside it filters
+    // these instead of querying the index again.
+    bool cache_valid = false;
+    Ball cache_ball;
+    std::vector<std::pair<int, int>> cache_pairs;
 };
 
 struct VirtualInfluence::Impl {
@@ -161,6 +170,7 @@ struct VirtualInfluence::Impl {
     bool farLightMeetsBall(int element, int light, const Ball& ball) const;
     double radiusOf(int element) const { return shape[static_cast<std::size_t>(element)].radius; }
     void candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links);
+    void collectPairs(int object, const Ball& query, bool scan, std::vector<std::pair<int, int>>& pairs);
     double denominator(int element) const;  // B~ (luminance) a change is relative to: floored
     double objectBlocks(int object, int element, double omega) const;  // fraction of a solid angle it can cover
     double lightSignificance(int b, int light, int object) const;
@@ -170,8 +180,11 @@ struct VirtualInfluence::Impl {
     struct LeafResult {
         double variation = 0.0;       // direct light and the objects' own light
         double link_variation = 0.0;  // blocked base links
+        bool links = false;           // corrections computed
     };
-    LeafResult computeTerms(int c, int b, bool links);
+    int evaluated = 0, link_evaluated = 0;  // in the last refine()
+    LeafResult computeTerms(int c, int b);  // direct light and the objects' light (clears every term)
+    double computeLinks(int c, int b);     // corrections; returns their variation
     double linkSize(int b) const;  // elements of about this size carry the corrections
     double transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask);
     double transmissionToSource(int c, int s, bool& mixed, std::uint32_t mask);

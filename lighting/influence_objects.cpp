@@ -109,9 +109,10 @@ double VirtualInfluence::Impl::pointFormFactor(int o, const Eigen::Vector3d& x, 
     const Eigen::Vector3d v = s.ball.centre - x;
     const double d = v.norm();
     // The cluster's projected area over pi d^2 is exact for a sphere wholly above the point's
-    // horizon at any distance, and close for a convex object a few radii away; the faces one by
-    // one where the object crosses the horizon or nearly touches the point.
-    if (d < 1.5 * s.radius || n.dot(v) < 0.9 * s.radius) {
+    // horizon at any distance (Lambert: F = cos R^2 / d^2), and close for a convex object a few
+    // radii away; the faces one by one where the object crosses the horizon or (not a sphere)
+    // nearly touches the point.
+    if ((!s.sphere && d < 1.5 * s.radius) || n.dot(v) < 0.9 * s.radius) {
         double total = 0.0;
         Eigen::Vector3d sum = Eigen::Vector3d::Zero();
         for (std::size_t i = 0; i < s.faces.size(); ++i) {
@@ -181,8 +182,10 @@ Eigen::Vector3d VirtualInfluence::Impl::clusterAt(int o, int element, double* va
     const double size = std::sqrt(rad.hierarchy()[element].area);
     const double distance = std::max((s.ball.centre - g.centroid).norm(), 1e-9);
     const int order = std::min(2, formFactorRule(distance, size, 2.0 * s.radius));  // finer where it varies: by refinement
+    // (Over the whole element, not its exposed part alone: a leaf partly under a box sees the
+    // object's light on its open part as the whole; the exposed rule costs 64 hidden tests.)
     double f = 0.0;
-    for (const QuadraturePoint& q : rad.exposedRule(element, order)) f += q.weight * pointFormFactor(o, q.x, g.normal, nullptr);
+    for (const QuadraturePoint& q : quadratureRule(g.corner, g.edge_s, g.edge_t, g.triangle, order)) f += q.weight * pointFormFactor(o, q.x, g.normal, nullptr);
     Eigen::Vector3d l = Eigen::Vector3d::Zero();
     double f_lo = pointFormFactor(o, g.centroid, g.normal, &l), f_hi = f_lo;
     for (const Eigen::Vector3d& c : g.polygon()) {

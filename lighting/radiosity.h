@@ -108,6 +108,8 @@ public:
     // Poses the virtual faces (by virtual object index).
     void setVirtualPoses(const std::vector<Rigid3d>& world_from_object);
     const std::vector<Rigid3d>& virtualPoses() const noexcept { return poses_; }
+    // A virtual object's exact sphere radius (0: not a sphere).
+    double sphereRadius(int object) const { return sphere_radius_[static_cast<std::size_t>(object)]; }
 
     Hierarchy& hierarchy() noexcept { return hierarchy_; }
     const Hierarchy& hierarchy() const noexcept { return hierarchy_; }
