@@ -50,7 +50,8 @@ std::string oneLine(std::string text) {
 
 // The files a mesh names (glTF buffers and images, OBJ textures) are read only when they are
 // regular files: tinygltf's own reader took a folder ("uri": ".") for a file of 2^63 bytes and
-// asked for that much memory (found while fuzzing), and a device (/dev/zero) never ends.
+// asked for that much memory (a crafted input run through fuzz_gltf), and a device (/dev/zero)
+// never ends.
 bool readRegularFile(const std::filesystem::path& file, std::vector<unsigned char>& out) {
     out.clear();
     std::error_code ec;
@@ -66,7 +67,7 @@ bool regularFileExists(const std::string& path, void*) {
 std::string samePath(const std::string& path, void*) { return path; }  // no ~ or $VAR expansion
 
 // tinygltf reads the first bytes of what this gives without checking for them: an empty file is
-// an error here (found while fuzzing: an empty .glb threw std::out_of_range from inside tinygltf).
+// an error here (found by fuzz_glb: an empty .glb threw std::out_of_range from inside tinygltf).
 bool readWholeRegularFile(std::vector<unsigned char>* out, std::string* err, const std::string& path, void*) {
     if (readRegularFile(path, *out) && !out->empty()) return true;
     if (err != nullptr) *err += "cannot read '" + path + "' (missing, empty, or not a regular file)\n";
@@ -290,8 +291,8 @@ private:
         if (stride < element) return fail(meshError(file_, name + ": byteStride is smaller than an element"));
         // Hard case: every size here comes from the file; check before any byte is read, and
         // without forming byteOffset + stride x (count - 1) + element, which a file can make wrap
-        // around (found while fuzzing: count 2^57 + 1 at stride 128 wrapped to 12 bytes and asked
-        // for a 1.7e18-byte vector).
+        // around (a crafted input through fuzz_gltf: count 2^57 + 1 at stride 128 wrapped to 12
+        // bytes and asked for a 1.7e18-byte vector).
         const bool view_fits = bv.byteOffset <= bytes.size() && bv.byteLength <= bytes.size() - bv.byteOffset;
         const bool elements_fit = a.count == 0 || (a.byteOffset <= bv.byteLength && element <= bv.byteLength - a.byteOffset &&
                                                    a.count - 1 <= (bv.byteLength - a.byteOffset - element) / stride);

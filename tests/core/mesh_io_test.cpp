@@ -393,7 +393,7 @@ TEST(MeshIoBadInput, TruncatedGlb) {
     expectError(readMesh(dir / "cut.glb"), dir / "cut.glb", "not a valid glTF 2.0 file");
 }
 
-// Found while fuzzing (issue 14): tinygltf's own file reader took a folder for a file of 2^63
+// Issue 14, a crafted input run through fuzz_gltf: tinygltf's own file reader took a folder for a file of 2^63
 // bytes and asked for that much memory. Only regular files are read for a mesh.
 TEST(MeshIoBadInput, BufferThatIsAFolder) {
     TempDir dir;
@@ -405,7 +405,7 @@ TEST(MeshIoBadInput, BufferThatIsAFolder) {
     }
 }
 
-// Found while fuzzing (issue 14): an empty .glb made tinygltf throw std::out_of_range.
+// Issue 14, found by fuzz_glb: an empty .glb made tinygltf throw std::out_of_range.
 TEST(MeshIoBadInput, EmptyFiles) {
     TempDir dir;
     writeText(dir / "empty.glb", "");
@@ -441,7 +441,7 @@ TEST(MeshIoBadInput, AccessorPastEndOfBuffer) {
     expectError(readMesh(dir / "overrun.gltf"), dir / "overrun.gltf", "reads past the end of its buffer");
 }
 
-// Found while fuzzing (issue 14): byteOffset + stride x (count - 1) + element wrapped around 2^64
+// Issue 14, a crafted input run through fuzz_gltf: byteOffset + stride x (count - 1) + element wrapped around 2^64
 // (count 2^57 + 1 at stride 128 gives 12 bytes), passed the check and asked for a 1.7e18-byte vector.
 TEST(MeshIoBadInput, AccessorSizeThatWrapsAround) {
     TempDir dir;
@@ -482,7 +482,7 @@ TEST(MeshIoBadInput, NodeCycle) {
     expectError(readMesh(dir / "cycle.gltf"), dir / "cycle.gltf", "cycle");
 }
 
-// Found while fuzzing (issue 14): the node trees were walked by recursion, and 2000 nested nodes
+// Issue 14, a crafted input run through fuzz_gltf: the node trees were walked by recursion, and 2000 nested nodes
 // overflowed the stack under ASan (30000 without). Now a chain of any depth reads, in the same
 // order, with the transforms of all its ancestors.
 TEST(MeshIo, DeepNodeChainReads) {

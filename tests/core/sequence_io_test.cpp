@@ -269,9 +269,9 @@ std::string pngDeclaring(std::uint32_t width, std::uint32_t height) {
     return std::string("\x89PNG\r\n\x1a\n", 8) + chunk("IHDR", ihdr) + chunk("IDAT", idat) + chunk("IEND", "");
 }
 
-// Found while fuzzing (issue 14): a 69-byte PNG declaring 30000 x 30000 RGBA16 made OpenCV allocate
-// 7.2 GB before it found the pixels missing. The header is checked first; and only PNG and JPEG go
-// to the decoder.
+// Issue 14, a crafted input run through fuzz_frame_file: a 69-byte PNG declaring 30000 x 30000
+// RGBA16 made OpenCV allocate 7.2 GB before it found the pixels missing. The header is checked
+// first; and only PNG and JPEG go to the decoder.
 TEST(FrameFile, HeaderSizeIsCheckedBeforeDecoding) {
     TempDir dir;
     FrameFileReader reader;
