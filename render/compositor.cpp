@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <numbers>
 #include <string>
@@ -167,7 +168,8 @@ struct ProxyProgram {
 struct VirtualProgram {
     GLuint id = 0;
     GLint model = -1, view_proj = -1, albedo = -1, emission = -1, ambient = -1, camera_centre = -1, samples = -1;
-    GLint kind = -1, position = -1, axis = -1, power = -1, shadow_layer = -1, shadow_vp = -1, static_vp = -1, shadow_tile = -1, shadow_inset = -1;
+    GLint kind = -1, position = -1, axis = -1, power = -1, shadow_layer = -1, shadow_vp = -1, static_vp = -1, shadow_tile = -1, shadow_inset = -1,
+          static_tile = -1, static_inset = -1;
     GLint has_sh = -1, bmin = -1, bmax = -1, sh_scale = -1, sh_offset = -1, sh_depth = -1, has_texture = -1;
 };
 
@@ -283,7 +285,7 @@ struct Compositor::Impl {
     Rect layerRectOfCamera(const Rect& camera) const;
     Rect influenceRect(const Eigen::Matrix4d& cam_from_world) const;
     void renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
-                          const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax);
+                          const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax, double footprint_px);
     void drawProxies(const Eigen::Matrix4f& view_proj, const Rect& rect);
     void drawProxyDepth();
     void drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn, const Eigen::Matrix4f& view_proj, const Eigen::Vector3f& camera_centre,
@@ -348,6 +350,8 @@ Result<void> Compositor::Impl::makePrograms() {
     vp.static_vp = loc(vp.id, "u_static_vp");
     vp.shadow_tile = loc(vp.id, "u_shadow_tile");
     vp.shadow_inset = loc(vp.id, "u_shadow_inset");
+    vp.static_tile = loc(vp.id, "u_static_tile");
+    vp.static_inset = loc(vp.id, "u_static_inset");
     vp.has_sh = loc(vp.id, "u_has_sh");
     vp.bmin = loc(vp.id, "u_bmin");
     vp.bmax = loc(vp.id, "u_bmax");
@@ -657,7 +661,7 @@ Rect Compositor::Impl::cameraRect(const Rect& layer) const {
 }
 
 void Compositor::Impl::renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
-                                        const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax) {
+                                        const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax, double footprint_px) {
     fitShadowViews(samples, vmin, vmax);
     const Eigen::Vector3d centre = 0.5 * (vmin + vmax);
     const double radius = std::max(0.5 * (vmax - vmin).norm(), 1e-3);
@@ -671,7 +675,7 @@ void Compositor::Impl::renderShadowMaps(std::vector<LightSample>& samples, const
     const int n = std::max(static_cast<int>(samples.size()), 1);
     const int size = std::clamp(options.shadow_map_size, 64, 4096);
     real_shadows.ensure(n, size);
-    virtual_shadows.ensure(n, size);
+    virtual_shadows.ensure(n, virtualShadowMapSize(footprint_px, virtual_shadows.size, size));
     std::vector<float> real_key, virtual_key;
     for (const LightSample& s : samples) {
         real_key.insert(real_key.end(), s.static_view_proj.data(), s.static_view_proj.data() + 16);
@@ -681,8 +685,8 @@ void Compositor::Impl::renderShadowMaps(std::vector<LightSample>& samples, const
         if (m) virtual_key.insert(virtual_key.end(), m->data(), m->data() + 16);
         virtual_key.push_back(m ? 1.0f : 0.0f);
     }
-    real_key.push_back(static_cast<float>(size));
-    virtual_key.push_back(static_cast<float>(size));
+    real_key.push_back(static_cast<float>(real_shadows.size));
+    virtual_key.push_back(static_cast<float>(virtual_shadows.size));
     const auto draw = [&](ShadowAtlas& atlas, bool real) {
         glUseProgram(shadow_program.id);
         glBindFramebuffer(GL_FRAMEBUFFER, atlas.fbo);
@@ -864,18 +868,22 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
         glUniform3fv(vp.axis, n, axes.data());
         glUniform3fv(vp.power, n, powers.data());
         glUniformMatrix4fv(vp.shadow_vp, n, GL_FALSE, matrices.data());
-        // The real proxies' views, and each sample's tile (the same in both atlases).
-        std::array<float, 4 * kMaxLightSamples> tiles{};
+        // The real proxies' views, and each sample's tile in each atlas (their map sizes differ).
+        std::array<float, 4 * kMaxLightSamples> tiles{}, static_tiles{};
         for (int k = 0; k < n; ++k) {
             const LightSample& s = samples[static_cast<std::size_t>(k)];
             const std::size_t i = static_cast<std::size_t>(k);
             std::copy(s.static_view_proj.data(), s.static_view_proj.data() + 16, matrices.begin() + static_cast<std::ptrdiff_t>(16 * i));
             const Eigen::Vector4f t = s.layer >= 0 ? virtual_shadows.tile(s.layer) : Eigen::Vector4f::Zero();
             std::copy(t.data(), t.data() + 4, tiles.begin() + static_cast<std::ptrdiff_t>(4 * i));
+            const Eigen::Vector4f st = s.layer >= 0 ? real_shadows.tile(s.layer) : Eigen::Vector4f::Zero();
+            std::copy(st.data(), st.data() + 4, static_tiles.begin() + static_cast<std::ptrdiff_t>(4 * i));
         }
         glUniformMatrix4fv(vp.static_vp, n, GL_FALSE, matrices.data());
         glUniform4fv(vp.shadow_tile, n, tiles.data());
+        glUniform4fv(vp.static_tile, n, static_tiles.data());
         glUniform1f(vp.shadow_inset, virtual_shadows.size > 0 ? 0.5f / static_cast<float>(virtual_shadows.size) : 0.0f);
+        glUniform1f(vp.static_inset, real_shadows.size > 0 ? 0.5f / static_cast<float>(real_shadows.size) : 0.0f);
     }
     glActiveTexture(GL_TEXTURE0 + kUnitStaticShadowMaps);
     glBindTexture(GL_TEXTURE_2D, real_shadows.texture);
@@ -1334,7 +1342,15 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
 
     // Step 3: light samples and their shadow maps (for shading the virtual objects only).
     std::vector<LightSample> samples = lightSamples(snapshot, d.options.area_light_samples);
-    if (posed && any_virtual && !samples.empty()) d.renderShadowMaps(samples, virtual_model, vmin, vmax);
+    if (posed && any_virtual && !samples.empty()) {
+        // The objects' bounding sphere across in layer pixels: their maps need no finer texels.
+        const Eigen::Vector3d centre = 0.5 * (vmin + vmax);
+        const double radius = 0.5 * (vmax - vmin).norm();
+        const double depth = (frame.cam_from_world->rotation * centre + frame.cam_from_world->translation).z();
+        const double f = std::max(d.layer_camera.fx, d.layer_camera.fy);
+        const double footprint = depth > 2.0 * radius ? 2.0 * radius * f / (depth - radius) : std::numeric_limits<double>::infinity();
+        d.renderShadowMaps(samples, virtual_model, vmin, vmax, footprint);
+    }
     d.mark("shadow maps");
 
     // Step 4: the real proxies (atlas coordinates of their modulation) and the virtual layer, in

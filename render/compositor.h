@@ -47,7 +47,8 @@ struct CompositorOptions {
     int msaa_samples = 4;          // 1: none
     bool lighting = true;          // false: no background modulation; virtual objects lit by the snapshot's lights only
     DebugView debug = DebugView::kNone;
-    int shadow_map_size = 512;     // texels per side of each shadow map (64..4096); the map covers only the virtual objects' bounds
+    int shadow_map_size = 512;     // texels per side of each shadow map (64..4096), at most: the virtual objects' maps cover only
+                                   // their bounds, at twice their width in pixels (a power of two); the real proxies' use this
     int area_light_samples = 4;    // shadow maps per area or disc light (1..8)
     // Camera matching (Klein and Murray, ISMAR 2008; render/camera_matching.h): the frame's sensor
     // noise (per intensity) and blur are measured on the CPU every `matching_interval` frames, the

@@ -138,4 +138,13 @@ void fitShadowViews(std::vector<LightSample>& samples, const Eigen::Vector3d& vm
     }
 }
 
+int virtualShadowMapSize(double footprint_px, int current, int max_size) {
+    const double needed = footprint_px;
+    if (!(needed < static_cast<double>(max_size))) return max_size;
+    if (current >= 64 && current <= max_size && current >= needed && current <= 2.5 * needed) return current;
+    int size = 64;
+    while (size < needed && size < max_size) size *= 2;
+    return std::min(size, max_size);
+}
+
 }  // namespace commonlight::render

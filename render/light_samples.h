@@ -37,6 +37,16 @@ void fitShadowViews(std::vector<LightSample>& samples, const Eigen::Vector3d& vm
 // (what lies beyond cannot shadow anything in it).
 Eigen::Matrix4f shadowView(const LightSample& sample, const Eigen::Vector3d& centre, double radius);
 
+// The virtual objects' shadow maps only shade the objects themselves (their shadows on real
+// surfaces come from the snapshot), so a map needs no finer texels than the objects' pixels: their
+// bounding sphere's width in pixels at its near side, as a power of two in [64, `max_size`]
+// (filtered by the comparison sampler and, for area lights, averaged over samples). The size in use
+// is kept while it is enough and at most 2.5x what is needed (no reallocation back and forth as
+// the objects move towards or away from the camera).
+// `footprint_px`: that width (infinite when the camera is inside or near the sphere); `current`: the
+// size in use (0: none).
+int virtualShadowMapSize(double footprint_px, int current, int max_size);
+
 // A pose as a GL model matrix (column vectors).
 Eigen::Matrix4f toGl(const Rigid3d& pose);
 

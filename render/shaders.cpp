@@ -145,19 +145,21 @@ uniform vec3 u_power[kMaxSamples];     // relative: L A / n, I, or E
 uniform int u_shadow_layer[kMaxSamples];  // -1: no shadow map
 uniform mat4 u_shadow_vp[kMaxSamples];    // world -> the virtual objects' map
 uniform mat4 u_static_vp[kMaxSamples];    // world -> the real proxies' map
-uniform vec4 u_shadow_tile[kMaxSamples];  // the maps' tile in their atlas: offset, scale
-uniform float u_shadow_inset;             // half a texel of a tile (no filtering across tiles)
+uniform vec4 u_shadow_tile[kMaxSamples];  // the virtual objects' maps: each one's tile in the atlas (offset, scale)
+uniform vec4 u_static_tile[kMaxSamples];  // the same in the real proxies' atlas
+uniform float u_shadow_inset;             // half a texel of a virtual objects' tile (no filtering across tiles)
+uniform float u_static_inset;             // the same in the real proxies' atlas (its own map size)
 uniform sampler2DShadow u_shadow_maps;    // the virtual objects as occluders
 uniform sampler2DShadow u_static_maps;    // the real proxies as occluders
 uniform int u_has_texture;
 uniform sampler2D u_base_colour;  // sRGB texture, decoded to linear by the GL
 
-float mapVisibility(sampler2DShadow maps, mat4 view_proj, vec4 tile, vec3 p) {
+float mapVisibility(sampler2DShadow maps, mat4 view_proj, vec4 tile, float inset, vec3 p) {
     vec4 clip = view_proj * vec4(p, 1.0);
     if (clip.w <= 0.0) return 1.0;
     vec3 uvz = clip.xyz / clip.w * 0.5 + 0.5;
     if (any(lessThan(uvz.xy, vec2(0.0))) || any(greaterThan(uvz.xy, vec2(1.0))) || uvz.z > 1.0) return 1.0;
-    vec2 uv = tile.xy + clamp(uvz.xy, vec2(u_shadow_inset), vec2(1.0 - u_shadow_inset)) * tile.zw;
+    vec2 uv = tile.xy + clamp(uvz.xy, vec2(inset), vec2(1.0 - inset)) * tile.zw;
     return texture(maps, vec3(uv, uvz.z - 0.0005));
 }
 
@@ -165,7 +167,8 @@ float mapVisibility(sampler2DShadow maps, mat4 view_proj, vec4 tile, vec3 p) {
 float visibility(int i, vec3 world, vec3 n) {
     if (u_shadow_layer[i] < 0) return 1.0;
     vec3 p = world + n * 0.002;
-    return mapVisibility(u_shadow_maps, u_shadow_vp[i], u_shadow_tile[i], p) * mapVisibility(u_static_maps, u_static_vp[i], u_shadow_tile[i], p);
+    return mapVisibility(u_shadow_maps, u_shadow_vp[i], u_shadow_tile[i], u_shadow_inset, p) *
+           mapVisibility(u_static_maps, u_static_vp[i], u_static_tile[i], u_static_inset, p);
 }
 
 void main() {

@@ -9,6 +9,7 @@
 
 #include "capture/convert.h"
 #include "core/mesh_io.h"
+#include "render/light_samples.h"
 #include "tests/test_support.h"
 
 #include <opencv2/imgcodecs.hpp>
@@ -18,6 +19,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <limits>
 #include <numbers>
 #include <random>
 
@@ -739,6 +741,25 @@ TEST_F(CompositorTest, ShadowMapsHaveRealAndVirtualOccluders) {
 // objects move inside it (fitted again when they leave it or shrink in it): a virtual tile sliding
 // under a real block, in steps of 5 cm over 1.2 m, shows the block's shadow as a compositor drawing
 // that pose for the first time does, at every step.
+// The virtual objects' maps are as fine as the objects' pixels, no finer (they only shade the
+// objects), within [64, the option's size], and keep their size while the objects move a little.
+TEST(VirtualShadowMapSize, FollowsTheObjectsWidthInPixels) {
+    EXPECT_EQ(virtualShadowMapSize(233.7, 0, 512), 256);
+    EXPECT_EQ(virtualShadowMapSize(300.0, 0, 512), 512);
+    EXPECT_EQ(virtualShadowMapSize(10.0, 0, 512), 64);
+    EXPECT_EQ(virtualShadowMapSize(3000.0, 0, 512), 512);
+    EXPECT_EQ(virtualShadowMapSize(std::numeric_limits<double>::infinity(), 0, 1024), 1024);
+    EXPECT_EQ(virtualShadowMapSize(std::numeric_limits<double>::quiet_NaN(), 256, 1024), 1024);
+    // Hysteresis: 512 in use stays for objects 205-512 px wide, and goes when it is too coarse
+    // or more than 2.5x what is needed.
+    EXPECT_EQ(virtualShadowMapSize(250.0, 512, 1024), 512);
+    EXPECT_EQ(virtualShadowMapSize(520.0, 512, 1024), 1024);
+    EXPECT_EQ(virtualShadowMapSize(190.0, 512, 1024), 256);
+    EXPECT_EQ(virtualShadowMapSize(250.0, 256, 1024), 256);
+    // A smaller largest size than what is in use.
+    EXPECT_EQ(virtualShadowMapSize(250.0, 512, 256), 256);
+}
+
 TEST_F(CompositorTest, RealShadowsFollowAVirtualObjectThatMoves) {
     Scene scene;
     VirtualObject tile;
