@@ -381,6 +381,7 @@ Result<const FinalProgram*> Compositor::Impl::finalProgram(int bits) {
     if (bits & kFinalElements) defines.push_back("VIEW_ELEMENTS");
     if (bits & kFinalRatio) defines.push_back("VIEW_RATIO");
     if (bits & kFinalNoise) defines.push_back("MATCH_NOISE");
+    defines.push_back("MODULATION_EPSILON " + std::to_string(kModulationEpsilon));
     FinalProgram p;
     CL_TRY(p.id, gl::newProgram("final", shaders::programSource({}, shaders::kFinalVs), shaders::programSource(defines, shaders::kFinalFs)));
     p.atlas_size = loc(p.id, "u_atlas_size");

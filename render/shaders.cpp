@@ -485,9 +485,9 @@ void main() {
         forced = true;
     }
 #endif
-    // Nothing changes this pixel: its code, exactly (M within 1e-3 of 1 moves no code by more than
-    // a quarter: kModulationEpsilon, the same as the final pass's outside).
-    bool unchanged = !forced && v.a < 1.0 / 1024.0 && all(lessThan(abs(m - 1.0), vec3(1e-3))) &&
+    // Nothing changes this pixel: its code, exactly (M within MODULATION_EPSILON of 1 moves a code
+    // by at most half: kModulationEpsilon, the same as outside the modulated region).
+    bool unchanged = !forced && v.a < 1.0 / 1024.0 && all(lessThan(abs(m - 1.0), vec3(MODULATION_EPSILON))) &&
                      all(lessThan(abs(d * u_exposure_gain), vec3(1e-6)));
     vec3 out_linear = (background * m + d * u_exposure_gain) * (1.0 - v.a) + v.rgb * u_exposure_gain;
     vec3 encoded = encode(out_linear) * 255.0;

@@ -427,10 +427,10 @@ TEST_F(CompositorTest, EveryPixelShowsTheWorldPointTheCameraModelProjectsThere) 
 // whatever the distortion does across the square).
 TEST_F(CompositorTest, PointsLandWhereTheCameraModelProjectsThemThroughDistortion) {
     CameraModel camera = smallCamera(320, 240);
-    camera.distortion.k1 = std::getenv("CL_NODIST") ? 0.0 : -0.25;
-    camera.distortion.k2 = std::getenv("CL_NODIST") ? 0.0 : 0.08;
-    camera.distortion.p1 = std::getenv("CL_NODIST") ? 0.0 : 0.002;
-    camera.distortion.p2 = std::getenv("CL_NODIST") ? 0.0 : -0.001;
+    camera.distortion.k1 = -0.25;
+    camera.distortion.k2 = 0.08;
+    camera.distortion.p1 = 0.002;
+    camera.distortion.p2 = -0.001;
     Scene scene;
     const std::vector<Eigen::Vector3d> points{{0.0, 0.0, 0.0}, {0.55, 0.35, 0.0}, {-0.6, -0.4, 0.05}, {0.3, -0.45, -0.1}, {-0.5, 0.3, 0.1}};
     const double half = 0.05;
@@ -479,7 +479,7 @@ TEST_F(CompositorTest, PointsLandWhereTheCameraModelProjectsThemThroughDistortio
         }
         ASSERT_GT(sw, 0.0);
         const Eigen::Vector2d centroid(sx / sw, sy / sw);
-        // Measured 0.02-0.07 px, the same with the distortion set to zero (CL_NODIST=1): the
+        // Measured 0.02-0.07 px, the same with the distortion set to zero: the
         // residual is the rasteriser's coverage of the squares' edges (they come out about 0.1 px
         // inside, 3% of the area), not the registration (measured per pixel above: within 0.01 px).
         const double error = (centroid - expected).norm();
