@@ -110,6 +110,27 @@ void cullBackFaces(const GpuMesh& mesh) {
     }
 }
 
+// A real proxy's faces turned away from the camera, when it is closed and the camera outside it
+// (its bounds, 1 mm wider): hidden by its own front, not drawn. A closed proxy the camera is in (a
+// room modelled as a box) is drawn from both sides, as are open ones.
+void cullProxyBackFaces(const GpuMesh& mesh, const Eigen::Matrix4f& model, const Eigen::Vector3f& camera_centre) {
+    bool outside = false;
+    if (mesh.closed) {
+        // The model is a rigid motion: its inverse is the transposed rotation.
+        const Eigen::Matrix3f r = model.topLeftCorner<3, 3>();
+        const Eigen::Vector3f c = r.transpose() * (camera_centre - model.topRightCorner<3, 1>());
+        const Eigen::Vector3f lo = mesh.bmin.cast<float>().array() - 1e-3f, hi = mesh.bmax.cast<float>().array() + 1e-3f;
+        outside = (c.array() < lo.array()).any() || (c.array() > hi.array()).any();
+    }
+    if (outside) {
+        glEnable(GL_CULL_FACE);
+        glCullFace(GL_BACK);
+        glFrontFace(GL_CCW);
+    } else {
+        glDisable(GL_CULL_FACE);
+    }
+}
+
 // Shadow maps as tiles of one depth texture, drawn in one pass (llvmpipe flushes its work at every
 // change of render target).
 struct ShadowAtlas {
@@ -286,8 +307,8 @@ struct Compositor::Impl {
     Rect influenceRect(const Eigen::Matrix4d& cam_from_world) const;
     void renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
                           const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax, double footprint_px);
-    void drawProxies(const Eigen::Matrix4f& view_proj, const Rect& rect);
-    void drawProxyDepth();
+    void drawProxies(const Eigen::Matrix4f& view_proj, const Eigen::Vector3f& camera_centre, const Rect& rect);
+    void drawProxyDepth(const Eigen::Vector3f& camera_centre);
     void drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn, const Eigen::Matrix4f& view_proj, const Eigen::Vector3f& camera_centre,
                           const std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
                           const lighting::LightingSnapshot& snapshot, double eg);
@@ -735,7 +756,7 @@ void Compositor::Impl::renderShadowMaps(std::vector<LightSample>& samples, const
 
 // The real proxies, single-sampled over the whole layer: each pixel gets the atlas coordinates of
 // the modulation of the surface it sees (depth-tested among the proxies).
-void Compositor::Impl::drawProxies(const Eigen::Matrix4f& view_proj, const Rect& rect) {
+void Compositor::Impl::drawProxies(const Eigen::Matrix4f& view_proj, const Eigen::Vector3f& camera_centre, const Rect& rect) {
     glBindFramebuffer(GL_FRAMEBUFFER, proxy_fbo);
     glViewport(0, 0, layer_width, layer_height);
     glEnable(GL_SCISSOR_TEST);
@@ -753,6 +774,7 @@ void Compositor::Impl::drawProxies(const Eigen::Matrix4f& view_proj, const Rect&
     for (std::size_t i = 0; i < real_meshes.size(); ++i) {
         const GpuMesh& mesh = real_meshes[i];
         setMat4(pp.model, real_models[i]);
+        cullProxyBackFaces(mesh, real_models[i], camera_centre);
         glBindVertexArray(mesh.vao);
         for (const MeshPart& part : mesh.parts) {
             const FaceInAtlas* face = part.face >= 0 ? snapshot_textures.face(static_cast<int>(i), part.face) : nullptr;
@@ -771,19 +793,22 @@ void Compositor::Impl::drawProxies(const Eigen::Matrix4f& view_proj, const Rect&
         }
     }
     glBindVertexArray(0);
+    glDisable(GL_CULL_FACE);
     glDisable(GL_DEPTH_TEST);
     glDisable(GL_SCISSOR_TEST);
 }
 
 // The proxies' depth (only) in the bound framebuffer, for real objects to hide virtual ones.
-void Compositor::Impl::drawProxyDepth() {
+void Compositor::Impl::drawProxyDepth(const Eigen::Vector3f& camera_centre) {
     glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
     glUseProgram(shadow_program.id);
     for (std::size_t i = 0; i < real_meshes.size(); ++i) {
         setMat4(shadow_program.model, real_models[i]);
+        cullProxyBackFaces(real_meshes[i], real_models[i], camera_centre);
         glBindVertexArray(real_meshes[i].vao);
         for (const MeshPart& part : real_meshes[i].parts) drawPart(part);
     }
+    glDisable(GL_CULL_FACE);
     glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
 }
 
@@ -839,7 +864,7 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
     setMat4(shadow_program.view_proj, view_proj);
     if (!proxy_depth_drawn) {
         glClear(GL_DEPTH_BUFFER_BIT);
-        drawProxyDepth();
+        drawProxyDepth(camera_centre);
     }
     const VirtualProgram& vp = virtual_program;
     glUseProgram(vp.id);
@@ -940,7 +965,7 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
         glClear(GL_DEPTH_BUFFER_BIT);
         glUseProgram(shadow_program.id);
         setMat4(shadow_program.view_proj, view_proj);
-        drawProxyDepth();
+        drawProxyDepth(camera_centre);
         glUseProgram(geometry_program.id);
         setMat4(geometry_program.view_proj, view_proj);
         glUniform1i(geometry_program.line, 0);
@@ -1383,7 +1408,7 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
         camera_rect = unite(virtual_camera_rect, d.cameraRect(modulation_rect));
         const Rect proxy_rect = unite(unite(d.layerRectOfCamera(camera_rect), layer_rect), modulation_rect);
         proxies_drawn = modulated && !camera_rect.empty() && !proxy_rect.empty();
-        if (proxies_drawn) d.drawProxies(view_proj, proxy_rect);
+        if (proxies_drawn) d.drawProxies(view_proj, camera_centre, proxy_rect);
         d.mark("proxies");
         if (!layer_rect.empty()) {
             d.drawVirtualLayer(layer_rect, proxies_drawn, view_proj, camera_centre, samples, virtual_model, snapshot, eg);
