@@ -423,7 +423,7 @@ RealMask& VirtualInfluence::Impl::mask(int element, int key) {
 // the pairs the real scene leaves open that the virtual objects leave open too (the same pairs'
 // real answers are kept: a move costs virtual rays only). `mixed`: some blocked, some not (a
 // penumbra or a shadow's edge across the leaf).
-double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask_bits) {
+double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask_bits, bool full_estimate) {
     const Radiosity& rad = self.radiosity_;
     const RayScene& rays = self.rays_;
     const DirectSource& s = *base.lights[static_cast<std::size_t>(light)].source;
@@ -524,6 +524,7 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
     estimate(pilot, hash64(seed), false, open_real, open_all, blocked, open);
     if (blocked && open) {
         mixed = true;
+        if (!full_estimate) return open_real > 0.0 ? open_all / open_real : 1.0;
         estimate(std::clamp(self.options_.partial_pairs, 1, 64), seed, true, open_real, open_all, blocked, open);
     }
     return open_real > 0.0 ? open_all / open_real : 1.0;
@@ -728,9 +729,12 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
         const double col = l.column->real[static_cast<std::size_t>(c)];
         if (!(col > 0.0) || !meets([&](const Ball& ball) { return lightMeetsBall(c, k, ball); })) continue;
         bool mixed = false;
-        const double tr = transmissionToLight(c, k, mixed, mask);
+        const double tr = transmissionToLight(c, k, mixed, mask, false);
         t.direct += (tr - 1.0) * col * l.emission;
-        if (mixed) out.variation += lumaOf(rho.cwiseProduct(l.emission)) * col / kPi / den;
+        if (mixed) {
+            out.variation += lumaOf(rho.cwiseProduct(l.emission)) * col / kPi / den;
+            out.deferred.emplace_back(k, tr);
+        }
     }
     // Step 2: light from the objects that reach b at leaf level.
     for (int o : sel.objects) {
@@ -739,6 +743,21 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
         out.variation += variation;
     }
     return out;
+}
+
+// The full estimates computeTerms() left for later, now that c stays a leaf: the same estimate the
+// pilot would have been followed by at once (the split elements' were thrown away with their terms).
+void VirtualInfluence::Impl::finishDeferred(int c, int b, const LeafResult& r) {
+    if (r.deferred.empty()) return;
+    LeafTerms& t = terms[static_cast<std::size_t>(c)];
+    const std::uint32_t mask = objectMask(b);
+    for (const auto& [k, pilot] : r.deferred) {
+        const InfluenceLight& l = base.lights[static_cast<std::size_t>(k)];
+        const double col = l.column->real[static_cast<std::size_t>(c)];
+        bool mixed = false;
+        const double tr = transmissionToLight(c, k, mixed, mask, true);
+        t.direct += (tr - pilot) * col * l.emission;
+    }
 }
 
 // Element c's corrections of the base links the objects block (lighting/influence.h C), and how
@@ -945,6 +964,7 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
         for (const LeafResult& r : results) link_evaluated += r.links ? 1 : 0;
         std::vector<int> next, next_base, fresh;
         std::vector<char> next_open;
+        std::vector<std::size_t> stays;  // elements that stay leaves with full estimates to finish
         for (std::size_t i = 0; i < frontier.size(); ++i) {
             const int c = frontier[i];
             const Element& el = h[c];
@@ -971,7 +991,12 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
                 continue;
             }
             done.push_back(c);
+            if (!results[i].deferred.empty()) stays.push_back(i);
         }
+        tbb::parallel_for(std::size_t{0}, stays.size(), [&](std::size_t j) {
+            const std::size_t i = stays[j];
+            finishDeferred(frontier[i], base_of[i], results[i]);
+        });
         if (next.empty()) break;
         // The new children: state, exposure, pull weights, real columns, B~.
         grow();
