@@ -148,16 +148,36 @@ Shaft VirtualInfluence::Impl::lightShaft(int element, int light) const {
     return shaft;
 }
 
+namespace {
+
+// Whether the segment from a to b meets the ball: a sure "yes" for the hull of two convex polygons
+// whose points a and b are (their centroids), before the hull's planes are tried.
+bool segmentMeetsBall(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Ball& ball) {
+    const Eigen::Vector3d ab = b - a;
+    const double len2 = ab.squaredNorm();
+    const double t = len2 > 0.0 ? std::clamp((ball.centre - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
+    return (a + t * ab - ball.centre).squaredNorm() <= ball.radius * ball.radius;
+}
+
+}  // namespace
+
 bool VirtualInfluence::Impl::linkMeetsBall(int element, int source, const Ball& ball) const {
-    return shaftMeetsBall(elementShaft(element, source), ball) &&
-           hullMeetsBall(shape[static_cast<std::size_t>(element)].polygon(), shape[static_cast<std::size_t>(source)].polygon(), ball);
+    const ElementShape& e = shape[static_cast<std::size_t>(element)];
+    const ElementShape& s = shape[static_cast<std::size_t>(source)];
+    if (!shaftMeetsBall(elementShaft(element, source), ball)) return false;
+    // The segment between the centroids lies in the hull: meeting it decides (most shafts in a
+    // shadow), the hull's planes only for the rest.
+    return segmentMeetsBall(e.centroid, s.centroid, ball) || hullMeetsBall(e.polygon(), s.polygon(), ball);
 }
 
 bool VirtualInfluence::Impl::lightMeetsBall(int element, int light, const Ball& ball) const {
     const DirectSource& s = *base.lights[static_cast<std::size_t>(light)].source;
     if (s.kind != DirectSource::Kind::kPolygon && s.kind != DirectSource::Kind::kPoint) return farLightMeetsBall(element, light, ball);
-    return shaftMeetsBall(lightShaft(element, light), ball) &&
-           hullMeetsBall(shape[static_cast<std::size_t>(element)].polygon(), lightPolygon(light), ball);
+    const ElementShape& e = shape[static_cast<std::size_t>(element)];
+    if (!shaftMeetsBall(lightShaft(element, light), ball)) return false;
+    // (A light polygon is convex: its centre is in it.)
+    const Eigen::Vector3d& target = s.kind == DirectSource::Kind::kPolygon ? s.polygon->centre : s.position;
+    return segmentMeetsBall(e.centroid, target, ball) || hullMeetsBall(e.polygon(), lightPolygon(light), ball);
 }
 
 // A directional light or a distant cell: the element swept towards the light (a cone of the
@@ -816,7 +836,12 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
     for (int id : ids) {
         if (id >= link_shafts) {
             const auto [b, k] = light_shafts[static_cast<std::size_t>(id - link_shafts)];
-            if (hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) pairs.emplace_back(b, -1 - k);
+            const DirectSource& ls = *base.lights[static_cast<std::size_t>(k)].source;
+            const Eigen::Vector3d& target = ls.kind == DirectSource::Kind::kPolygon ? ls.polygon->centre : ls.position;
+            if (segmentMeetsBall(shape[static_cast<std::size_t>(b)].centroid, target, query) ||
+                hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) {
+                pairs.emplace_back(b, -1 - k);
+            }
             continue;
         }
         const int link = shaft_link[static_cast<std::size_t>(id)];
@@ -846,7 +871,7 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
             const double beta = std::min(1.0, ballSolidAngle(query.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
             if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
             if (leaf) {
-                if (hullMeetsBall(es.polygon(), src.polygon(), query)) pairs.emplace_back(e, link);
+                if (segmentMeetsBall(es.centroid, src.centroid, query) || hullMeetsBall(es.polygon(), src.polygon(), query)) pairs.emplace_back(e, link);
                 continue;
             }
             for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);
@@ -883,18 +908,27 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     const std::vector<Link>& links = self.radiosity_.links();
     std::vector<std::pair<int, double>> sums;       // base leaf, significance
     std::vector<std::pair<int, int>> link_entries;  // base leaf, link
-    // (The significance first: it is cheaper than the shaft tests.)
-    for (const auto& [b, what] : obj.cache_pairs) {
-        if (what < 0) {
-            const int k = -1 - what;
-            const double sig = lightSignificance(b, k, object);
-            if (sig >= item && lightMeetsBall(b, k, ball)) sums.emplace_back(b, sig);
-            continue;
+    // (The significance first: it is cheaper than the shaft tests.) In parallel over the pairs
+    // (thousands on the room), gathered in their order.
+    std::vector<double> kept(obj.cache_pairs.size(), -1.0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, obj.cache_pairs.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            const auto [b, what] = obj.cache_pairs[i];
+            if (what < 0) {
+                const int k = -1 - what;
+                const double sig = lightSignificance(b, k, object);
+                if (sig >= item && lightMeetsBall(b, k, ball)) kept[i] = sig;
+                continue;
+            }
+            const double sig = linkSignificance(b, what, object);
+            if (sig >= item && linkMeetsBall(b, links[static_cast<std::size_t>(what)].source, ball)) kept[i] = sig;
         }
-        const double sig = linkSignificance(b, what, object);
-        if (sig < item || !linkMeetsBall(b, links[static_cast<std::size_t>(what)].source, ball)) continue;
-        sums.emplace_back(b, sig);
-        link_entries.emplace_back(b, what);
+    });
+    for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
+        if (!(kept[i] >= 0.0)) continue;
+        const auto [b, what] = obj.cache_pairs[i];
+        sums.emplace_back(b, kept[i]);
+        if (what >= 0) link_entries.emplace_back(b, what);
     }
     // Significant where the sum reaches link_epsilon.
     std::sort(sums.begin(), sums.end());
