@@ -120,9 +120,34 @@ Result<Truth> truthAt(const BenchLightingOptions& o, const Setup& s, const PathS
     CL_TRY(t.seq, renderOrLoadScene(truth, still, s.camera, o.spp, dir, ps.name + " step " + std::to_string(step), 1));
     mocks::sim::SimSceneOptions plain_options, composite_options;
     composite_options.include_virtual = true;
+    // The reference is kept beside the frames too (raw floats: rows, cols, type, then the pixels):
+    // it costs more than the frames.
+    const fs::path kept = dir / ("reference-ratio-" + std::to_string(8 * o.spp) + "spp.bin");
+    if (std::FILE* f = std::fopen(kept.c_str(), "rb")) {
+        int header[3] = {0, 0, 0};
+        bool ok = std::fread(header, sizeof(int), 3, f) == 3 && header[0] > 0 && header[1] > 0 && header[0] < 100000 && header[1] < 100000;
+        if (ok) {
+            t.reference.create(header[0], header[1], header[2]);
+            const std::size_t bytes = t.reference.total() * t.reference.elemSize();
+            ok = t.reference.isContinuous() && std::fread(t.reference.data, 1, bytes, f) == bytes;
+        }
+        std::fclose(f);
+        if (ok) return t;
+    }
     CL_TRY(const mocks::sim::SimScene plain, mocks::sim::SimScene::build(truth, plain_options));
     CL_TRY(const mocks::sim::SimScene composite, mocks::sim::SimScene::build(truth, composite_options));
     CL_TRY(t.reference, referenceRatio(plain, composite, t.seq, 0, 8 * o.spp));
+    if (t.reference.isContinuous()) {
+        if (std::FILE* f = std::fopen(kept.c_str(), "wb")) {
+            const int header[3] = {t.reference.rows, t.reference.cols, t.reference.type()};
+            const std::size_t bytes = t.reference.total() * t.reference.elemSize();
+            const bool ok = std::fwrite(header, sizeof(int), 3, f) == 3 && std::fwrite(t.reference.data, 1, bytes, f) == bytes;
+            if (std::fclose(f) != 0 || !ok) {
+                std::error_code ec;
+                fs::remove(kept, ec);
+            }
+        }
+    }
     return t;
 }
 

@@ -148,16 +148,36 @@ Shaft VirtualInfluence::Impl::lightShaft(int element, int light) const {
     return shaft;
 }
 
+namespace {
+
+// Whether the segment from a to b meets the ball: a sure "yes" for the hull of two convex polygons
+// whose points a and b are (their centroids), before the hull's planes are tried.
+bool segmentMeetsBall(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Ball& ball) {
+    const Eigen::Vector3d ab = b - a;
+    const double len2 = ab.squaredNorm();
+    const double t = len2 > 0.0 ? std::clamp((ball.centre - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
+    return (a + t * ab - ball.centre).squaredNorm() <= ball.radius * ball.radius;
+}
+
+}  // namespace
+
 bool VirtualInfluence::Impl::linkMeetsBall(int element, int source, const Ball& ball) const {
-    return shaftMeetsBall(elementShaft(element, source), ball) &&
-           hullMeetsBall(shape[static_cast<std::size_t>(element)].polygon(), shape[static_cast<std::size_t>(source)].polygon(), ball);
+    const ElementShape& e = shape[static_cast<std::size_t>(element)];
+    const ElementShape& s = shape[static_cast<std::size_t>(source)];
+    if (!shaftMeetsBall(elementShaft(element, source), ball)) return false;
+    // The segment between the centroids lies in the hull: meeting it decides (most shafts in a
+    // shadow), the hull's planes only for the rest.
+    return segmentMeetsBall(e.centroid, s.centroid, ball) || hullMeetsBall(e.polygon(), s.polygon(), ball);
 }
 
 bool VirtualInfluence::Impl::lightMeetsBall(int element, int light, const Ball& ball) const {
     const DirectSource& s = *base.lights[static_cast<std::size_t>(light)].source;
     if (s.kind != DirectSource::Kind::kPolygon && s.kind != DirectSource::Kind::kPoint) return farLightMeetsBall(element, light, ball);
-    return shaftMeetsBall(lightShaft(element, light), ball) &&
-           hullMeetsBall(shape[static_cast<std::size_t>(element)].polygon(), lightPolygon(light), ball);
+    const ElementShape& e = shape[static_cast<std::size_t>(element)];
+    if (!shaftMeetsBall(lightShaft(element, light), ball)) return false;
+    // (A light polygon is convex: its centre is in it.)
+    const Eigen::Vector3d& target = s.kind == DirectSource::Kind::kPolygon ? s.polygon->centre : s.position;
+    return segmentMeetsBall(e.centroid, target, ball) || hullMeetsBall(e.polygon(), lightPolygon(light), ball);
 }
 
 // A directional light or a distant cell: the element swept towards the light (a cone of the
@@ -423,7 +443,7 @@ RealMask& VirtualInfluence::Impl::mask(int element, int key) {
 // the pairs the real scene leaves open that the virtual objects leave open too (the same pairs'
 // real answers are kept: a move costs virtual rays only). `mixed`: some blocked, some not (a
 // penumbra or a shadow's edge across the leaf).
-double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask_bits) {
+double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask_bits, bool full_estimate) {
     const Radiosity& rad = self.radiosity_;
     const RayScene& rays = self.rays_;
     const DirectSource& s = *base.lights[static_cast<std::size_t>(light)].source;
@@ -524,6 +544,7 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
     estimate(pilot, hash64(seed), false, open_real, open_all, blocked, open);
     if (blocked && open) {
         mixed = true;
+        if (!full_estimate) return open_real > 0.0 ? open_all / open_real : 1.0;
         estimate(std::clamp(self.options_.partial_pairs, 1, 64), seed, true, open_real, open_all, blocked, open);
     }
     return open_real > 0.0 ? open_all / open_real : 1.0;
@@ -728,9 +749,12 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
         const double col = l.column->real[static_cast<std::size_t>(c)];
         if (!(col > 0.0) || !meets([&](const Ball& ball) { return lightMeetsBall(c, k, ball); })) continue;
         bool mixed = false;
-        const double tr = transmissionToLight(c, k, mixed, mask);
+        const double tr = transmissionToLight(c, k, mixed, mask, false);
         t.direct += (tr - 1.0) * col * l.emission;
-        if (mixed) out.variation += lumaOf(rho.cwiseProduct(l.emission)) * col / kPi / den;
+        if (mixed) {
+            out.variation += lumaOf(rho.cwiseProduct(l.emission)) * col / kPi / den;
+            out.deferred.emplace_back(k, tr);
+        }
     }
     // Step 2: light from the objects that reach b at leaf level.
     for (int o : sel.objects) {
@@ -739,6 +763,21 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
         out.variation += variation;
     }
     return out;
+}
+
+// The full estimates computeTerms() left for later, now that c stays a leaf: the same estimate the
+// pilot would have been followed by at once (the split elements' were thrown away with their terms).
+void VirtualInfluence::Impl::finishDeferred(int c, int b, const LeafResult& r) {
+    if (r.deferred.empty()) return;
+    LeafTerms& t = terms[static_cast<std::size_t>(c)];
+    const std::uint32_t mask = objectMask(b);
+    for (const auto& [k, pilot] : r.deferred) {
+        const InfluenceLight& l = base.lights[static_cast<std::size_t>(k)];
+        const double col = l.column->real[static_cast<std::size_t>(c)];
+        bool mixed = false;
+        const double tr = transmissionToLight(c, k, mixed, mask, true);
+        t.direct += (tr - pilot) * col * l.emission;
+    }
 }
 
 // Element c's corrections of the base links the objects block (lighting/influence.h C), and how
@@ -797,7 +836,12 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
     for (int id : ids) {
         if (id >= link_shafts) {
             const auto [b, k] = light_shafts[static_cast<std::size_t>(id - link_shafts)];
-            if (hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) pairs.emplace_back(b, -1 - k);
+            const DirectSource& ls = *base.lights[static_cast<std::size_t>(k)].source;
+            const Eigen::Vector3d& target = ls.kind == DirectSource::Kind::kPolygon ? ls.polygon->centre : ls.position;
+            if (segmentMeetsBall(shape[static_cast<std::size_t>(b)].centroid, target, query) ||
+                hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) {
+                pairs.emplace_back(b, -1 - k);
+            }
             continue;
         }
         const int link = shaft_link[static_cast<std::size_t>(id)];
@@ -827,7 +871,7 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
             const double beta = std::min(1.0, ballSolidAngle(query.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
             if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
             if (leaf) {
-                if (hullMeetsBall(es.polygon(), src.polygon(), query)) pairs.emplace_back(e, link);
+                if (segmentMeetsBall(es.centroid, src.centroid, query) || hullMeetsBall(es.polygon(), src.polygon(), query)) pairs.emplace_back(e, link);
                 continue;
             }
             for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);
@@ -864,18 +908,27 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     const std::vector<Link>& links = self.radiosity_.links();
     std::vector<std::pair<int, double>> sums;       // base leaf, significance
     std::vector<std::pair<int, int>> link_entries;  // base leaf, link
-    // (The significance first: it is cheaper than the shaft tests.)
-    for (const auto& [b, what] : obj.cache_pairs) {
-        if (what < 0) {
-            const int k = -1 - what;
-            const double sig = lightSignificance(b, k, object);
-            if (sig >= item && lightMeetsBall(b, k, ball)) sums.emplace_back(b, sig);
-            continue;
+    // (The significance first: it is cheaper than the shaft tests.) In parallel over the pairs
+    // (thousands on the room), gathered in their order.
+    std::vector<double> kept(obj.cache_pairs.size(), -1.0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, obj.cache_pairs.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            const auto [b, what] = obj.cache_pairs[i];
+            if (what < 0) {
+                const int k = -1 - what;
+                const double sig = lightSignificance(b, k, object);
+                if (sig >= item && lightMeetsBall(b, k, ball)) kept[i] = sig;
+                continue;
+            }
+            const double sig = linkSignificance(b, what, object);
+            if (sig >= item && linkMeetsBall(b, links[static_cast<std::size_t>(what)].source, ball)) kept[i] = sig;
         }
-        const double sig = linkSignificance(b, what, object);
-        if (sig < item || !linkMeetsBall(b, links[static_cast<std::size_t>(what)].source, ball)) continue;
-        sums.emplace_back(b, sig);
-        link_entries.emplace_back(b, what);
+    });
+    for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
+        if (!(kept[i] >= 0.0)) continue;
+        const auto [b, what] = obj.cache_pairs[i];
+        sums.emplace_back(b, kept[i]);
+        if (what >= 0) link_entries.emplace_back(b, what);
     }
     // Significant where the sum reaches link_epsilon.
     std::sort(sums.begin(), sums.end());
@@ -945,6 +998,7 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
         for (const LeafResult& r : results) link_evaluated += r.links ? 1 : 0;
         std::vector<int> next, next_base, fresh;
         std::vector<char> next_open;
+        std::vector<std::size_t> stays;  // elements that stay leaves with full estimates to finish
         for (std::size_t i = 0; i < frontier.size(); ++i) {
             const int c = frontier[i];
             const Element& el = h[c];
@@ -971,7 +1025,12 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
                 continue;
             }
             done.push_back(c);
+            if (!results[i].deferred.empty()) stays.push_back(i);
         }
+        tbb::parallel_for(std::size_t{0}, stays.size(), [&](std::size_t j) {
+            const std::size_t i = stays[j];
+            finishDeferred(frontier[i], base_of[i], results[i]);
+        });
         if (next.empty()) break;
         // The new children: state, exposure, pull weights, real columns, B~.
         grow();

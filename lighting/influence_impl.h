@@ -181,12 +181,18 @@ struct VirtualInfluence::Impl {
         double variation = 0.0;       // direct light and the objects' own light
         double link_variation = 0.0;  // blocked base links
         bool links = false;           // corrections computed
+        // Lights whose pilot found a penumbra: their full estimate waits until the element is
+        // known to stay a leaf (a split element's own terms are dropped). (light, pilot transmission)
+        std::vector<std::pair<int, double>> deferred;
     };
     int evaluated = 0, link_evaluated = 0;  // in the last refine()
     LeafResult computeTerms(int c, int b);  // direct light and the objects' light (clears every term)
     double computeLinks(int c, int b);     // corrections; returns their variation
     double linkSize(int b) const;  // elements of about this size carry the corrections
-    double transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask);
+    // `full`: the full estimate where the pilot finds a penumbra; else the pilot's answer alone.
+    double transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask, bool full = true);
+    // The deferred full estimates of an element that stays a leaf (LeafResult::deferred).
+    void finishDeferred(int c, int b, const LeafResult& r);
     double transmissionToSource(int c, int s, bool& mixed, std::uint32_t mask);
     RealMask& mask(int element, int key);
     void refine(const std::vector<int>& touched);

@@ -32,13 +32,15 @@ bool shaftMeetsBall(const Shaft& shaft, const Ball& ball) {
 
 bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b, const Ball& ball) {
     const auto separates = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
-        const double length = n.norm();
-        if (!(length > 1e-15)) return false;
-        n /= length;
+        const double length2 = n.squaredNorm();
+        if (!(length2 > 1e-30)) return false;
         // A plane the ball straddles separates nothing, face plane or not (most planes: no need
-        // to look at the vertices).
-        const double c = (ball.centre - origin).dot(n);
-        if (std::abs(c) <= ball.radius) return false;
+        // to look at the vertices, nor to normalise).
+        double c = (ball.centre - origin).dot(n);
+        if (c * c <= ball.radius * ball.radius * length2) return false;
+        const double length = std::sqrt(length2);
+        n /= length;
+        c /= length;
         // A face plane has every vertex on one side (a tolerance for round-off: ends that touch).
         double lo = 0.0, hi = 0.0;
         for (const Eigen::Vector3d& x : a) {

@@ -1,0 +1,117 @@
+// lighting/ray_scene.h: a virtual sphere's visibility in closed form against Embree's own sphere
+// (the same object traced through its instance by intersectVirtual()), with a mesh object beside
+// it (still traced by Embree), masks, a disabled object and a moved one.
+#include "lighting/ray_scene.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+namespace commonlight::lighting {
+namespace {
+
+// A floor face far below, so the real scene is not empty.
+std::vector<Face> floorFace() {
+    Face f;
+    f.origin = {-5, -5, -3};
+    f.edge_s = {10, 0, 0};
+    f.edge_t = {0, 10, 0};
+    f.normal = {0, 0, 1};
+    f.area = 100.0;
+    return {f};
+}
+
+// A cube of side 0.4 centred on its origin, as six faces (outward normals).
+VirtualShape cube() {
+    VirtualShape s;
+    const double h = 0.2;
+    const auto face = [&](Eigen::Vector3d o, Eigen::Vector3d es, Eigen::Vector3d et) {
+        Face f;
+        f.owner = FaceOwner::kVirtual;
+        f.origin = o;
+        f.edge_s = es;
+        f.edge_t = et;
+        f.normal = es.cross(et).normalized();
+        f.area = es.cross(et).norm();
+        s.faces.push_back(f);
+    };
+    const double a = 2 * h;
+    face({-h, -h, -h}, {0, a, 0}, {a, 0, 0});  // z-
+    face({-h, -h, h}, {a, 0, 0}, {0, a, 0});   // z+
+    face({-h, -h, -h}, {a, 0, 0}, {0, 0, a});  // y-
+    face({-h, h, -h}, {0, 0, a}, {a, 0, 0});   // y+
+    face({-h, -h, -h}, {0, 0, a}, {0, a, 0});  // x-
+    face({h, -h, -h}, {0, a, 0}, {0, 0, a});   // x+
+    return s;
+}
+
+TEST(RayScene, SphereInClosedFormAgreesWithEmbree) {
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.3;
+    auto built = RayScene::build(floorFace(), {}, {sphere, cube()});
+    ASSERT_TRUE(built) << built.error().message;
+    RayScene& rays = **built;
+    const Eigen::Vector3d centre(0.2, -0.1, 0.4), cube_at(2.0, 0.0, 0.0);
+    rays.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), centre));
+    rays.setVirtualPose(1, Rigid3d(Eigen::Quaterniond::Identity(), cube_at));
+    ASSERT_TRUE(rays.commitVirtual());
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    const std::uint32_t sphere_bit = RayScene::virtualBit(0), cube_bit = RayScene::virtualBit(1);
+    int blocked = 0, open = 0, ambiguous = 0;
+    for (int k = 0; k < 20000; ++k) {
+        // Segments around the sphere: through it, past it, from inside it, ending inside it.
+        const Eigen::Vector3d a = centre + Eigen::Vector3d(u(rng), u(rng), u(rng));
+        const Eigen::Vector3d b = centre + Eigen::Vector3d(u(rng), u(rng), u(rng));
+        const double length = (b - a).norm();
+        if (length < 1e-3) continue;
+        const Eigen::Vector3d dir = (b - a) / length;
+        // Embree's answer: the first hit on the sphere within the segment (no normals: no lift;
+        // the segment stops epsilon() short of b).
+        const RayHit hit = rays.intersectVirtual(a, dir, length - rays.epsilon());
+        const bool embree = hit.kind == HitKind::kVirtual && hit.index == 0;
+        // Segments that graze the sphere or end on its surface are left out (float against double).
+        const Eigen::Vector3d closest = a + std::clamp((centre - a).dot(dir), 0.0, length) * dir;
+        const double margin = 1e-4;
+        if (std::abs((closest - centre).norm() - 0.3) < margin || std::abs((a - centre).norm() - 0.3) < margin ||
+            std::abs((b - centre).norm() - 0.3) < margin) {
+            ++ambiguous;
+            continue;
+        }
+        const bool closed_form = rays.occludedVirtual(a, Eigen::Vector3d::Zero(), b, Eigen::Vector3d::Zero(), sphere_bit);
+        ASSERT_EQ(closed_form, embree) << "segment " << k << " from " << a.transpose() << " to " << b.transpose();
+        (closed_form ? blocked : open)++;
+        // The cube is far away: with its bit as well, the same answer; with its bit alone, open.
+        ASSERT_EQ(rays.occludedVirtual(a, Eigen::Vector3d::Zero(), b, Eigen::Vector3d::Zero(), sphere_bit | cube_bit), closed_form);
+        ASSERT_FALSE(rays.occludedVirtual(a, Eigen::Vector3d::Zero(), b, Eigen::Vector3d::Zero(), cube_bit));
+    }
+    EXPECT_GT(blocked, 2000);
+    EXPECT_GT(open, 2000);
+    EXPECT_LT(ambiguous, 200);
+    // A ray to infinity from inside the sphere meets its far side; from outside, pointing away, nothing.
+    EXPECT_TRUE(rays.occludedVirtualRay(centre, Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitX(), sphere_bit));
+    EXPECT_FALSE(rays.occludedVirtualRay(centre + Eigen::Vector3d(0, 0, 0.5), Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitZ(), sphere_bit));
+    // The mesh is still traced (Embree): a segment through the cube is blocked by it alone.
+    const Eigen::Vector3d p = cube_at - Eigen::Vector3d(1, 0, 0), q = cube_at + Eigen::Vector3d(1, 0, 0);
+    EXPECT_TRUE(rays.occludedVirtual(p, Eigen::Vector3d::Zero(), q, Eigen::Vector3d::Zero(), cube_bit));
+    EXPECT_FALSE(rays.occludedVirtual(p, Eigen::Vector3d::Zero(), q, Eigen::Vector3d::Zero(), sphere_bit));
+    // Moved: the answer follows the committed pose only.
+    const Eigen::Vector3d s = centre - Eigen::Vector3d(1, 0, 0), t = centre + Eigen::Vector3d(1, 0, 0);
+    EXPECT_TRUE(rays.occludedVirtual(s, Eigen::Vector3d::Zero(), t, Eigen::Vector3d::Zero(), sphere_bit));
+    rays.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), centre + Eigen::Vector3d(0, 0, 1)));
+    EXPECT_TRUE(rays.occludedVirtual(s, Eigen::Vector3d::Zero(), t, Eigen::Vector3d::Zero(), sphere_bit));  // not committed yet
+    ASSERT_TRUE(rays.commitVirtual());
+    EXPECT_FALSE(rays.occludedVirtual(s, Eigen::Vector3d::Zero(), t, Eigen::Vector3d::Zero(), sphere_bit));
+    // Disabled: it blocks nothing.
+    rays.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), centre));
+    rays.setVirtualEnabled(0, false);
+    ASSERT_TRUE(rays.commitVirtual());
+    EXPECT_FALSE(rays.occludedVirtual(s, Eigen::Vector3d::Zero(), t, Eigen::Vector3d::Zero(), ~0u));
+    rays.setVirtualEnabled(0, true);
+    ASSERT_TRUE(rays.commitVirtual());
+    EXPECT_TRUE(rays.occludedVirtual(s, Eigen::Vector3d::Zero(), t, Eigen::Vector3d::Zero(), ~0u));
+}
+
+}  // namespace
+}  // namespace commonlight::lighting
