@@ -47,7 +47,18 @@ struct CaseSpec {
     int width = 0, height = 0;  // > 0: the desk camera at this size (same field of view)
     int frames = 0;             // 0: the whole trajectory
     bool sweep = false;         // run the decimate x tracking-mode sweep on it
+    // Conditions that break the response and print assumptions: what the camera does, what the
+    // tracker is told, how the tags were printed, the lens.
+    mocks::sim::SensorResponse response = mocks::sim::SensorResponse::kSrgb;  // the camera's
+    double gamma = 2.2;              // of SensorResponse::kGamma
+    bool tracker_srgb = true;        // the tracker assumes sRGB (else linear)
+    double ink_spread_cells = 0.0;   // black grown (> 0) or shrunk (< 0) on the print
+    double defocus_radius_px = 0.0;  // circle of confusion
+    const char* matched = nullptr;   // the case with the matched response to compare with
 };
+
+constexpr const char* kHard = "data/scenes/hard/scene.yaml";
+constexpr const char* kResponsePath = "data/scenes/hard/response.yaml";
 
 const std::vector<CaseSpec>& cases() {
     static const std::vector<CaseSpec> list = {
@@ -64,12 +75,44 @@ const std::vector<CaseSpec>& cases() {
         {"wide", "strong distortion, k1 = -0.4", "data/scenes/hard/scene.yaml", "data/scenes/hard/wide.yaml",
          "data/scenes/hard/calib_wide.yaml"},
         {"occluded", "tag 5 half under a bar", "data/scenes/hard/scene.yaml", "data/scenes/hard/occluded.yaml", nullptr},
+        // The response, print and defocus cases: the left board from about 1 m, one path; each
+        // compares with `matched` (an sRGB camera read as sRGB, an exact print, in focus).
+        {.name = "matched", .what = "response cases' reference: sRGB camera read as sRGB, exact print",
+         .scene = kHard, .trajectory = kResponsePath, .calib = nullptr, .frames = 20},
+        {.name = "linear_as_srgb", .what = "linear-response camera read as sRGB", .scene = kHard,
+         .trajectory = kResponsePath, .calib = nullptr, .frames = 20, .response = mocks::sim::SensorResponse::kLinear,
+         .matched = "matched"},
+        {.name = "srgb_as_linear", .what = "sRGB camera read as linear", .scene = kHard, .trajectory = kResponsePath,
+         .calib = nullptr, .frames = 20, .tracker_srgb = false, .matched = "matched"},
+        {.name = "gamma18", .what = "gamma 1.8 camera read as sRGB", .scene = kHard, .trajectory = kResponsePath,
+         .calib = nullptr, .frames = 20, .response = mocks::sim::SensorResponse::kGamma, .gamma = 1.8,
+         .matched = "matched"},
+        {.name = "gamma26", .what = "gamma 2.6 camera read as sRGB", .scene = kHard, .trajectory = kResponsePath,
+         .calib = nullptr, .frames = 20, .response = mocks::sim::SensorResponse::kGamma, .gamma = 2.6,
+         .matched = "matched"},
+        {.name = "ink_grown", .what = "tags printed with the black grown by 10% of a cell", .scene = kHard,
+         .trajectory = kResponsePath, .calib = nullptr, .frames = 20, .ink_spread_cells = 0.10, .matched = "matched"},
+        {.name = "ink_shrunk", .what = "tags printed with the black shrunk by 5% of a cell", .scene = kHard,
+         .trajectory = kResponsePath, .calib = nullptr, .frames = 20, .ink_spread_cells = -0.05, .matched = "matched"},
+        {.name = "ink_grown2", .what = "tags printed with the black grown by 2% of a cell", .scene = kHard,
+         .trajectory = kResponsePath, .calib = nullptr, .frames = 20, .ink_spread_cells = 0.02, .matched = "matched"},
+        {.name = "defocus", .what = "slight defocus: a disc of 1.5 px radius", .scene = kHard,
+         .trajectory = kResponsePath, .calib = nullptr, .frames = 20, .defocus_radius_px = 1.5, .matched = "matched"},
     };
     return list;
 }
 
 std::string renderKey(const CaseSpec& c, int spp) {
-    return std::string("case=") + c.name + " spp=" + std::to_string(spp) + " version=2";
+    std::string key = std::string("case=") + c.name + " spp=" + std::to_string(spp) + " version=2";
+    // The rendering conditions, when not the defaults (so older renders stay valid).
+    if (c.response != mocks::sim::SensorResponse::kSrgb || c.ink_spread_cells != 0 || c.defocus_radius_px != 0) {
+        char conditions[160];
+        std::snprintf(conditions, sizeof conditions, " response=%s gamma=%g ink=%g defocus=%g",
+                      std::string(mocks::sim::sensorResponseName(c.response)).c_str(), c.gamma, c.ink_spread_cells,
+                      c.defocus_radius_px);
+        key += conditions;
+    }
+    return key;
 }
 
 Result<fs::path> ensureSequence(const CaseSpec& c, const BenchTrackingOptions& options) {
@@ -96,6 +139,10 @@ Result<fs::path> ensureSequence(const CaseSpec& c, const BenchTrackingOptions& o
     sim.write_radiance = false;
     sim.motion_blur = c.motion_blur;
     if (c.exposure_us > 0) sim.sensor.exposure_us = c.exposure_us;
+    sim.sensor.response = c.response;
+    sim.sensor.gamma = c.gamma;
+    sim.tag_ink_spread_cells = c.ink_spread_cells;
+    sim.defocus_radius_px = c.defocus_radius_px;
     if (c.noise_free) {
         sim.sensor.dark_noise_e = 0;
         sim.sensor.dsnu_e = 0;
@@ -169,12 +216,21 @@ Result<LoadedCase> loadCase(const CaseSpec& spec, const fs::path& path, int max_
 // Error statistics of a set of poses against the truth.
 struct ErrorStats {
     std::vector<double> rot_deg, trans_mm, ms;
+    std::vector<double> range_rel;  // single tags: |t_estimate| / |t_true| - 1 (signed: < 0 too close)
     int attempts = 0;  // frames (or tag detections) that should have had a pose
 
     // cam_from_tag: the tag's position in the camera; cam_from_world: the camera centre in the world.
     void add(const Rigid3d& estimate, const Rigid3d& truth) {
         rot_deg.push_back(rotationErrorDeg(estimate, truth));
         trans_mm.push_back(1000.0 * (estimate.translation - truth.translation).norm());
+        range_rel.push_back(estimate.translation.norm() / truth.translation.norm() - 1.0);
+    }
+    // The mean signed relative range error (the scale bias), in percent.
+    double rangeBiasPct() const {
+        if (range_rel.empty()) return NAN;
+        double sum = 0;
+        for (const double r : range_rel) sum += r;
+        return 100.0 * sum / static_cast<double>(range_rel.size());
     }
     void addCamera(const Rigid3d& cam_from_world, const Rigid3d& truth) {
         rot_deg.push_back(rotationErrorDeg(cam_from_world, truth));
@@ -197,6 +253,7 @@ struct ErrorStats {
         j["rot_deg"] = {{"p50", pct(rot_deg, 50)}, {"p95", pct(rot_deg, 95)}, {"max", pct(rot_deg, 100)}};
         j["trans_mm"] = {{"p50", pct(trans_mm, 50)}, {"p95", pct(trans_mm, 95)}, {"max", pct(trans_mm, 100)}};
         j["gross_rate"] = gross();
+        if (!range_rel.empty()) j["range_bias_pct"] = rangeBiasPct();
         if (!ms.empty()) j["ms_per_frame"] = {{"p50", pct(ms, 50)}, {"p95", pct(ms, 95)}, {"max", pct(ms, 100)}};
         return j;
     }
@@ -225,11 +282,15 @@ void printHeader(const char* first) {
 
 // Step 2: libapriltag's own pose against ours on the same detections; the detector alone timed.
 struct SingleTagComparison {
-    ErrorStats reference, ours, ours_refined, ours_aligned, detector_only;
+    ErrorStats reference, ours, ours_refined, ours_aligned_fixed, ours_aligned, detector_only;
 };
 
 SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
     SingleTagComparison out;
+    tracking::TagRefineOptions refine_options;
+    refine_options.srgb = lc.spec->tracker_srgb;
+    tracking::TagAlignOptions align_options;
+    align_options.srgb = lc.spec->tracker_srgb;
     tracking::TagDetectorOptions det;
     det.family = lc.scene.tags.family;
     det.decimate = decimate;
@@ -259,18 +320,25 @@ SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
             if (ours) out.ours.add(ours->cam_from_tag, truth);
             ++out.ours_refined.attempts;
             auto corners = d.corners;
-            tracking::refineTagCorners(lc.frames[i].view(), lc.camera, corners);
+            tracking::refineTagCorners(lc.frames[i].view(), lc.camera, corners, refine_options);
             auto refined = tracking::solveTagPose(d.id, corners, item->size, lc.camera);
             if (refined) out.ours_refined.add(refined->cam_from_tag, truth);
             ++out.ours_aligned.attempts;
+            ++out.ours_aligned_fixed.attempts;
             if (refined) {
                 const tracking::TagPattern* pattern = patterns.get(d.id);
-                Rigid3d aligned = refined->cam_from_tag;
+                Rigid3d aligned = refined->cam_from_tag, fixed = refined->cam_from_tag;
                 if (pattern) {
-                    auto a = tracking::alignTagPose(lc.frames[i].view(), lc.camera, *pattern, item->size, aligned);
+                    tracking::TagAlignOptions no_dilation = align_options;
+                    no_dilation.estimate_dilation = false;
+                    auto f = tracking::alignTagPose(lc.frames[i].view(), lc.camera, *pattern, item->size, fixed, no_dilation);
+                    if (f.ok) fixed = f.cam_from_tag;
+                    auto a = tracking::alignTagPose(lc.frames[i].view(), lc.camera, *pattern, item->size, aligned,
+                                                    align_options);
                     if (a.ok) aligned = a.cam_from_tag;
                 }
                 out.ours_aligned.add(aligned, truth);
+                out.ours_aligned_fixed.add(fixed, truth);
             }
         }
     }
@@ -311,6 +379,8 @@ tracking::TrackerOptions baseOptions(const LoadedCase& lc, double decimate) {
     tracking::TrackerOptions o;
     o.detector.family = lc.scene.tags.family;
     o.detector.decimate = decimate;
+    o.refine.srgb = lc.spec->tracker_srgb;
+    o.align.srgb = lc.spec->tracker_srgb;
     return o;
 }
 
@@ -388,6 +458,10 @@ int runBenchTracking(const BenchTrackingOptions& options) {
     json report;
     report["cases"] = json::object();
     std::vector<SweepPoint> sweep;
+    struct Reference {
+        double range_bias_pct, rot_p50, tracker_range_bias_pct, tracker_rot_p50;
+    };
+    std::map<std::string, Reference> references;  // per case: what the cases that match it compare with
     for (const CaseSpec* spec : selected) {
         // Step 0 and 1.
         auto path = ensureSequence(*spec, options);
@@ -416,6 +490,7 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         printRow("libapriltag estimate_tag_pose", single.reference);
         printRow("our single tag", single.ours);
         printRow("our single tag, refined", single.ours_refined);
+        printRow("single tag, aligned, no dil.", single.ours_aligned_fixed);
         printRow("our single tag, aligned", single.ours_aligned);
         printRow("our single tag, in tracker", run_filter->single_tags);
         printRow("bundle", run_bundle->camera);
@@ -429,6 +504,39 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         const double ours_p50 = ErrorStats::pct(single.ours_aligned.rot_deg, 50);
         std::printf("single-tag rotation p50: ours %.3f deg vs libapriltag %.3f deg = %.2fx\n", ours_p50, ref_p50,
                     ours_p50 / ref_p50);
+        // Range (scale) bias and translation against libapriltag, and against the matched case.
+        const double ours_mm = ErrorStats::pct(single.ours_aligned.trans_mm, 50);
+        const double ref_mm = ErrorStats::pct(single.reference.trans_mm, 50);
+        const double tracker_mm = ErrorStats::pct(run_filter->single_tags.trans_mm, 50);
+        std::printf("single-tag range bias: libapriltag %+.3f%%, ours refined %+.3f%%, aligned without dilation "
+                    "%+.3f%%, aligned %+.3f%%, in tracker %+.3f%%\n",
+                    single.reference.rangeBiasPct(), single.ours_refined.rangeBiasPct(),
+                    single.ours_aligned_fixed.rangeBiasPct(), single.ours_aligned.rangeBiasPct(),
+                    run_filter->single_tags.rangeBiasPct());
+        std::printf("single-tag translation p50: ours aligned %.2f mm, in tracker %.2f mm vs libapriltag %.2f mm: %s\n",
+                    ours_mm, tracker_mm, ref_mm, std::max(ours_mm, tracker_mm) <= ref_mm ? "at most (met)" : "MORE (missed)");
+        const Reference mine{single.ours_aligned.rangeBiasPct(), ours_p50, run_filter->single_tags.rangeBiasPct(),
+                             ErrorStats::pct(run_filter->single_tags.rot_deg, 50)};
+        references[spec->name] = mine;
+        json jm;
+        if (spec->matched) {
+            const auto it = references.find(spec->matched);
+            if (it == references.end()) {
+                std::printf("(run the case '%s' too to compare with the matched response)\n", spec->matched);
+            } else {
+                const Reference& m = it->second;
+                const double d_range = mine.range_bias_pct - m.range_bias_pct;
+                const double d_range_tr = mine.tracker_range_bias_pct - m.tracker_range_bias_pct;
+                const double rot_ratio = mine.rot_p50 / m.rot_p50, rot_ratio_tr = mine.tracker_rot_p50 / m.tracker_rot_p50;
+                std::printf("against '%s': range bias %+.3f%% (aligned), %+.3f%% (in tracker) [target within 0.2%%: %s]; "
+                            "rotation p50 %.2fx (aligned), %.2fx (in tracker) [target at most 1.2x: %s]\n",
+                            spec->matched, d_range, d_range_tr,
+                            std::max(std::abs(d_range), std::abs(d_range_tr)) <= 0.2 ? "met" : "MISSED", rot_ratio,
+                            rot_ratio_tr, std::max(rot_ratio, rot_ratio_tr) <= 1.2 ? "met" : "MISSED");
+                jm = {{"case", spec->matched}, {"range_bias_diff_pct", d_range}, {"range_bias_diff_pct_tracker", d_range_tr},
+                      {"rot_p50_ratio", rot_ratio}, {"rot_p50_ratio_tracker", rot_ratio_tr}};
+            }
+        }
 
         json j;
         j["what"] = spec->what;
@@ -437,6 +545,7 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         j["apriltag_estimate_tag_pose"] = single.reference.toJson();
         j["single_tag_apriltag_corners"] = single.ours.toJson();
         j["single_tag_refined_corners"] = single.ours_refined.toJson();
+        j["single_tag_aligned_without_dilation"] = single.ours_aligned_fixed.toJson();
         j["single_tag"] = single.ours_aligned.toJson();
         j["single_tag_in_tracker"] = run_filter->single_tags.toJson();
         j["bundle"] = run_bundle->camera.toJson();
@@ -445,6 +554,9 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         j["detector_only_ms_p50"] = det_ms;
         j["tracking_over_detector"] = track_ms / det_ms;
         j["single_over_apriltag_rot_p50"] = ours_p50 / ref_p50;
+        j["single_over_apriltag_trans_p50"] = ours_mm / ref_mm;
+        j["single_in_tracker_over_apriltag_trans_p50"] = tracker_mm / ref_mm;
+        if (!jm.is_null()) j["against_matched"] = jm;
 
         // Step 4: decimate x tracking mode.
         if (spec->sweep) {

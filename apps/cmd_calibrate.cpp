@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "apps/app.h"
+#include "apps/quiet.h"
 #include "apps/progress.h"
 #include "capture/convert.h"
 #include "core/frame_file.h"
@@ -99,23 +100,23 @@ std::string localTime() {
 }
 
 void printResult(const tracking::CalibrationResult& result, const Inputs& inputs, std::size_t found) {
-    std::printf("found the board in %zu of %zu images\n", found, inputs.images.size());
+    say("found the board in %zu of %zu images\n", found, inputs.images.size());
     if (!result.rejected.empty()) {
-        std::printf("rejected %zu view%s:\n", result.rejected.size(), result.rejected.size() == 1 ? "" : "s");
+        say("rejected %zu view%s:\n", result.rejected.size(), result.rejected.size() == 1 ? "" : "s");
         for (const tracking::RejectedView& view : result.rejected) {
-            std::printf("  %s: %s\n", view.name.c_str(), view.reason.c_str());
+            say("  %s: %s\n", view.name.c_str(), view.reason.c_str());
         }
     }
     const CameraModel& m = result.model;
     const auto& s = result.std_deviations;
     const Distortion& d = m.distortion;
-    std::printf("camera %dx%d from %zu views, %zu corners: RMS reprojection error %.3f px\n", m.width, m.height,
+    say("camera %dx%d from %zu views, %zu corners: RMS reprojection error %.3f px\n", m.width, m.height,
                 result.view_names.size(), result.corners, result.rms_px);
-    std::printf("  fx %.3f +- %.3f  fy %.3f +- %.3f  cx %.3f +- %.3f  cy %.3f +- %.3f (pixels)\n", m.fx, s[0], m.fy,
+    say("  fx %.3f +- %.3f  fy %.3f +- %.3f  cx %.3f +- %.3f  cy %.3f +- %.3f (pixels)\n", m.fx, s[0], m.fy,
                 s[1], m.cx, s[2], m.cy, s[3]);
-    std::printf("  k1 %.5f +- %.5f  k2 %.5f +- %.5f  p1 %.6f +- %.6f  p2 %.6f +- %.6f  k3 %.5f +- %.5f\n", d.k1, s[4],
+    say("  k1 %.5f +- %.5f  k2 %.5f +- %.5f  p1 %.6f +- %.6f  p2 %.6f +- %.6f  k3 %.5f +- %.5f\n", d.k1, s[4],
                 d.k2, s[5], d.p1, s[6], d.p2, s[7], d.k3, s[8]);
-    std::printf("  coverage: corners in %d of %d cells (%.0f%%) of a %dx%d grid\n", result.coverage.cells_hit,
+    say("  coverage: corners in %d of %d cells (%.0f%%) of a %dx%d grid\n", result.coverage.cells_hit,
                 result.coverage.cols * result.coverage.rows, 100.0 * result.coverage.fraction, result.coverage.cols,
                 result.coverage.rows);
 }
@@ -146,7 +147,7 @@ int runCalibrate(const CalibrateCommandOptions& options) {
     if (auto valid = calibration_options.validate(); !valid) return reportError(valid.error());
     auto inputs = options.images.empty() ? listSequence(options.sequence) : listImageFolder(options.images);
     if (!inputs) return reportError(inputs.error());
-    std::printf("calibrating from %s with the board %s\n", inputs->description.c_str(), board->toString().c_str());
+    say("calibrating from %s with the board %s\n", inputs->description.c_str(), board->toString().c_str());
 
     // Step 2: find the board in every image. An image that cannot be read is skipped with a
     // warning (and listed among the rejected views); images of another size are an error.
@@ -206,7 +207,7 @@ int runCalibrate(const CalibrateCommandOptions& options) {
     if (auto written = tracking::writeCalibrationResult(out, *result, *board, localTime()); !written) {
         return reportError(written.error());
     }
-    std::printf("wrote %s\n", options.out.c_str());
+    say("wrote %s\n", options.out.c_str());
     return kExitOk;
 }
 

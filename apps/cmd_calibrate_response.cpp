@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "apps/app.h"
+#include "apps/quiet.h"
 #include "capture/convert.h"
 #include "core/csv.h"
 #include "core/frame_file.h"
@@ -94,7 +95,7 @@ int runCalibrateResponse(const CalibrateResponseOptions& options) {
     for (std::size_t i = 0; i < bracket->images.size(); ++i) {
         views.push_back({bracket->images[i].view(), bracket->exposures_s[i], bracket->names[i]});
     }
-    std::printf("bracket: %zu images\n", views.size());
+    say("bracket: %zu images\n", views.size());
     // Step 2: the response.
     const ResponseMethod method = options.method == "robertson" ? ResponseMethod::kRobertson : ResponseMethod::kDebevec;
     auto result = calibrateResponse(views, method, options.samples);
@@ -102,11 +103,11 @@ int runCalibrateResponse(const CalibrateResponseOptions& options) {
     for (const std::string& w : result->warnings) log::warning(w);
     // Step 3: write and summarise.
     if (auto written = result->curve.writeFile(options.out, options.method); !written) return reportError(written.error());
-    std::printf("response (%s) written to %s\n", options.method.c_str(), options.out.c_str());
-    std::printf("  exposures span %.1fx, %.1f%% of the values saturated\n", result->exposure_ratio, 100.0 * result->saturated_fraction);
-    std::printf("  closest model: gamma:%.2f (RMS %.1f%%); srgb RMS %.1f%%, linear RMS %.1f%% (codes 20-235, up to scale)\n",
+    say("response (%s) written to %s\n", options.method.c_str(), options.out.c_str());
+    say("  exposures span %.1fx, %.1f%% of the values saturated\n", result->exposure_ratio, 100.0 * result->saturated_fraction);
+    say("  closest model: gamma:%.2f (RMS %.1f%%); srgb RMS %.1f%%, linear RMS %.1f%% (codes 20-235, up to scale)\n",
                 result->best_gamma, 100.0 * result->rms_vs_gamma, 100.0 * result->rms_vs_srgb, 100.0 * result->rms_vs_linear);
-    std::printf("  linear value of code 64 / 128 / 192: %.4f / %.4f / %.4f (green)\n", result->curve.toLinear(1, std::uint8_t{64}),
+    say("  linear value of code 64 / 128 / 192: %.4f / %.4f / %.4f (green)\n", result->curve.toLinear(1, std::uint8_t{64}),
                 result->curve.toLinear(1, std::uint8_t{128}), result->curve.toLinear(1, std::uint8_t{192}));
     return kExitOk;
 }

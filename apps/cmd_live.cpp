@@ -17,6 +17,7 @@
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/quiet.h"
 #include "apps/progress.h"
 #include "apps/report.h"
 #include "capture/stage_timings.h"
@@ -175,9 +176,9 @@ int runLive(const LiveOptions& options) {
         window = std::move(*created);
         if (options.record.empty()) log::info("key r records to " + window_options.record.string());
     }
-    std::printf("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
+    say("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
                 options.scene.c_str(), options.record.empty() ? "" : (", recording to " + options.record).c_str());
-    if ((*runner)->lighting()) std::printf("lighting: real time, response %s\n", runner_options.response.name().c_str());
+    if ((*runner)->lighting()) say("lighting: real time, response %s\n", runner_options.response.name().c_str());
 
     // Step 3: the frames. The pipeline thread takes them from the camera, tracks them and writes
     // poses.csv; this thread composites the newest and runs the window.
@@ -210,25 +211,25 @@ int runLive(const LiveOptions& options) {
 
     // Step 4: report.
     const capture::StageTimings& timings = (*runner)->timings();
-    std::printf("live: %llu frames in %.2f s (%.2f per s); %llu reconnects\n", static_cast<unsigned long long>(totals.taken),
+    say("live: %llu frames in %.2f s (%.2f per s); %llu reconnects\n", static_cast<unsigned long long>(totals.taken),
                 seconds, seconds > 0 ? static_cast<double>(totals.taken) / seconds : 0.0,
                 static_cast<unsigned long long>(totals.reconnects));
-    std::printf("  dropped   at the device %llu, no free buffer %llu, replaced in the mailbox %llu; corrupt %llu; "
+    say("  dropped   at the device %llu, no free buffer %llu, replaced in the mailbox %llu; corrupt %llu; "
                 "not trackable %llu\n",
                 static_cast<unsigned long long>(totals.device), static_cast<unsigned long long>(totals.no_slot),
                 static_cast<unsigned long long>(totals.mailbox), static_cast<unsigned long long>(totals.corrupt),
                 static_cast<unsigned long long>(loop.bad_frames));
-    std::printf("  latency   p50 %.3f ms, p95 %.3f ms (last connection, frame arrival to hand-over)\n", totals.last.latency_ms.p50,
+    say("  latency   p50 %.3f ms, p95 %.3f ms (last connection, frame arrival to hand-over)\n", totals.last.latency_ms.p50,
                 totals.last.latency_ms.p95);
     if (runner_options.composite) {
-        std::printf("  composited %llu of %llu frames tracked (%llu replaced by newer ones before the compositor took them)\n",
+        say("  composited %llu of %llu frames tracked (%llu replaced by newer ones before the compositor took them)\n",
                     static_cast<unsigned long long>(loop.composited), static_cast<unsigned long long>(loop.tracked),
                     static_cast<unsigned long long>(loop.replaced));
     }
-    printStages(timings);
-    std::printf("tracked: %llu of %llu frames with a camera pose\n",
+    if (!quiet()) printStages(timings);
+    say("tracked: %llu of %llu frames with a camera pose\n",
                 static_cast<unsigned long long>((*runner)->tracking().framesWithPose()), static_cast<unsigned long long>(totals.taken));
-    std::printf("%s", (*runner)->summary().c_str());
+    say("%s", (*runner)->summary().c_str());
     if (truth) {
         if ((*runner)->tracking().framesWithoutTruth() > 0) {
             log::warning(std::to_string((*runner)->tracking().framesWithoutTruth()) + " frames matched no frame of " +
@@ -236,7 +237,7 @@ int runLive(const LiveOptions& options) {
         }
     }
     if (recorded) {
-        std::printf("recorded %zu frames to %s (dropped by the recorder %llu, refused by the sequence %llu)\n",
+        say("recorded %zu frames to %s (dropped by the recorder %llu, refused by the sequence %llu)\n",
                     recorded->frames_written, recorded->root.c_str(), static_cast<unsigned long long>(recorded->dropped),
                     static_cast<unsigned long long>(recorded->rejected));
         if (recorded->first_rejection) log::warning(recorded->first_rejection->message);
@@ -255,7 +256,7 @@ int runLive(const LiveOptions& options) {
         metrics.update((*runner)->metricsJson());
         const fs::path file = fs::path(options.out) / "metrics.json";
         if (auto written = writeJson(file, metrics); !written) return reportError(written.error());
-        std::printf("metrics written to %s\n", file.c_str());
+        say("metrics written to %s\n", file.c_str());
     }
     if (recorded && recorded->write_error) return reportError(*recorded->write_error);
     if (loop.failure) {

@@ -12,6 +12,7 @@
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/quiet.h"
 #include "pipeline/lighting_stage.h"
 #include "pipeline/runner.h"
 #include "apps/progress.h"
@@ -74,7 +75,7 @@ int runPlay(const PlayOptions& options) {
         auto read = readScene(*scene_path);
         if (!read) return reportError(read.error());
         scene = std::move(*read);
-        std::printf("scene %s: %zu tags, %zu real objects, %zu lights, %zu virtual objects\n", scene_path->c_str(),
+        say("scene %s: %zu tags, %zu real objects, %zu lights, %zu virtual objects\n", scene_path->c_str(),
                     scene->tags.items.size(), scene->real_objects.size(), scene->lights.size(),
                     scene->virtual_objects.size());
     }
@@ -101,7 +102,7 @@ int runPlay(const PlayOptions& options) {
     capture_options.slots = options.slots;
     auto session = capture::CaptureSession::create(std::move(*replay), capture_options);
     if (!session) return reportError(session.error());
-    std::printf("playing %s: %zu frames, %s, %s\n", options.sequence.c_str(), recorded, hal::describe(format).c_str(),
+    say("playing %s: %zu frames, %s, %s\n", options.sequence.c_str(), recorded, hal::describe(format).c_str(),
                 options.sync ? "every frame (--sync)" : "at the recorded rate");
 
     // Step 3: the per-frame pipeline (pipeline/runner.h): tracking, lighting thread.
@@ -126,7 +127,7 @@ int runPlay(const PlayOptions& options) {
         if (!created) return reportError(created.error());
         runner = std::move(*created);
         if (runner->lighting()) {
-            std::printf("lighting: %s, response %s%s\n", options.sync ? "every frame" : "real time (newest wins)",
+            say("lighting: %s, response %s%s\n", options.sync ? "every frame" : "real time (newest wins)",
                         response->name().c_str(),
                         camera->sequence().sensor.radiance_scale ? "" : ", no radiance_scale: emissions in relative units");
         }
@@ -205,16 +206,16 @@ int runPlay(const PlayOptions& options) {
     const std::uint64_t corrupt = stats.drops.corrupt + undecodable;
 
     // Step 5: report.
-    std::printf("played %llu of %zu frames in %.2f s (%llu corrupt)\n",
+    say("played %llu of %zu frames in %.2f s (%llu corrupt)\n",
                 static_cast<unsigned long long>(stats.frames_delivered), recorded, seconds,
                 static_cast<unsigned long long>(corrupt));
-    printCaptureStats(stats);
-    printStages(timings);
+    if (!quiet()) printCaptureStats(stats);
+    if (!quiet()) printStages(timings);
     if (runner) {
-        std::printf("tracked: %llu of %llu frames with a camera pose\n",
+        say("tracked: %llu of %llu frames with a camera pose\n",
                     static_cast<unsigned long long>(runner->tracking().framesWithPose()),
                     static_cast<unsigned long long>(stats.frames_delivered));
-        std::printf("%s", runner->summary().c_str());
+        say("%s", runner->summary().c_str());
     }
     if (!options.metrics.empty()) {
         nlohmann::json metrics = captureJson(stats);
@@ -225,7 +226,7 @@ int runPlay(const PlayOptions& options) {
         metrics["stages_ms"] = stagesJson(timings);
         if (runner) metrics.update(runner->metricsJson());
         if (auto written = writeJson(options.metrics, metrics); !written) return reportError(written.error());
-        std::printf("metrics written to %s\n", options.metrics.c_str());
+        say("metrics written to %s\n", options.metrics.c_str());
     }
     if (failure) return reportError(*failure);
     if (stopToken().stop_requested()) return 130;

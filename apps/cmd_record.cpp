@@ -6,6 +6,7 @@
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/quiet.h"
 #include "apps/progress.h"
 #include "apps/report.h"
 #include "capture/capture_session.h"
@@ -57,7 +58,7 @@ int runRecord(const RecordOptions& options) {
     capture_options.sync = options.sync;
     auto session = capture::CaptureSession::create(std::move(*camera), capture_options);
     if (!session) return reportError(session.error());
-    std::printf("recording %s (%s) to %s\n", options.camera.c_str(), hal::describe(format).c_str(), options.out.c_str());
+    say("recording %s (%s) to %s\n", options.camera.c_str(), hal::describe(format).c_str(), options.out.c_str());
     if (auto started = (*session)->start(); !started) {
         (*recorder)->finish();
         return reportError(started.error());
@@ -91,11 +92,11 @@ int runRecord(const RecordOptions& options) {
     const capture::CaptureStats stats = (*session)->stats();
 
     // Step 4: report.
-    std::printf("recorded %zu frames to %s (dropped by the recorder %llu, rejected %llu, corrupt kept %llu)\n",
+    say("recorded %zu frames to %s (dropped by the recorder %llu, rejected %llu, corrupt kept %llu)\n",
                 summary.frames_written, options.out.c_str(), static_cast<unsigned long long>(summary.dropped),
                 static_cast<unsigned long long>(summary.rejected),
                 static_cast<unsigned long long>(summary.corrupt_written));
-    printCaptureStats(stats);
+    if (!quiet()) printCaptureStats(stats);
     if (summary.first_rejection) log::warning(summary.first_rejection->message);
     if (summary.write_error) return reportError(*summary.write_error);
     if (failure) {

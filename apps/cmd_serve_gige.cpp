@@ -8,6 +8,7 @@
 #include <thread>
 
 #include "apps/app.h"
+#include "apps/quiet.h"
 #include "core/log.h"
 #ifdef COMMONLIGHT_HAVE_ARAVIS
 #include "mocks/gige/gige_server.h"
@@ -36,10 +37,10 @@ int runServeGige([[maybe_unused]] const ServeGigeOptions& options) {
     auto server = mocks::GigeServer::start(server_options);
     if (!server) return reportError(server.error());
     const mocks::GigeServer& s = **server;
-    std::printf("serving %s as GigE Vision camera %s at %s: %s, %zu frames%s\n", options.sequence.c_str(),
+    say("serving %s as GigE Vision camera %s at %s: %s, %zu frames%s\n", options.sequence.c_str(),
                 s.deviceId().c_str(), s.address().c_str(), hal::describe(s.format()).c_str(), s.sequenceFrames(),
                 options.loop ? ", looping" : "");
-    std::printf("watch it with: commonlight record --camera aravis:%s ...\n", s.address().c_str());
+    say("watch it with: commonlight record --camera aravis:%s ...\n", s.address().c_str());
     std::fflush(stdout);
     const std::stop_token stop = stopToken();
     while (!stop.stop_requested() && !s.finished()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
@@ -49,7 +50,7 @@ int runServeGige([[maybe_unused]] const ServeGigeOptions& options) {
     }
     const unsigned long long served = s.framesServed();
     server->reset();
-    std::printf("served %llu frames\n", served);
+    say("served %llu frames\n", served);
     return kExitOk;
 #else
     return reportError(Error{ErrorCode::kUnsupported, "serve-gige: this build has no Aravis (libaravis-dev)"});

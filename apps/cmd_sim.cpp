@@ -4,6 +4,7 @@
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/quiet.h"
 #include "apps/progress.h"
 #include "core/calibration_io.h"
 #include "core/file_util.h"
@@ -79,7 +80,7 @@ int runSim(SimCommandOptions options) {
     options.sim.write_masks = !options.no_masks;
     options.sim.write_radiance = !options.no_radiance;
     const int total = options.sim.frames > 0 ? options.sim.frames : trajectory->frameCount();
-    std::printf("simulating %s along %s: %d frames at %.4g fps, %d spp, seed %llu -> %s\n", options.scene.c_str(),
+    say("simulating %s along %s: %d frames at %.4g fps, %d spp, seed %llu -> %s\n", options.scene.c_str(),
                 options.trajectory.c_str(), total, trajectory->rateHz(), options.sim.spp,
                 static_cast<unsigned long long>(options.sim.seed), options.sim.out.c_str());
 
@@ -93,7 +94,7 @@ int runSim(SimCommandOptions options) {
 
     // Step 3: report.
     const double per_frame = summary->frames_written > 0 ? summary->render_seconds / summary->frames_written : 0.0;
-    std::printf("wrote %d frames to %s (render %.1f s, %.2f s per frame incl. the composite, %.3g samples/s)\n",
+    say("wrote %d frames to %s (render %.1f s, %.2f s per frame incl. the composite, %.3g samples/s)\n",
                 summary->frames_written, options.sim.out.c_str(), summary->render_seconds, per_frame,
                 summary->render_seconds > 0 ? static_cast<double>(summary->samples) / summary->render_seconds : 0.0);
     if (summary->nonfinite_samples > 0) {

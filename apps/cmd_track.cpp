@@ -12,6 +12,7 @@
 #include <memory>
 
 #include "apps/app.h"
+#include "apps/quiet.h"
 #include "core/response.h"
 #include "tracking/edge_profile.h"
 #include "apps/progress.h"
@@ -205,14 +206,13 @@ int runTrack(TrackCommandOptions& options) {
         std::sort(v.begin(), v.end());
         return capture::nearestRank(v, 100.0 * q);
     };
-    std::fprintf(stderr, "tracked %zu frames: %zu with a camera pose, %zu tag rows; %.2f ms per frame (p50)\n",
-                 input->frames.size() - unreadable, with_pose, tag_rows, total_ms.empty() ? 0.0 : pct(total_ms, 0.5));
+    sayErr("tracked %zu frames: %zu with a camera pose, %zu tag rows; %.2f ms per frame (p50)\n",
+           input->frames.size() - unreadable, with_pose, tag_rows, total_ms.empty() ? 0.0 : pct(total_ms, 0.5));
     if (!rot_err.empty()) {
-        std::fprintf(stderr,
-                     "pose error against groundtruth/cam_poses.csv (%zu frames): rotation p50 %.3f p95 %.3f max %.3f "
-                     "deg; camera position p50 %.2f p95 %.2f max %.2f mm\n",
-                     rot_err.size(), pct(rot_err, 0.5), pct(rot_err, 0.95), pct(rot_err, 1.0), pct(trans_err, 0.5),
-                     pct(trans_err, 0.95), pct(trans_err, 1.0));
+        sayErr("pose error against groundtruth/cam_poses.csv (%zu frames): rotation p50 %.3f p95 %.3f max %.3f "
+               "deg; camera position p50 %.2f p95 %.2f max %.2f mm\n",
+               rot_err.size(), pct(rot_err, 0.5), pct(rot_err, 0.95), pct(rot_err, 1.0), pct(trans_err, 0.5),
+               pct(trans_err, 0.95), pct(trans_err, 1.0));
     }
     if (unreadable > 0) {
         return reportError(Error{ErrorCode::kBadInput, std::to_string(unreadable) +

@@ -88,27 +88,35 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
     }
     const double range = std::max(options.search_px, 0.35 * cell_px);
     const Linearizer& lin = options.linearizer ? *options.linearizer : Linearizer::get(options.srgb);
+    using Matrix7d = Eigen::Matrix<double, 7, 7>;
+    using Vector7d = Eigen::Matrix<double, 7, 1>;
     Rigid3d pose = cam_from_tag;
-    Matrix6d info = Matrix6d::Zero();
-    double sum2 = 0.0;
+    double dilation = 0.0;  // cells
+    // The prior on the dilation, in the normal equations' units (pixels^2 per cell^2).
+    const double prior = options.estimate_dilation ? 1.0 / (options.dilation_sigma_cells * options.dilation_sigma_cells) : 0;
+    Matrix7d info = Matrix7d::Zero();
+    double sum2 = 0.0, sum_cell_px = 0.0;
     int used = 0;
     for (int it = 0; it < options.iterations; ++it) {
-        Matrix6d h = Matrix6d::Zero();
-        Vector6d g = Vector6d::Zero();
+        Matrix7d h = Matrix7d::Zero();
+        Vector7d g = Vector7d::Zero();
         sum2 = 0.0;
+        sum_cell_px = 0.0;
         used = 0;
         for (const TagPattern::Edge& e : pattern.edges()) {
+            const Eigen::Vector3d bright_tag(e.to_bright.x(), e.to_bright.y(), 0.0);
+            // The boundary where the model puts it: the pattern's, moved `dilation` cells into the white.
+            const Eigen::Vector3d shift = (dilation * size * pattern.cell()) * bright_tag;
             // Three points per cell boundary, away from its ends (where other boundaries meet).
             for (const double t : {0.25, 0.5, 0.75}) {
                 const Eigen::Vector2d q = e.a + t * (e.b - e.a);
-                const Eigen::Vector3d p_tag(size * q.x(), size * q.y(), 0.0);
+                const Eigen::Vector3d p_tag = Eigen::Vector3d(size * q.x(), size * q.y(), 0.0) + shift;
                 const Eigen::Vector3d p_cam = pose * p_tag;
                 const auto proj = projectWithJacobian(camera, p_cam);
                 if (!proj) continue;
                 // Image directions of the boundary and of its dark-to-bright normal.
                 const Eigen::Vector3d along_tag(size * (e.b - e.a).x(), size * (e.b - e.a).y(), 0.0);
                 const auto pa = camera.project(pose * (p_tag + 0.05 * along_tag));
-                const Eigen::Vector3d bright_tag(e.to_bright.x(), e.to_bright.y(), 0.0);
                 const auto pb = camera.project(pose * (p_tag + 0.05 * size * pattern.cell() * bright_tag));
                 if (!pa || !pb) continue;
                 const Eigen::Vector2d along = (*pa - proj->pixel).normalized();
@@ -119,11 +127,16 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
                 if (!s) continue;
                 // Residual: signed distance of the projected boundary from the observed one.
                 const double r = -*s;
-                const Eigen::Matrix<double, 1, 6> j = n.transpose() * proj->d_pixel_d_xi;
+                Eigen::Matrix<double, 1, 7> j;
+                j.head<6>() = n.transpose() * proj->d_pixel_d_xi;
+                // d r / d dilation: pixels per cell along the normal here.
+                const double cell_here = n.dot(*pb - proj->pixel) / 0.05;
+                j(6) = options.estimate_dilation ? cell_here : 0.0;
                 const double w = std::abs(r) <= options.huber_px ? 1.0 : options.huber_px / std::abs(r);
                 h += w * j.transpose() * j;
                 g += w * j.transpose() * r;
                 sum2 += r * r;
+                sum_cell_px += cell_here;
                 ++used;
             }
         }
@@ -131,23 +144,38 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
             out.reason = "only " + std::to_string(used) + " cell boundaries found in the image";
             return out;
         }
+        // The prior pulls the dilation to 0 (and fixes it there when it is not estimated).
+        h(6, 6) += options.estimate_dilation ? prior : 1.0;
+        g(6) += options.estimate_dilation ? prior * dilation : 0.0;
         info = h;
-        const Vector6d step = -(h + 1e-9 * h.trace() * Matrix6d::Identity()).ldlt().solve(g);
+        const Vector7d step = -(h + 1e-9 * h.trace() * Matrix7d::Identity()).ldlt().solve(g);
         if (!step.allFinite()) {
             out.reason = "the alignment did not converge";
             return out;
         }
-        pose = expSe3(step) * pose;
+        pose = expSe3(Vector6d(step.head<6>())) * pose;
+        dilation += step(6);
         if (step.norm() < 1e-9) break;
     }
     out.points = used;
     out.rms_px = std::sqrt(sum2 / used);
+    out.cell_px = cell_px;
+    out.dilation_cells = dilation;
+    out.dilation_px = dilation * sum_cell_px / used;
     if (out.rms_px > options.max_rms_px || !pose.isValid()) {
         out.reason = "the pattern does not match the image (rms " + std::to_string(out.rms_px) + " px)";
         return out;
     }
+    if (!(std::abs(dilation) <= options.max_dilation_cells)) {
+        out.reason = "the fitted dilation of " + std::to_string(dilation) + " cells is implausible";
+        return out;
+    }
     const double s2 = std::max(out.rms_px * out.rms_px, 0.01);
-    out.covariance = s2 * (info + 1e-12 * info.trace() * Matrix6d::Identity()).ldlt().solve(Matrix6d::Identity());
+    // The pose's covariance is the pose block of the joint one: the dilation's uncertainty included.
+    const Eigen::Matrix<double, 7, 7> joint =
+        s2 * (info + 1e-12 * info.trace() * Eigen::Matrix<double, 7, 7>::Identity()).ldlt().solve(
+                 Eigen::Matrix<double, 7, 7>::Identity());
+    out.covariance = joint.topLeftCorner<6, 6>();
     out.covariance = (0.5 * (out.covariance + out.covariance.transpose())).eval();
     out.cam_from_tag = pose;
     out.ok = out.covariance.allFinite();

@@ -5,8 +5,19 @@
 // of them: for each sample point on a cell boundary, Step 1 projects it with the current pose
 // (lens included), Step 2 finds the boundary in the image along the projected normal (the
 // halfway crossing in linear light, edge_profile.h), Step 3 takes one robust Gauss-Newton step
-// on the signed distances over the pose's 6 degrees of freedom; repeated a few times. Tags whose
-// cells are under `min_cell_px` pixels keep their corner pose (there is nothing to resolve).
+// on the signed distances over the pose's 6 degrees of freedom and the tag's dilation; repeated a
+// few times. Tags whose cells are under `min_cell_px` pixels keep their corner pose (there is
+// nothing to resolve).
+//
+// Dilation: every black/white boundary of the image may lie a little into the white (black
+// regions grown) or into the black (shrunk), by the same distance: ink spread on the print, and a
+// camera response other than the one assumed (the halfway crossing of a blurred edge in wrongly
+// linearized values moves towards one side by a fraction of the blur). Fitted by the pose alone,
+// this shifts the black square's outline outward or inward: a scale error, so a range error of
+// a few percent. The pattern has boundaries facing both ways (the outline faces out, inner cells'
+// boundaries face in and out), so one parameter per tag, the distance `dilation` (in cells of the
+// tag, along each boundary's normal towards its white side), is observable beside the pose and
+// solved jointly with it: the model's boundary is the pattern's moved by `dilation` cells.
 #pragma once
 #include "tracking/edge_profile.h"
 
@@ -60,6 +71,10 @@ struct TagAlignOptions {
     double huber_px = 0.5;
     double max_rms_px = 0.6;    // a final RMS above this: the alignment is refused
     bool srgb = true;           // pixels are sRGB-encoded: find edges in linear light
+    // Solve the tag's dilation (black grown or shrunk, in cells) with its pose; false: 0.
+    bool estimate_dilation = true;
+    double dilation_sigma_cells = 0.2;  // a weak prior on the dilation: zero, this standard deviation
+    double max_dilation_cells = 0.3;    // a larger fitted dilation: the alignment is refused
     // The camera\'s response when it is neither sRGB nor linear (--response): replaces `srgb`.
     std::shared_ptr<const Linearizer> linearizer;
 };
@@ -71,6 +86,9 @@ struct TagAlignResult {
     Matrix6d covariance = Matrix6d::Identity();  // of cam_from_tag, pose_types.h convention
     int points = 0;             // edge points used in the last step
     double rms_px = 0.0;
+    double dilation_cells = 0.0;  // fitted dilation: > 0 the black regions look grown, in cells
+    double dilation_px = 0.0;     // the same in image pixels (times the tag's mean cell size)
+    double cell_px = 0.0;         // the tag's cell size in the image (the shorter side's), pixels
 };
 
 TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, const TagPattern& pattern, double size,

@@ -68,7 +68,7 @@ bool refineTagCorners(const ImageView& gray8, const CameraModel& camera, std::ar
             const auto s = edgeOffset(gray8, lin, p, normal, dir, range);
             if (!s) continue;
             // Step 2 (first half): into the ideal pinhole image.
-            if (auto u = camera.undistortPixel(p + *s * normal)) ideal.push_back(*u);
+            if (auto u = camera.undistortPixel(p + (*s - options.dilation_px) * normal)) ideal.push_back(*u);
         }
         if (static_cast<int>(ideal.size()) < options.min_points) return false;
         auto line = fitLine(ideal);

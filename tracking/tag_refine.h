@@ -30,6 +30,11 @@ struct TagRefineOptions {
     double max_shift_px = 2.0;  // a refined corner further than this from the detected one: refinement refused
     int min_points = 6;         // per side
     bool srgb = true;           // pixels are sRGB-encoded (webcams, our sequences): find edges in linear light
+    // The black square's edges are this far into the white in the image (black regions grown by
+    // the print or a response other than the one assumed; < 0: shrunk), pixels: each measured
+    // edge point is moved back by it. The tag alignment measures it (TagAlignResult::dilation_px);
+    // the tracker passes the frame's aligned tags' median to the tags it could not align.
+    double dilation_px = 0.0;
     // The camera\'s response when it is neither sRGB nor linear (--response): replaces `srgb`.
     std::shared_ptr<const Linearizer> linearizer;
 };

@@ -100,6 +100,7 @@ struct Tracker::State {
     // scene does not place).
     std::vector<TagDetection> last_detections;
     std::map<int, Rigid3d> last_cam_from_tag;
+    std::optional<double> last_dilation_cells;  // the last frame's tags' dilation (FrameTrack::dilation_cells)
 
     State(const CameraModel& c, const TagSet& t, const TrackerOptions& o, TagDetector d)
         : camera(c), tags(t), options(o), detector(std::move(d)), patterns(o.detector.family), filter(o.filter_options) {}
@@ -199,57 +200,93 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
     }
     out.times.detect_ms = msSince(t0);
 
-    // Step 2: single-tag poses.
+    // Step 2: single-tag poses. A tag whose pattern cannot be aligned (cells too small, the
+    // alignment refused) keeps its refined corners, which a response or print other than the
+    // assumed one biases (tag_align.h, "Dilation"): those are refined again with the dilation the
+    // frame's aligned tags measured (the same camera, the same printer), or, in a sequence, the
+    // last one measured. It is carried in cells of the tag (exact for the print; for a response
+    // mismatch, whose shift is in pixels, it under-corrects a tag smaller than the aligned ones
+    // and never overshoots).
     t0 = Clock::now();
     out.tags.reserve(detections.size());
-    for (const TagDetection& d : detections) {
+    const auto solveTag = [&](const TagDetection& d, double dilation_cells, double* measured_dilation_cells) {
         TrackedTag tag{d, false, false, std::nullopt, {}};
         if (s.options.refine_corners) {
-            tag.corners_refined = refineTagCorners(gray8, s.camera, tag.detection.corners, s.options.refine);
+            TagRefineOptions refine = s.options.refine;
+            if (dilation_cells != 0.0) {
+                // The tag's cell in the image: its mean side over the cells across its black square.
+                double side = 0.0;
+                for (int c = 0; c < 4; ++c) side += 0.25 * (d.corners[(c + 1) % 4] - d.corners[c]).norm();
+                const TagPattern* pattern = s.patterns.get(d.id);
+                refine.dilation_px += dilation_cells * side * (pattern ? pattern->cell() : 0.0);
+            }
+            tag.corners_refined = refineTagCorners(gray8, s.camera, tag.detection.corners, refine);
         }
         const TagItem* item = s.tags.find(d.id);
         const double size = item ? item->size : s.options.default_tag_size;
         if (size <= 0) {
             tag.error = "tag " + std::to_string(d.id) + " is not in the scene";
-        } else {
-            std::optional<Rigid3d> predicted_cam_from_tag;
-            if (item && predicted) {
-                predicted_cam_from_tag = *predicted * item->world_from_tag;
-            } else if (auto it = s.last_cam_from_tag.find(d.id); !s.options.independent_frames && it != s.last_cam_from_tag.end()) {
-                predicted_cam_from_tag = it->second;
-            }
-            auto pose = solveTagPose(d.id, tag.detection.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
-            if (pose && s.options.align_tags) {
-                if (const TagPattern* pattern = s.patterns.get(d.id)) {
-                    const TagAlignResult a = alignTagPose(gray8, s.camera, *pattern, size, pose->cam_from_tag, s.options.align);
-                    if (a.ok) {
-                        pose->cam_from_tag = a.cam_from_tag;
-                        pose->covariance = a.covariance;
-                        pose->candidates[0].cam_from_tag = a.cam_from_tag;
-                        // The corners where the aligned pose puts them.
-                        bool all = true;
-                        std::array<Eigen::Vector2d, 4> corners;
-                        for (int c = 0; c < 4 && all; ++c) {
-                            const auto px = s.camera.project(a.cam_from_tag * tagCornerInTag(c, size));
-                            all = px.has_value();
-                            if (all) corners[c] = *px;
-                        }
-                        if (all) {
-                            tag.detection.corners = corners;
-                            pose->rms_px = a.rms_px;
-                            pose->candidates[0].rms_px = a.rms_px;
-                            tag.aligned = true;
-                        }
+            return tag;
+        }
+        std::optional<Rigid3d> predicted_cam_from_tag;
+        if (item && predicted) {
+            predicted_cam_from_tag = *predicted * item->world_from_tag;
+        } else if (auto it = s.last_cam_from_tag.find(d.id); !s.options.independent_frames && it != s.last_cam_from_tag.end()) {
+            predicted_cam_from_tag = it->second;
+        }
+        auto pose = solveTagPose(d.id, tag.detection.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+        if (pose && s.options.align_tags) {
+            if (const TagPattern* pattern = s.patterns.get(d.id)) {
+                const TagAlignResult a = alignTagPose(gray8, s.camera, *pattern, size, pose->cam_from_tag, s.options.align);
+                if (a.ok) {
+                    pose->cam_from_tag = a.cam_from_tag;
+                    pose->covariance = a.covariance;
+                    pose->candidates[0].cam_from_tag = a.cam_from_tag;
+                    // The corners where the aligned pose puts them.
+                    bool all = true;
+                    std::array<Eigen::Vector2d, 4> corners;
+                    for (int c = 0; c < 4 && all; ++c) {
+                        const auto px = s.camera.project(a.cam_from_tag * tagCornerInTag(c, size));
+                        all = px.has_value();
+                        if (all) corners[c] = *px;
+                    }
+                    if (all) {
+                        tag.detection.corners = corners;
+                        pose->rms_px = a.rms_px;
+                        pose->candidates[0].rms_px = a.rms_px;
+                        tag.aligned = true;
+                        if (measured_dilation_cells) *measured_dilation_cells = a.dilation_cells;
                     }
                 }
             }
-            if (pose) {
-                tag.pose = std::move(*pose);
-            } else {
-                tag.error = pose.error().message;
+        }
+        if (pose) {
+            tag.pose = std::move(*pose);
+        } else {
+            tag.error = pose.error().message;
+        }
+        return tag;
+    };
+    std::vector<double> dilations;
+    for (const TagDetection& d : detections) {
+        double measured = NAN;
+        out.tags.push_back(solveTag(d, 0.0, &measured));
+        if (std::isfinite(measured)) dilations.push_back(measured);
+    }
+    if (!dilations.empty()) {
+        std::nth_element(dilations.begin(), dilations.begin() + static_cast<std::ptrdiff_t>(dilations.size() / 2),
+                         dilations.end());
+        out.dilation_cells = dilations[dilations.size() / 2];
+        if (!s.options.independent_frames) s.last_dilation_cells = out.dilation_cells;
+    } else if (!s.options.independent_frames && s.last_dilation_cells) {
+        out.dilation_cells = *s.last_dilation_cells;
+    }
+    if (out.dilation_cells && s.options.refine_corners) {
+        for (std::size_t k = 0; k < out.tags.size(); ++k) {
+            if (!out.tags[k].aligned && out.tags[k].corners_refined) {
+                out.tags[k] = solveTag(detections[k], *out.dilation_cells, nullptr);
             }
         }
-        out.tags.push_back(std::move(tag));
     }
     out.times.tag_pose_ms = msSince(t0);
 

@@ -89,6 +89,10 @@ struct FrameTrack {
     TrackStatus status = TrackStatus::kNoPose;
     std::optional<Rigid3d> cam_from_world;  // the stage's answer: filtered when the filter is on
     std::optional<Matrix6d> covariance;
+    // The dilation of the tags' black regions (in cells of each tag, > 0 grown): the median of
+    // the aligned tags' (TagAlignResult::dilation_cells), used to refine the corners of tags that
+    // could not be aligned; in a sequence, the last frame's when no tag was aligned.
+    std::optional<double> dilation_cells;
     StageTimes times;
 };
 

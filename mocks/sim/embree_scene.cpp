@@ -257,7 +257,7 @@ Result<SimScene> SimScene::build(const Scene& scene, const SimSceneOptions& opti
     // Step 1: lights, environment and tag textures (pure data, may fail on bad input).
     CL_TRY(out.lights_, makeSimLights(scene));
     CL_TRY(out.environment_, makeEnvironmentRadiance(scene));
-    CL_TRY(out.tags_, makePlacedTags(scene.tags));
+    CL_TRY(out.tags_, makePlacedTags(scene.tags, options.tag_ink_spread_cells));
 
     // Step 2: the Embree device, with its error callback installed before anything else happens.
     out.errors_ = std::make_unique<EmbreeErrors>();

@@ -46,6 +46,9 @@ struct SimSceneOptions {
     double time_s = 0.0;           // where keyframed virtual objects are: seconds since the sequence start
     // Albedo of real objects whose albedo is `estimate` (the scene does not know their truth).
     Eigen::Vector3d default_albedo = Eigen::Vector3d::Constant(0.5);
+    // How the tags were printed: black regions grown (> 0) or shrunk (< 0) by this many cells
+    // (PlacedTag::ink_spread_cells).
+    double tag_ink_spread_cells = 0.0;
 };
 
 enum class ObjectKind { kReal, kTag, kLight, kVirtual };

@@ -202,7 +202,7 @@ SensorModel::SensorModel(const SensorParams& params, int width, int height)
     for (int dn = 0; dn <= max_dn; ++dn) {
         const double v = (dn - black) / (max_dn - black);  // max_dn > black: validate() checked it
         encode_lut_[static_cast<std::size_t>(dn)] =
-            static_cast<std::uint8_t>(std::lround(255.0 * applyResponse(params.response, v)));
+            static_cast<std::uint8_t>(std::lround(255.0 * applyResponse(params.response, v, params.gamma)));
     }
 }
 
@@ -328,28 +328,32 @@ double radianceFromDn(const SensorParams& params, double dn) {
     return (electrons - params.dark_current_e_per_s * t_s) / (t_s * params.electrons_per_radiance_second);
 }
 
-double applyResponse(SensorResponse response, double linear) {
+double applyResponse(SensorResponse response, double linear, double gamma) {
     const double v = std::clamp(linear, 0.0, 1.0);
     if (response == SensorResponse::kLinear) return v;
+    if (response == SensorResponse::kGamma) return std::pow(v, 1.0 / gamma);
     // sRGB OETF (IEC 61966-2-1): linear segment near black, then a 1/2.4 power.
     return v <= 0.0031308 ? 12.92 * v : 1.055 * std::pow(v, 1.0 / 2.4) - 0.055;
 }
 
-double invertResponse(SensorResponse response, double encoded) {
+double invertResponse(SensorResponse response, double encoded, double gamma) {
     const double e = std::clamp(encoded, 0.0, 1.0);
     if (response == SensorResponse::kLinear) return e;
+    if (response == SensorResponse::kGamma) return std::pow(e, gamma);
     return e <= 0.04045 ? e / 12.92 : std::pow((e + 0.055) / 1.055, 2.4);
 }
 
-double linearFromPixel(std::uint8_t value, SensorResponse response) { return invertResponse(response, value / 255.0); }
+double linearFromPixel(std::uint8_t value, SensorResponse response, double gamma) {
+    return invertResponse(response, value / 255.0, gamma);
+}
 
 double relativeRadianceFromPixel(std::uint8_t value, const SensorParams& params) {
-    return linearFromPixel(value, params.response) / (params.exposureS() * params.analog_gain);
+    return linearFromPixel(value, params.response, params.gamma) / (params.exposureS() * params.analog_gain);
 }
 
 double radianceFromPixel(std::uint8_t value, const SensorParams& params) {
     const double black = params.blackLevelDn();
-    const double dn = black + linearFromPixel(value, params.response) * (params.maxDn() - black);
+    const double dn = black + linearFromPixel(value, params.response, params.gamma) * (params.maxDn() - black);
     return radianceFromDn(params, dn);
 }
 

@@ -89,12 +89,13 @@ double meanDn(const SensorParams& params, double radiance);
 double radianceFromDn(const SensorParams& params, double dn);
 
 // The response curve on normalised values in [0, 1] (inputs outside are clamped) and its inverse.
-double applyResponse(SensorResponse response, double linear);
-double invertResponse(SensorResponse response, double encoded);
+// `gamma` is the exponent of SensorResponse::kGamma (unused by the others).
+double applyResponse(SensorResponse response, double linear, double gamma = 2.2);
+double invertResponse(SensorResponse response, double encoded, double gamma = 2.2);
 
 // Inverse of encode8 for one 8-bit value: the normalised linear signal v in [0, 1] (0 = black level,
 // 1 = top code). 0 and 255 are clipped values: the true signal may lie below or above them.
-double linearFromPixel(std::uint8_t value, SensorResponse response);
+double linearFromPixel(std::uint8_t value, SensorResponse response, double gamma = 2.2);
 // What lighting calls relative radiance (DESIGN 3): inverse response, divided by exposure [s] x analog gain.
 double relativeRadianceFromPixel(std::uint8_t value, const SensorParams& params);
 // The absolute radiance [W/(m^2 sr)] of an 8-bit value, with the sensor's true conversion (ground truth).

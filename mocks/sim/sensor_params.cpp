@@ -3,6 +3,7 @@
 #include <array>
 #include <charconv>
 #include <cmath>
+#include <cstdlib>
 #include <utility>
 
 #include "core/yaml_util.h"
@@ -105,7 +106,7 @@ std::optional<std::string> assignOptional(const NumberField& field, std::string_
 // What a key takes, for values that are lists or maps.
 std::string expectation(std::string_view key) {
     if (key == "bits") return "expected an integer (8, 10, 12, 14 or 16)";
-    if (key == "response") return "expected linear or srgb";
+    if (key == "response") return "expected linear, srgb or gamma:G (G in [1, 4])";
     if (key == "color") return "expected rgb or mono";
     if (key == "seed") return "expected an integer in [0, 2^64 - 1]";
     if (key == kSystemGainField.key || key == kBlackLevelField.key) return "expected a number or auto";
@@ -139,6 +140,16 @@ std::optional<std::string> assign(SensorParams& params, std::string_view key, st
             params.response = SensorResponse::kLinear;
         } else if (text == "srgb") {
             params.response = SensorResponse::kSrgb;
+        } else if (text.starts_with("gamma:")) {
+            double g = 0.0;
+            const std::string number(text.substr(6));
+            char* end = nullptr;
+            g = std::strtod(number.c_str(), &end);
+            if (number.empty() || end != number.c_str() + number.size() || !(g >= 1.0 && g <= 4.0)) {
+                return expectation(key) + ", found '" + std::string(text) + "'";
+            }
+            params.response = SensorResponse::kGamma;
+            params.gamma = g;
         } else {
             return expectation(key) + ", found '" + std::string(text) + "'";
         }
@@ -166,6 +177,10 @@ std::optional<std::pair<std::string_view, std::string>> firstProblem(const Senso
     for (const NumberField& field : kNumberFields) {
         if (auto problem = rangeProblem(field, params.*field.member)) return std::pair{field.key, *problem};
     }
+    if (params.response == SensorResponse::kGamma && !(params.gamma >= 1.0 && params.gamma <= 4.0)) {
+        return std::pair{std::string_view("response"),
+                         "gamma " + yaml::formatNumber(params.gamma) + " is out of range [1, 4]"};
+    }
     if (!validBits(params.bits)) {
         return std::pair{std::string_view("bits"), expectation("bits") + ", found " + std::to_string(params.bits)};
     }
@@ -187,7 +202,17 @@ std::optional<std::pair<std::string_view, std::string>> firstProblem(const Senso
 }  // namespace
 
 std::string_view sensorResponseName(SensorResponse response) noexcept {
-    return response == SensorResponse::kLinear ? "linear" : "srgb";
+    switch (response) {
+        case SensorResponse::kLinear: return "linear";
+        case SensorResponse::kSrgb: return "srgb";
+        case SensorResponse::kGamma: return "gamma";
+    }
+    return "srgb";
+}
+
+std::string sensorResponseSpec(const SensorParams& params) {
+    if (params.response != SensorResponse::kGamma) return std::string(sensorResponseName(params.response));
+    return "gamma:" + yaml::formatNumber(params.gamma);
 }
 
 std::string_view sensorColorName(SensorColor color) noexcept { return color == SensorColor::kRgb ? "rgb" : "mono"; }
@@ -265,7 +290,7 @@ std::string formatSensorParams(const SensorParams& params) {
     }
     out += "bits: " + std::to_string(params.bits) + ", ";
     if (params.black_level_dn) out += "black_level_dn: " + yaml::formatNumber(*params.black_level_dn) + ", ";
-    out += "response: " + std::string(sensorResponseName(params.response)) + ", ";
+    out += "response: " + sensorResponseSpec(params) + ", ";
     out += "color: " + std::string(sensorColorName(params.color)) + ", ";
     out += "seed: " + std::to_string(params.seed) + "}";
     return out;

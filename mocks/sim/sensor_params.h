@@ -24,14 +24,18 @@ namespace commonlight::mocks::sim {
 enum class SensorResponse : std::uint8_t {
     kLinear,  // value8 = 255 * v
     kSrgb,    // value8 = 255 * OETF_sRGB(v), what a webcam's ISP delivers
+    kGamma,   // value8 = 255 * v^(1 / gamma), a pure power (SensorParams::gamma)
 };
 
 // Colour: one pixel measures all three channels of the radiance (a 3-chip model, no Bayer mosaic);
 // mono: one channel measuring the mean of the three.
 enum class SensorColor : std::uint8_t { kRgb, kMono };
 
-std::string_view sensorResponseName(SensorResponse response) noexcept;  // "linear", "srgb"
-std::string_view sensorColorName(SensorColor color) noexcept;           // "rgb", "mono"
+std::string_view sensorResponseName(SensorResponse response) noexcept;  // "linear", "srgb", "gamma"
+std::string_view sensorColorName(SensorColor color) noexcept;
+struct SensorParams;
+// The response as sequences and core/response.h spell it: "linear", "srgb" or "gamma:G".
+std::string sensorResponseSpec(const SensorParams& params);           // "rgb", "mono"
 
 // Defaults: a 1/2.9" 2 Mpx CMOS with 2.9 um pixels (Sony IMX291/IMX290 class, as in many USB
 // webcams) behind a small f/2 lens, 10-bit ADC; docs/sim-sensor.md justifies each number.
@@ -55,6 +59,9 @@ struct SensorParams {
     // Unset: 2^(bits - 4), i.e. 64 DN at 10 bits (the usual raw black level). In [0, 2^bits - 1).
     std::optional<double> black_level_dn;
     SensorResponse response = SensorResponse::kSrgb;
+    // The exponent of kGamma, in [1, 4] (written `response: gamma:1.8`, as core/response.h
+    // spells it); ignored by the other responses.
+    double gamma = 2.2;
     SensorColor color = SensorColor::kRgb;
     // Seed of the fixed-pattern noise (DSNU and PRNU maps): fixed per sensor, shared by all its frames.
     std::uint64_t seed = 1;

@@ -159,7 +159,7 @@ void registerSimBackend(hal::CameraRegistry& registry, Clock& clock) {
 
 std::string SimCamera::doResponseSpec() const {
     const std::lock_guard lock(sensor_mutex_);
-    return options_.sensor.response == SensorResponse::kSrgb ? "srgb" : "linear";
+    return sensorResponseSpec(options_.sensor);
 }
 
 }  // namespace commonlight::mocks::sim

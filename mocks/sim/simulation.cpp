@@ -30,6 +30,8 @@ Result<void> SimulationOptions::validate() const {
         return usage("--rolling-shutter must be a non-negative row time");
     }
     if (!(changed_threshold > 0.0)) return usage("the changed-region threshold must be positive");
+    if (!(defocus_radius_px >= 0.0 && defocus_radius_px <= 20.0)) return usage("the defocus radius must be in [0, 20] px");
+    if (!(std::abs(tag_ink_spread_cells) <= 0.25)) return usage("the tag ink spread must be in [-0.25, 0.25] cells");
     CL_TRY_VOID(sensor.validate());
     if (camera) CL_TRY_VOID(camera->validate());
     return {};
@@ -64,6 +66,33 @@ Result<void> writeMat(const fs::path& file, const cv::Mat& mat, const std::vecto
         return fail(ErrorCode::kInternal, file.string() + ": encoding failed: " + e.what());
     }
     return writeFileAtomic(file, bytes, /*sync=*/false);
+}
+
+// The defocus kernel: a uniform disc of `radius` pixels, its pixel weights the disc's area in
+// each pixel (16 x 16 sub-samples per pixel), normalised to sum 1.
+cv::Mat discKernel(double radius) {
+    const int half = static_cast<int>(std::ceil(radius));
+    cv::Mat k(2 * half + 1, 2 * half + 1, CV_32F, cv::Scalar(0));
+    constexpr int kSub = 16;
+    for (int y = -half; y <= half; ++y) {
+        for (int x = -half; x <= half; ++x) {
+            int inside = 0;
+            for (int sy = 0; sy < kSub; ++sy) {
+                for (int sx = 0; sx < kSub; ++sx) {
+                    const double px = x - 0.5 + (sx + 0.5) / kSub, py = y - 0.5 + (sy + 0.5) / kSub;
+                    if (px * px + py * py <= radius * radius) ++inside;
+                }
+            }
+            k.at<float>(y + half, x + half) = static_cast<float>(inside);
+        }
+    }
+    return k / cv::sum(k)[0];
+}
+
+// Convolves the linear radiance with the defocus disc (borders replicated).
+void defocus(Image& radiance, double radius) {
+    cv::Mat rgb(radiance.height(), radiance.width(), CV_32FC3, radiance.data(), radiance.stride());
+    cv::filter2D(rgb, rgb, -1, discKernel(radius), cv::Point(-1, -1), 0.0, cv::BORDER_REPLICATE);
 }
 
 cv::Mat radianceMat(const Image& radiance) {
@@ -201,18 +230,21 @@ Result<SimulationSummary> simulate(const Scene& scene, const Trajectory& traject
     std::optional<CameraModel> camera = options.camera ? options.camera : scene.camera;
     if (!camera) return fail(ErrorCode::kUsage, "the scene has no camera: give one in the scene or with --calib");
     CL_TRY(const SensorModel sensor, SensorModel::create(options.sensor, camera->width, camera->height));
-    CL_TRY(const SimScene real_scene, SimScene::build(scene, {.include_virtual = false, .time_s = 0.0}));
+    CL_TRY(const SimScene real_scene,
+           SimScene::build(scene, {.include_virtual = false, .time_s = 0.0,
+                                   .tag_ink_spread_cells = options.tag_ink_spread_cells}));
     const bool moving = virtualObjectsMove(scene);
     std::optional<SimScene> composite_scene;
     if (options.write_composite && !moving) {
-        CL_TRY(composite_scene, SimScene::build(scene, {.include_virtual = true, .time_s = 0.0}));
+        CL_TRY(composite_scene, SimScene::build(scene, {.include_virtual = true, .time_s = 0.0,
+                                                        .tag_ink_spread_cells = options.tag_ink_spread_cells}));
     }
 
     // Step 2: the sequence and the files that do not change per frame.
     SensorInfo sensor_info;
     sensor_info.rate_hz = trajectory.rateHz();
     sensor_info.camera = camera;
-    sensor_info.response = options.sensor.response == SensorResponse::kSrgb ? "srgb" : "linear";
+    sensor_info.response = sensorResponseSpec(options.sensor);
     // The camera's radiometric calibration: relative radiance (linear value of full scale per
     // second per unit gain) per W/(m^2 sr), from the sensor's own parameters (dark current aside).
     sensor_info.radiance_scale = options.sensor.electrons_per_radiance_second * options.sensor.systemGainDnPerE() /
@@ -259,7 +291,8 @@ Result<SimulationSummary> simulate(const Scene& scene, const Trajectory& traject
         request.max_depth = options.max_depth;
         request.exposure_s = options.motion_blur ? options.sensor.exposureS() : 0.0;
         request.rolling_shutter_row_time_s = options.rolling_shutter_row_time_s;
-        CL_TRY(const RenderOutput real, render(request));
+        CL_TRY(RenderOutput real, render(request));
+        if (options.defocus_radius_px > 0.0) defocus(real.radiance, options.defocus_radius_px);
         summary.render_seconds += real.seconds;
         summary.samples += real.samples;
         summary.nonfinite_samples += real.nonfinite_samples;
@@ -272,10 +305,12 @@ Result<SimulationSummary> simulate(const Scene& scene, const Trajectory& traject
         if (options.write_composite) {
             std::optional<SimScene> moving_scene;
             if (moving) {
-                CL_TRY(moving_scene, SimScene::build(scene, {.include_virtual = true, .time_s = t}));
+                CL_TRY(moving_scene, SimScene::build(scene, {.include_virtual = true, .time_s = t,
+                                                             .tag_ink_spread_cells = options.tag_ink_spread_cells}));
             }
             request.scene = moving ? &*moving_scene : &*composite_scene;
-            CL_TRY(const RenderOutput composite, render(request));
+            CL_TRY(RenderOutput composite, render(request));
+            if (options.defocus_radius_px > 0.0) defocus(composite.radiance, options.defocus_radius_px);
             summary.render_seconds += composite.seconds;
             summary.samples += composite.samples;
             summary.nonfinite_samples += composite.nonfinite_samples;

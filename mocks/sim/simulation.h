@@ -42,6 +42,13 @@ struct SimulationOptions {
     std::optional<CameraModel> camera;  // default: the scene's camera
     bool motion_blur = false;           // average the camera's motion over the exposure
     double rolling_shutter_row_time_s = 0.0;  // > 0: row v starts v * this after row 0
+    // Rendering conditions that break tracking's assumptions (docs/tracking.md, "Benchmark"):
+    // a slight defocus, the image convolved with a uniform disc of this radius in pixels (the
+    // circle of confusion, the same over the image: a scene at one depth), 0 for none, at most 20;
+    double defocus_radius_px = 0.0;
+    // tags printed with ink spread: black regions grown (> 0) or shrunk (< 0) by this many
+    // cells, in [-0.25, 0.25] (PlacedTag::ink_spread_cells).
+    double tag_ink_spread_cells = 0.0;
     FrameFileFormat frame_format = FrameFileFormat::kPng;
     int jpeg_quality = 95;
     bool write_composite = true;

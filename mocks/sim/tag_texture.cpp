@@ -81,13 +81,29 @@ Result<TagTexture> TagTexture::make(const std::string& family, int id) {
 double PlacedTag::albedoAt(double x, double y) const noexcept {
     const int n = texture.totalWidth();
     const double cell = 2.0 * half_extent / n;
-    // Column from the left edge (-x), row from the top edge (+y: the image's top row).
-    const int column = std::clamp(static_cast<int>(std::floor((x + half_extent) / cell)), 0, n - 1);
-    const int row = std::clamp(static_cast<int>(std::floor((half_extent - y) / cell)), 0, n - 1);
-    return texture.isWhite(column, row) ? albedo_white : albedo_black;
+    // Column from the left edge (-x), row from the top edge (+y: the image's top row), in cells.
+    const double u = (x + half_extent) / cell, v = (half_extent - y) / cell;
+    const auto column = [n](double c) { return std::clamp(static_cast<int>(std::floor(c)), 0, n - 1); };
+    if (ink_spread_cells == 0.0) return texture.isWhite(column(u), column(v)) ? albedo_white : albedo_black;
+    // Ink spread: the colour that spreads wins if any cell within the spread (a square of half
+    // side |spread| around the point: at most four cells) has it.
+    const double e = std::abs(ink_spread_cells);
+    const bool spreading_white = ink_spread_cells < 0.0;
+    for (const double du : {-e, e}) {
+        for (const double dv : {-e, e}) {
+            if (texture.isWhite(column(u + du), column(v + dv)) == spreading_white) {
+                return spreading_white ? albedo_white : albedo_black;
+            }
+        }
+    }
+    return spreading_white ? albedo_black : albedo_white;
 }
 
-Result<std::vector<PlacedTag>> makePlacedTags(const TagSet& tags) {
+Result<std::vector<PlacedTag>> makePlacedTags(const TagSet& tags, double ink_spread_cells) {
+    if (!(std::abs(ink_spread_cells) <= 0.25)) {
+        return fail(ErrorCode::kBadInput, "tag ink spread " + std::to_string(ink_spread_cells) +
+                                              " cells is out of range [-0.25, 0.25]");
+    }
     std::vector<PlacedTag> placed;
     for (const TagItem& item : tags.items) {
         if (!(item.size > 0.0)) continue;
@@ -102,6 +118,7 @@ Result<std::vector<PlacedTag>> makePlacedTags(const TagSet& tags) {
         tag.half_extent = 0.5 * cell * tag.texture.totalWidth();
         tag.albedo_black = item.albedo_black;
         tag.albedo_white = item.albedo_white;
+        tag.ink_spread_cells = ink_spread_cells;
         placed.push_back(std::move(tag));
     }
     return placed;

@@ -50,10 +50,17 @@ struct PlacedTag {
     double half_extent = 0;  // half the edge of the whole printed square (with the white border), metres
     double albedo_black = 0.04;
     double albedo_white = 0.8;
+    // Ink spread of the print, in cells: > 0 grows every black region by this distance (each
+    // black/white boundary moves into the white cell, as ink bleeding into the paper), < 0 shrinks
+    // them (the white grows). In [-0.25, 0.25]; 0 prints the exact pattern.
+    double ink_spread_cells = 0.0;
 
     // Albedo at (x, y) in the tag frame (metres), nearest cell; points outside the printed square
     // are clamped to the border cells. Edge convention: a point exactly on a cell boundary belongs
-    // to the cell on its +x / -y side (floor of the cell coordinate).
+    // to the cell on its +x / -y side (floor of the cell coordinate). With ink spread, a point is
+    // black when a black cell lies within `ink_spread_cells` of it (L-infinity distance; white
+    // when ink spread < 0 and a white cell lies within |ink_spread_cells|), so every boundary
+    // moves by exactly that distance along its normal.
     double albedoAt(double x, double y) const noexcept;
     // Whether (x, y) in the tag frame lies on the printed square.
     bool contains(double x, double y) const noexcept {
@@ -61,7 +68,8 @@ struct PlacedTag {
     }
 };
 
-// The tags of a scene, ready to render. Tags of size 0 are skipped.
-Result<std::vector<PlacedTag>> makePlacedTags(const TagSet& tags);
+// The tags of a scene, ready to render. Tags of size 0 are skipped. `ink_spread_cells` is every
+// tag's PlacedTag::ink_spread_cells (kBadInput outside [-0.25, 0.25]).
+Result<std::vector<PlacedTag>> makePlacedTags(const TagSet& tags, double ink_spread_cells = 0.0);
 
 }  // namespace commonlight::mocks::sim

@@ -16,6 +16,11 @@ for key in ("apriltag_estimate_tag_pose", "single_tag", "bundle", "bundle_filter
     assert e["count"] > 0, key
     for stat in ("p50", "p95", "max"):
         assert e["rot_deg"][stat] >= 0 and e["trans_mm"][stat] >= 0, (key, stat)
+# The scale bias of each single-tag method, and the alignment without the dilation beside it.
+for key in ("apriltag_estimate_tag_pose", "single_tag_refined_corners", "single_tag_aligned_without_dilation", "single_tag"):
+    assert abs(j[key]["range_bias_pct"]) < 5, key
+assert abs(j["single_tag"]["range_bias_pct"]) < 0.5
+assert j["single_over_apriltag_trans_p50"] > 0
 assert len(j["sweep"]) == 6
 assert {(e["decimate"], e["tracking_mode"]) for e in j["sweep"]} == {(d, m) for d in (1, 2, 3) for m in (False, True)}
 # Every frame of the sample has a camera pose at decimate 1 (full frame and tracking mode).

@@ -236,6 +236,33 @@ TEST(RenderTagTexture, CellsFollowTheSceneConventions) {
     }
     EXPECT_FALSE(TagTexture::make("tag36h11", 587));
     EXPECT_FALSE(TagTexture::make("tag36h11", -1));
+    // Ink spread: every black region grows (or shrinks) by the same distance along each
+    // boundary's normal. Row 1 is black from column 1 to 8, row 0 (the border) white.
+    for (const double spread : {0.1, -0.08}) {
+        tag.ink_spread_cells = spread;
+        const double cell = 0.01, eps = 1e-6;
+        // The black square's left edge (between columns 0 and 1) on row 4: x = -0.04.
+        const double y = 0.05 - 4.5 * cell;
+        EXPECT_EQ(tag.albedoAt(-0.04 - spread * cell + eps, y), 0.04) << spread;
+        EXPECT_EQ(tag.albedoAt(-0.04 - spread * cell - eps, y), 0.8) << spread;
+        // The top edge (between rows 0 and 1) at column 4: y = 0.04, black below.
+        const double x = -0.05 + 4.5 * cell;
+        EXPECT_EQ(tag.albedoAt(x, 0.04 + spread * cell - eps), 0.04) << spread;
+        EXPECT_EQ(tag.albedoAt(x, 0.04 + spread * cell + eps), 0.8) << spread;
+        // Cell centres keep their colour.
+        for (int r = 0; r < 10; ++r) {
+            for (int c = 0; c < 10; ++c) {
+                EXPECT_EQ(tag.albedoAt(-0.05 + (c + 0.5) * cell, 0.05 - (r + 0.5) * cell),
+                          texture->isWhite(c, r) ? 0.8 : 0.04);
+            }
+        }
+    }
+    TagSet set;
+    set.items.push_back({3, 0.08, Rigid3d()});
+    EXPECT_FALSE(makePlacedTags(set, 0.3));
+    auto placed = makePlacedTags(set, -0.05);
+    ASSERT_TRUE(placed);
+    EXPECT_EQ(placed->at(0).ink_spread_cells, -0.05);
     EXPECT_TRUE(TagTexture::make("tagStandard41h12", 2114));
 }
 

@@ -128,7 +128,9 @@ TEST(SensorParams, WrongTypesNameFileLineAndKey) {
                 HasSubstr("scene.yaml:3: key 'sensor.bits': expected an integer (8, 10, 12, 14 or 16), found '11'"));
     EXPECT_THAT(parseError("sensor:\n  bits: 10.0\n"), HasSubstr("key 'sensor.bits': expected an integer"));
     EXPECT_THAT(parseError("sensor:\n  response: gamma\n"),
-                HasSubstr("key 'sensor.response': expected linear or srgb, found 'gamma'"));
+                HasSubstr("key 'sensor.response': expected linear, srgb or gamma:G (G in [1, 4]), found 'gamma'"));
+    EXPECT_THAT(parseError("sensor:\n  response: gamma:0.5\n"), HasSubstr("found 'gamma:0.5'"));
+    EXPECT_THAT(parseError("sensor:\n  response: gamma:2x\n"), HasSubstr("found 'gamma:2x'"));
     EXPECT_THAT(parseError("sensor:\n  color: bgr\n"), HasSubstr("key 'sensor.color': expected rgb or mono"));
     EXPECT_THAT(parseError("sensor:\n  seed: -3\n"),
                 HasSubstr("key 'sensor.seed': expected an integer in [0, 2^64 - 1], found '-3'"));

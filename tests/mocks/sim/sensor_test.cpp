@@ -411,6 +411,32 @@ TEST(Sensor, DoublingAnalogGainDoublesTheSignal) {
     EXPECT_NEAR(ratio, 2.0, 0.01);
 }
 
+TEST(Sensor, GammaResponse) {
+    // `response: gamma:1.8` reads, writes back and encodes as a pure power.
+    SensorParams params;
+    ASSERT_TRUE(setSensorParam(params, "response", "gamma:1.8"));
+    EXPECT_EQ(params.response, SensorResponse::kGamma);
+    EXPECT_DOUBLE_EQ(params.gamma, 1.8);
+    EXPECT_EQ(sensorResponseSpec(params), "gamma:1.8");
+    EXPECT_NE(formatSensorParams(params).find("response: gamma:1.8"), std::string::npos);
+    EXPECT_NEAR(applyResponse(SensorResponse::kGamma, 0.25, 1.8), std::pow(0.25, 1 / 1.8), 1e-15);
+    EXPECT_NEAR(invertResponse(SensorResponse::kGamma, applyResponse(SensorResponse::kGamma, 0.3, 2.6), 2.6), 0.3, 1e-12);
+    params.color = SensorColor::kMono;
+    const SensorModel sensor = makeSensor(params, 1024, 1);
+    RawFrame raw{1024, 1, 1, 10, {}};
+    for (int dn = 0; dn < 1024; ++dn) raw.dn.push_back(static_cast<std::uint16_t>(dn));
+    Image out;
+    sensor.encode8(raw, out);
+    const double black = params.blackLevelDn();
+    for (int dn = 0; dn < 1024; dn += 7) {
+        const double v = std::max(0.0, (dn - black) / (1023.0 - black));
+        EXPECT_EQ(out.data()[dn], std::lround(255.0 * std::pow(v, 1 / 1.8))) << "DN " << dn;
+    }
+    params.gamma = 0.5;
+    EXPECT_FALSE(params.validate());
+    EXPECT_FALSE(setSensorParam(params, "response", "gamma:5"));
+}
+
 TEST(Sensor, Encode8AppliesTheResponseCurve) {
     for (const SensorResponse response : {SensorResponse::kLinear, SensorResponse::kSrgb}) {
         SensorParams params;

@@ -170,6 +170,60 @@ TEST(Simulation, AStopLeavesAReadableSequenceOfTheFramesDone) {
     EXPECT_TRUE(FrameFileReader().read(seq->framePath(1), seq->sensor.pixel_format, 80, 60, image));
 }
 
+TEST(Simulation, DefocusInkSpreadAndGammaConditions) {
+    // The conditions of `bench tracking`'s response cases: the defocused frame is the sharp
+    // frame's radiance convolved with the disc; ink spread changes the tag's pixels; a gamma
+    // response is written into the sequence as core/response.h spells it.
+    TempDir dir;
+    const auto renderOne = [&](const std::string& name, double defocus, double ink) {
+        SimulationOptions options = smallOptions(dir / name);
+        options.frames = 1;
+        options.write_composite = false;
+        options.write_masks = false;
+        options.defocus_radius_px = defocus;
+        options.tag_ink_spread_cells = ink;
+        options.sensor.response = SensorResponse::kGamma;
+        options.sensor.gamma = 2.6;
+        EXPECT_TRUE(simulate(testScene(), testTrajectory(), options));
+        return cv::imread((dir / name / "groundtruth/radiance/0.exr").string(), cv::IMREAD_UNCHANGED);
+    };
+    const cv::Mat sharp = renderOne("sharp", 0.0, 0.0);
+    const cv::Mat blurred = renderOne("defocus", 1.5, 0.0);
+    const cv::Mat inked = renderOne("ink", 0.0, 0.2);
+    ASSERT_FALSE(sharp.empty() || blurred.empty() || inked.empty());
+    // The disc of radius 1.5: a 5 x 5 kernel whose weights are the disc's area in each pixel.
+    cv::Mat kernel(5, 5, CV_32F, cv::Scalar(0));
+    for (int y = -2; y <= 2; ++y) {
+        for (int x = -2; x <= 2; ++x) {
+            int inside = 0;
+            for (int sy = 0; sy < 64; ++sy) {
+                for (int sx = 0; sx < 64; ++sx) {
+                    const double px = x - 0.5 + (sx + 0.5) / 64, py = y - 0.5 + (sy + 0.5) / 64;
+                    inside += px * px + py * py <= 2.25;
+                }
+            }
+            kernel.at<float>(y + 2, x + 2) = static_cast<float>(inside) / (64 * 64);
+        }
+    }
+    EXPECT_NEAR(cv::sum(kernel)[0], M_PI * 2.25, 0.01);
+    cv::Mat expected;
+    cv::filter2D(sharp, expected, -1, kernel / cv::sum(kernel)[0], cv::Point(-1, -1), 0.0, cv::BORDER_REPLICATE);
+    EXPECT_LT(cv::norm(blurred, expected, cv::NORM_INF), 0.02 * cv::norm(sharp, cv::NORM_INF));
+    EXPECT_GT(cv::norm(blurred, sharp, cv::NORM_INF), 0.1 * cv::norm(sharp, cv::NORM_INF));
+    // Black grown by a fifth of a cell darkens the frame where the tag is.
+    EXPECT_LT(cv::sum(inked)[0], cv::sum(sharp)[0] - 1e-3 * cv::sum(sharp)[0]);
+    auto seq = readSequence(dir / "sharp");
+    ASSERT_TRUE(seq) << seq.error().message;
+    EXPECT_EQ(seq->sensor.response, "gamma:2.6");
+
+    SimulationOptions bad = smallOptions(dir / "bad");
+    bad.defocus_radius_px = -1;
+    EXPECT_FALSE(simulate(testScene(), testTrajectory(), bad));
+    bad = smallOptions(dir / "bad");
+    bad.tag_ink_spread_cells = 0.5;
+    EXPECT_FALSE(simulate(testScene(), testTrajectory(), bad));
+}
+
 TEST(Simulation, RefusesBadOptionsAndAnExistingSequence) {
     TempDir dir;
     SimulationOptions options = smallOptions(dir / "seq");

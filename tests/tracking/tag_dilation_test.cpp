@@ -1,0 +1,292 @@
+// Tag pattern alignment and corner refinement on tags whose black regions look grown or shrunk:
+// ink spread on the print (known, drawn by mocks/sim's tag texture) and a camera response other
+// than the one the tracker assumes (linear, gamma 1.8 and 2.6 read as sRGB, and sRGB read as
+// linear). Synthetic images: the tag's albedo supersampled 6 x 6 per pixel through a pinhole,
+// blurred in linear light (the optics), encoded with the camera's response. The range bias the
+// dilation causes must go away when the alignment solves for it.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+#include "mocks/sim/sensor.h"
+#include "mocks/sim/tag_texture.h"
+#include "tracking/tag_align.h"
+#include "tracking/tag_detector.h"
+#include "tracking/tag_pose.h"
+#include "tracking/tag_refine.h"
+#include "tracking/tracker.h"
+
+namespace commonlight::tracking {
+namespace {
+
+using mocks::sim::SensorResponse;
+
+constexpr int kId = 3;
+constexpr double kSize = 0.1;
+
+CameraModel camera() {
+    CameraModel cam;
+    cam.width = 640;
+    cam.height = 480;
+    cam.fx = cam.fy = 500;
+    cam.cx = 319.5;
+    cam.cy = 239.5;
+    return cam;
+}
+
+// The tag `distance` metres in front of the camera, turned `tilt_deg` about its x axis and
+// `yaw_deg` about its y axis, a little off the optical axis.
+Rigid3d tagPose(double distance, double tilt_deg, double yaw_deg) {
+    const double d2r = M_PI / 180.0;
+    const Eigen::Matrix3d r = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix() *
+                              Eigen::AngleAxisd(tilt_deg * d2r, Eigen::Vector3d::UnitX()).toRotationMatrix() *
+                              Eigen::AngleAxisd(yaw_deg * d2r, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    return Rigid3d(Eigen::Quaterniond(r), Eigen::Vector3d(0.03, -0.02, distance));
+}
+
+struct Conditions {
+    SensorResponse response = SensorResponse::kSrgb;
+    double gamma = 2.2;
+    double ink_spread_cells = 0.0;
+    double blur_sigma_px = 0.9;
+};
+
+struct Placed {
+    int id;
+    Rigid3d cam_from_tag;
+};
+
+// The 8-bit image of the tags (edge kSize) on a grey background (albedo 0.3), lit evenly.
+Image renderTags(const std::vector<Placed>& tags, const Conditions& c) {
+    const CameraModel cam = camera();
+    cv::Mat linear(cam.height, cam.width, CV_32F, cv::Scalar(0.3));
+    for (const Placed& placed : tags) {
+    const Rigid3d& cam_from_tag = placed.cam_from_tag;
+    auto texture = mocks::sim::TagTexture::make("tag36h11", placed.id);
+    EXPECT_TRUE(texture);
+    mocks::sim::PlacedTag tag;
+    tag.texture = *texture;
+    tag.size = kSize;
+    tag.half_extent = 0.5 * kSize / texture->widthAtBorder() * texture->totalWidth();
+    tag.ink_spread_cells = c.ink_spread_cells;
+    const Rigid3d tag_from_cam = cam_from_tag.inverse();
+    // Only the pixels near the printed square are traced (the rest is background).
+    Eigen::AlignedBox2d box;
+    for (const double x : {-tag.half_extent, tag.half_extent}) {
+        for (const double y : {-tag.half_extent, tag.half_extent}) box.extend(*cam.project(cam_from_tag * Eigen::Vector3d(x, y, 0)));
+    }
+    const int u0 = std::max(0, static_cast<int>(box.min().x()) - 3), u1 = std::min(cam.width, static_cast<int>(box.max().x()) + 4);
+    const int v0 = std::max(0, static_cast<int>(box.min().y()) - 3), v1 = std::min(cam.height, static_cast<int>(box.max().y()) + 4);
+    constexpr int kSub = 6;
+    for (int v = v0; v < v1; ++v) {
+        for (int u = u0; u < u1; ++u) {
+            double sum = 0;
+            for (int sy = 0; sy < kSub; ++sy) {
+                for (int sx = 0; sx < kSub; ++sx) {
+                    const Eigen::Vector3d ray((u - 0.5 + (sx + 0.5) / kSub - cam.cx) / cam.fx,
+                                              (v - 0.5 + (sy + 0.5) / kSub - cam.cy) / cam.fy, 1.0);
+                    const Eigen::Vector3d o = tag_from_cam.translation;
+                    const Eigen::Vector3d dir = tag_from_cam.rotation * ray;
+                    const double lambda = -o.z() / dir.z();
+                    const Eigen::Vector3d p = o + lambda * dir;
+                    sum += lambda > 0 && tag.contains(p.x(), p.y()) ? tag.albedoAt(p.x(), p.y()) : 0.3;
+                }
+            }
+            linear.at<float>(v, u) = static_cast<float>(sum / (kSub * kSub));
+        }
+    }
+    }
+    cv::GaussianBlur(linear, linear, cv::Size(0, 0), c.blur_sigma_px);
+    Image out(PixelFormat::kGray8, cam.width, cam.height);
+    for (int v = 0; v < cam.height; ++v) {
+        for (int u = 0; u < cam.width; ++u) {
+            // Exposed so that the white cells (albedo 0.8) come out at 90% of full scale.
+            const double value = mocks::sim::applyResponse(c.response, 0.9 / 0.8 * linear.at<float>(v, u), c.gamma);
+            out.data()[v * out.stride() + u] = static_cast<std::uint8_t>(std::lround(255.0 * value));
+        }
+    }
+    return out;
+}
+
+Image renderTag(const Rigid3d& cam_from_tag, const Conditions& c) { return renderTags({{kId, cam_from_tag}}, c); }
+
+double rangeErrorPct(const Rigid3d& estimate, const Rigid3d& truth) {
+    return 100.0 * (estimate.translation.norm() / truth.translation.norm() - 1.0);
+}
+
+struct Outcome {
+    double range_pct_fixed = 0, range_pct_joint = 0;  // without and with the dilation solved
+    double rot_deg_fixed = 0, rot_deg_joint = 0;
+    double dilation_cells = 0, dilation_px = 0;
+};
+
+// Aligns from the true pose moved 1.5% further away and tilted 0.5 degrees.
+Outcome align(const Conditions& c, bool tracker_srgb, const Rigid3d& truth) {
+    const Image image = renderTag(truth, c);
+    auto pattern = TagPattern::make("tag36h11", kId);
+    EXPECT_TRUE(pattern);
+    Rigid3d start = truth;
+    start.translation *= 1.015;
+    start.rotation = Eigen::AngleAxisd(0.5 * M_PI / 180.0, Eigen::Vector3d(1, 1, 0).normalized()) * truth.rotation;
+    TagAlignOptions options;
+    options.srgb = tracker_srgb;
+    options.iterations = 8;
+    Outcome out;
+    TagAlignOptions fixed = options;
+    fixed.estimate_dilation = false;
+    fixed.max_rms_px = 10;  // measure the biased fit too
+    const TagAlignResult a = alignTagPose(image.view(), camera(), *pattern, kSize, start, fixed);
+    EXPECT_TRUE(a.ok) << a.reason;
+    const TagAlignResult b = alignTagPose(image.view(), camera(), *pattern, kSize, start, options);
+    EXPECT_TRUE(b.ok) << b.reason;
+    out.range_pct_fixed = rangeErrorPct(a.cam_from_tag, truth);
+    out.range_pct_joint = rangeErrorPct(b.cam_from_tag, truth);
+    out.rot_deg_fixed = rotationErrorDeg(a.cam_from_tag, truth);
+    out.rot_deg_joint = rotationErrorDeg(b.cam_from_tag, truth);
+    out.dilation_cells = b.dilation_cells;
+    out.dilation_px = b.dilation_px;
+    EXPECT_NEAR(a.dilation_cells, 0.0, 1e-12);
+    return out;
+}
+
+struct Case {
+    const char* name;
+    Conditions conditions;
+    bool tracker_srgb;
+};
+
+TEST(TagDilation, AlignmentRemovesTheRangeBiasOfResponseAndPrint) {
+    const Case cases[] = {
+        {"matched sRGB", {}, true},
+        {"ink +10% of a cell", {.ink_spread_cells = 0.10}, true},
+        {"ink -8% of a cell", {.ink_spread_cells = -0.08}, true},
+        {"linear read as sRGB", {.response = SensorResponse::kLinear}, true},
+        {"sRGB read as linear", {}, false},
+        {"gamma 1.8 read as sRGB", {.response = SensorResponse::kGamma, .gamma = 1.8}, true},
+        {"gamma 2.6 read as sRGB", {.response = SensorResponse::kGamma, .gamma = 2.6}, true},
+        {"linear read as sRGB, defocused", {.response = SensorResponse::kLinear, .blur_sigma_px = 1.6}, true},
+    };
+    for (const Rigid3d& truth : {tagPose(0.9, 25, 10), tagPose(1.3, 50, -15)}) {
+        for (const Case& k : cases) {
+            const Outcome o = align(k.conditions, k.tracker_srgb, truth);
+            std::printf("  %-32s at %.1f m: range %+.3f%% -> %+.3f%%, rotation %.3f -> %.3f deg, dilation %+.3f cells "
+                        "(%+.3f px)\n",
+                        k.name, truth.translation.norm(), o.range_pct_fixed, o.range_pct_joint, o.rot_deg_fixed,
+                        o.rot_deg_joint, o.dilation_cells, o.dilation_px);
+            SCOPED_TRACE(k.name);
+            // Measured: 0.2% at most at 0.9 m (issue 13's target), up to 0.32% at 1.3 m and 50
+            // degrees (cells foreshortened to 3 px), where the matched response is -0.10%.
+            EXPECT_LT(std::abs(o.range_pct_joint), 0.35);
+            // Where the dilation biased the range, the bias is gone (to a quarter at most).
+            if (std::abs(o.range_pct_fixed) > 0.8) {
+                EXPECT_LT(std::abs(o.range_pct_joint), 0.25 * std::abs(o.range_pct_fixed));
+            }
+            // One more parameter costs a little rotation on steep views, never much.
+            EXPECT_LT(o.rot_deg_joint, o.rot_deg_fixed + 0.2);
+            EXPECT_LT(o.rot_deg_joint, 0.7);
+            if (k.conditions.ink_spread_cells != 0.0 && k.conditions.response == SensorResponse::kSrgb && k.tracker_srgb) {
+                // The print's dilation is measured as it was printed.
+                EXPECT_NEAR(o.dilation_cells, k.conditions.ink_spread_cells, 0.025);
+            }
+        }
+    }
+    // The bias is real without the dilation: the tests above can fail. Black grown by 10% of a
+    // cell makes the tag look larger, so nearer.
+    const Outcome grown = align({.ink_spread_cells = 0.10}, true, tagPose(0.9, 25, 10));
+    EXPECT_LT(grown.range_pct_fixed, -0.5);
+    const Outcome linear = align({.response = SensorResponse::kLinear}, true, tagPose(0.9, 25, 10));
+    EXPECT_GT(std::abs(linear.range_pct_fixed), 0.3);
+}
+
+TEST(TagDilation, CornerRefinementUsesTheDilation) {
+    const Rigid3d truth = tagPose(0.9, 20, 5);
+    const Image image = renderTag(truth, {.ink_spread_cells = 0.10});
+    const CameraModel cam = camera();
+    std::array<Eigen::Vector2d, 4> true_corners;
+    for (int c = 0; c < 4; ++c) true_corners[c] = *cam.project(truth * tagCornerInTag(c, kSize));
+    const Eigen::Vector2d centre = 0.25 * (true_corners[0] + true_corners[1] + true_corners[2] + true_corners[3]);
+    // Mean outward offset of the refined corners from the true ones, pixels.
+    const auto outward = [&](double dilation_px) {
+        auto corners = true_corners;
+        for (int c = 0; c < 4; ++c) corners[c] += Eigen::Vector2d(0.3 * ((c & 1) ? 1 : -1), 0.2 * ((c & 2) ? 1 : -1));
+        TagRefineOptions options;
+        options.dilation_px = dilation_px;
+        EXPECT_TRUE(refineTagCorners(image.view(), cam, corners, options));
+        double sum = 0;
+        for (int c = 0; c < 4; ++c) sum += (corners[c] - true_corners[c]).dot((true_corners[c] - centre).normalized());
+        return sum / 4;
+    };
+    // The alignment measures the dilation; the corners refined with it lose their outward bias.
+    auto pattern = TagPattern::make("tag36h11", kId);
+    ASSERT_TRUE(pattern);
+    const TagAlignResult a = alignTagPose(image.view(), cam, *pattern, kSize, truth);
+    ASSERT_TRUE(a.ok) << a.reason;
+    const double biased = outward(0.0), corrected = outward(a.dilation_px);
+    std::printf("  corners' outward offset: %.3f px without, %.3f px with the measured dilation (%.3f px)\n", biased,
+                corrected, a.dilation_px);
+    // A corner moves by sqrt(2) times an edge's shift (along the diagonal).
+    EXPECT_GT(biased, 0.5 * std::sqrt(2.0) * a.dilation_px);
+    EXPECT_LT(std::abs(corrected), 0.05);
+}
+
+TEST(TagDilation, TrackerRefinesTheTagsItCannotAlignWithTheFramesDilation) {
+    // Two tags printed with the black grown by 10% of a cell: tag 3 near (cells of 7 px), tag 8
+    // farther (cells of 4.5 px) and, with min_cell_px 5, too small to align: its corners are
+    // refined with the dilation the near tag measured.
+    const Rigid3d near = tagPose(0.9, 20, 0) * Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-0.09, 0, 0));
+    Rigid3d far = tagPose(1.4, 20, 0);
+    far.translation.x() += 0.09;
+    const Image image = renderTags({{3, near}, {8, far}}, {.ink_spread_cells = 0.10});
+    TagSet tags;
+    tags.items.push_back({3, kSize, Rigid3d()});
+    tags.items.push_back({8, kSize, Rigid3d()});
+    const auto run = [&](bool near_in_view) {
+        TrackerOptions options;
+        options.independent_frames = true;
+        options.filter = false;
+        options.detector.decimate = 1;
+        options.align.min_cell_px = 5.0;
+        Image view = Image::copyOf(image.view());
+        if (!near_in_view) {
+            // Hide the near tag: paint its half of the image background grey.
+            const std::uint8_t grey = view.data()[5 * view.stride() + 5];
+            for (int v = 0; v < view.height(); ++v) std::fill_n(view.data() + v * view.stride(), 300, grey);
+        }
+        auto tracker = Tracker::create(camera(), tags, nullptr, options);
+        EXPECT_TRUE(tracker);
+        auto track = tracker->process(view.view(), 0);
+        EXPECT_TRUE(track);
+        return *track;
+    };
+    const auto farTag = [](const FrameTrack& t) -> const TrackedTag* {
+        for (const auto& tag : t.tags) {
+            if (tag.detection.id == 8) return &tag;
+        }
+        return nullptr;
+    };
+    const FrameTrack both = run(true), alone = run(false);
+    const TrackedTag* far_both = farTag(both);
+    const TrackedTag* far_alone = farTag(alone);
+    ASSERT_TRUE(far_both && far_alone && far_both->pose && far_alone->pose);
+    EXPECT_FALSE(far_both->aligned);
+    EXPECT_TRUE(far_both->corners_refined);
+    ASSERT_TRUE(both.dilation_cells);
+    EXPECT_NEAR(*both.dilation_cells, 0.10, 0.02);
+    EXPECT_FALSE(alone.dilation_cells);  // no aligned tag, and the frames are independent
+    const double with = rangeErrorPct(far_both->pose->cam_from_tag, far);
+    const double without = rangeErrorPct(far_alone->pose->cam_from_tag, far);
+    std::printf("  far tag's range error: %+.3f%% alone, %+.3f%% with the near tag's dilation (%.3f cells)\n", without,
+                with, *both.dilation_cells);
+    EXPECT_LT(without, -1.0);  // black grown: the tag looks larger, nearer
+    EXPECT_LT(std::abs(with), 0.4);
+}
+
+}  // namespace
+}  // namespace commonlight::tracking
