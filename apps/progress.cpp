@@ -4,12 +4,13 @@
 
 #include <unistd.h>
 
+#include "apps/quiet.h"
 #include "core/clock.h"
 
 namespace commonlight::apps {
 
 Progress::Progress(std::string label, std::uint64_t total)
-    : label_(std::move(label)), total_(total), enabled_(isatty(STDERR_FILENO) == 1), start_ns_(monotonicNowNs()) {}
+    : label_(std::move(label)), total_(total), enabled_(isatty(STDERR_FILENO) == 1 && !quiet()), start_ns_(monotonicNowNs()) {}
 
 Progress::~Progress() { finish(); }
 
