@@ -100,7 +100,7 @@ int runPlot(const PlotOptions& options) {
     if (rows.empty() || ys.empty()) return reportError(Error{ErrorCode::kBadInput, options.csv + ": no rows or no columns to draw"});
 
     // Step 2: the panels.
-    const int w = 1000, panel_h = 130, left = 150, right = 30, top = options.title.empty() ? 15 : 40, bottom = 45, gap = 12;
+    const int w = 1000, panel_h = 130, left = 190, right = 30, top = options.title.empty() ? 15 : 40, bottom = 45, gap = 12;
     const int h = top + static_cast<int>(ys.size()) * (panel_h + gap) + bottom;
     cv::Mat img(h, w, CV_8UC3, cv::Scalar(255, 255, 255));
     const cv::Scalar black(0, 0, 0), grey(210, 210, 210), blue(180, 80, 20);
@@ -111,7 +111,7 @@ int runPlot(const PlotOptions& options) {
     if (!std::isfinite(x_min)) return reportError(Error{ErrorCode::kBadInput, options.csv + ": column '" + options.x + "' has no numbers"});
     if (x_max <= x_min) x_max = x_min + 1;
     const auto X = [&](double x) { return left + static_cast<int>(std::lround((w - left - right) * (x - x_min) / (x_max - x_min))); };
-    if (!options.title.empty()) cv::putText(img, options.title, {left, 27}, cv::FONT_HERSHEY_SIMPLEX, 0.6, black);
+    if (!options.title.empty()) cv::putText(img, options.title, {8, 27}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black);
     for (std::size_t p = 0; p < ys.size(); ++p) {
         const std::size_t yi = ys[p];
         const int y0 = top + static_cast<int>(p) * (panel_h + gap), y1 = y0 + panel_h;
@@ -131,8 +131,8 @@ int runPlot(const PlotOptions& options) {
         const double range = hi > lo ? 1.16 * span : span;
         const auto Y = [&](double v) { return y1 - static_cast<int>(std::lround(panel_h * (v - base) / range)); };
         for (int k = 1; k < 4; ++k) cv::line(img, {left + 1, y0 + k * panel_h / 4}, {w - right - 1, y0 + k * panel_h / 4}, grey);
-        cv::putText(img, fmt(hi), {left - 70, Y(hi) + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black);
-        cv::putText(img, fmt(lo), {left - 70, Y(lo) + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black);
+        cv::putText(img, fmt(hi), {left - 62, Y(hi) + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black);
+        cv::putText(img, fmt(lo), {left - 62, Y(lo) + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black);
         std::optional<cv::Point> previous;
         for (const auto& r : rows) {
             if (!std::isfinite(r[yi]) || !std::isfinite(r[*xi])) {
