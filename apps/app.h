@@ -32,6 +32,7 @@ void addTrackCommand(CLI::App& app, Runner& runner);
 void addBenchCommand(CLI::App& app, Runner& runner);
 void addServeGigeCommand(CLI::App& app, Runner& runner);
 void addCalibrateResponseCommand(CLI::App& app, Runner& runner);
+void addPlotCommand(CLI::App& app, Runner& runner);
 
 // Prints "commonlight: error: <message>" and returns the exit code for the error.
 int reportError(const Error& error);

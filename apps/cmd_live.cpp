@@ -10,11 +10,15 @@
 //   Step 2  open the camera, the recording, the per-frame pipeline and the window
 //   Step 3  the frames: FrameRunner::run (poses.csv on the pipeline thread, the window on this one)
 //   Step 4  summary and metrics
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
 #include <memory>
+#include <numbers>
+#include <optional>
 
 #include "apps/app.h"
 #include "apps/quiet.h"
@@ -57,6 +61,77 @@ struct LiveOptions {
     bool composite = false;    // --composite: headless runs composite offscreen too
     std::string screenshots;   // where key s writes (default: --out, else the current folder)
     std::string response;  // --response: overrides what the camera reports
+    bool move_object = false;      // --move-object: virtual object 0 goes back and forth (soak tests)
+    double metrics_interval_s = 0.0;  // --metrics-interval: a metrics line every S seconds (0: none)
+};
+
+// --move-object: virtual object 0 back and forth along world x, +-5 cm with a 4 s period, by the
+// wall clock (a looping replay's timestamps start over). Main thread.
+class ObjectMover {
+public:
+    void update(pipeline::FrameRunner& runner) {
+        if (runner.scene().virtual_objects.empty()) return;
+        const std::int64_t now = monotonicNowNs();
+        if (start_ns_ == 0) start_ns_ = now;
+        const double t = static_cast<double>(now - start_ns_) / 1e9;
+        const double x = 0.05 * std::sin(2.0 * std::numbers::pi * t / 4.0);
+        runner.moveVirtualObject(0, Eigen::Vector3d(x - applied_, 0.0, 0.0));
+        applied_ = x;
+    }
+
+private:
+    std::int64_t start_ns_ = 0;
+    double applied_ = 0.0;
+};
+
+// --metrics-interval: every S seconds one line on stdout (flushed) with the frames the main thread
+// took in that interval and their rate, the largest lighting lag of the interval (frame timestamp
+// minus the snapshot's), the lighting version and the render module's live GL objects. Main thread.
+class MetricsPrinter {
+public:
+    explicit MetricsPrinter(double interval_s) : interval_ns_(static_cast<std::int64_t>(interval_s * 1e9)) {}
+
+    void onFrame(const pipeline::FrameRunner& runner) {
+        ++frames_;
+        const auto& info = runner.lastComposite();
+        if (info.lighting_lag_ms) lag_ms_ = std::max(lag_ms_.value_or(-1e300), *info.lighting_lag_ms);
+        if (info.lighting_lag_frames) lag_frames_ = std::max(lag_frames_.value_or(-1e300), *info.lighting_lag_frames);
+        version_ = info.lighting_version;
+        maybePrint();
+    }
+    void maybePrint() {
+        const std::int64_t now = monotonicNowNs();
+        if (start_ns_ == 0) start_ns_ = last_ns_ = now;
+        if (now - last_ns_ < interval_ns_) return;
+        const double dt = static_cast<double>(now - last_ns_) / 1e9;
+        const render::GlObjectCounts gl = render::liveGlObjects();
+        const long gl_total = gl.textures + gl.buffers + gl.framebuffers + gl.renderbuffers + gl.programs + gl.vertex_arrays;
+        const auto opt = [](const std::optional<double>& v) { return v ? fmtNumber(*v) : std::string("nan"); };
+        std::printf("metrics: t_s=%.1f frames=%llu fps=%.2f lag_ms_max=%s lag_frames_max=%s lighting_version=%llu "
+                    "gl_objects=%ld gl_textures=%ld gl_buffers=%ld gl_framebuffers=%ld gl_renderbuffers=%ld "
+                    "gl_programs=%ld gl_vertex_arrays=%ld\n",
+                    static_cast<double>(now - start_ns_) / 1e9, static_cast<unsigned long long>(frames_),
+                    static_cast<double>(frames_) / dt, opt(lag_ms_).c_str(), opt(lag_frames_).c_str(),
+                    static_cast<unsigned long long>(version_), gl_total, gl.textures, gl.buffers, gl.framebuffers,
+                    gl.renderbuffers, gl.programs, gl.vertex_arrays);
+        std::fflush(stdout);
+        last_ns_ = now;
+        frames_ = 0;
+        lag_ms_.reset();
+        lag_frames_.reset();
+    }
+
+private:
+    static std::string fmtNumber(double v) {
+        char text[32];
+        std::snprintf(text, sizeof text, "%.2f", v);
+        return text;
+    }
+    std::int64_t interval_ns_;
+    std::int64_t start_ns_ = 0, last_ns_ = 0;
+    std::uint64_t frames_ = 0;
+    std::optional<double> lag_ms_, lag_frames_;
+    std::uint64_t version_ = 0;
 };
 
 std::string poseRow(std::int64_t timestamp_ns, const tracking::FrameTrack& track) {
@@ -196,9 +271,21 @@ int runLive(const LiveOptions& options) {
         if (!warned_bad) log::warning("frame " + std::to_string(frame.meta.timestamp_ns) + ": " + error.message);
         warned_bad = true;
     };
-    if (window) {
-        callbacks.on_frame = [&window](const pipeline::TrackedFrame& frame) { return window->onFrame(frame); };
-        callbacks.on_idle = [&window](const pipeline::TrackedFrame* last) { return window->onIdle(last); };
+    std::optional<ObjectMover> mover;
+    if (options.move_object) mover.emplace();
+    std::optional<MetricsPrinter> metrics_printer;
+    if (options.metrics_interval_s > 0.0) metrics_printer.emplace(options.metrics_interval_s);
+    if (window || mover || metrics_printer) {
+        pipeline::FrameRunner* r = runner->get();
+        callbacks.on_frame = [&window, &mover, &metrics_printer, r](const pipeline::TrackedFrame& frame) {
+            if (mover) mover->update(*r);
+            if (metrics_printer) metrics_printer->onFrame(*r);
+            return window ? window->onFrame(frame) : true;
+        };
+        callbacks.on_idle = [&window, &metrics_printer](const pipeline::TrackedFrame* last) {
+            if (metrics_printer) metrics_printer->maybePrint();
+            return window ? window->onIdle(last) : true;
+        };
     }
     const std::int64_t start_ns = monotonicNowNs();
     const pipeline::LoopStats loop = (*runner)->run(**camera, callbacks, stopToken());
@@ -299,6 +386,11 @@ void addLiveCommand(CLI::App& app, Runner& runner) {
     sub->add_flag("--edges", options->edges, "Refine the pose with the edges of the scene's proxy geometry");
     sub->add_flag("--no-lighting", options->no_lighting, "Track only; no lighting thread");
     sub->add_flag("--full-frame", options->full_frame, "Detect tags over the whole of every frame (default: around the predicted tags, whole frame every 15)");
+    sub->add_flag("--move-object", options->move_object,
+                  "Move the first virtual object back and forth along world x (+-5 cm, 4 s period), e.g. headless soak tests");
+    sub->add_option("--metrics-interval", options->metrics_interval_s,
+                    "Print a metrics line every S seconds: fps, lighting lag, live GL objects (scripts/soak reads it)")
+        ->check(CLI::NonNegativeNumber);
     sub->add_option("--response", options->response,
                     "The camera's response: srgb, linear, gamma:G or a response file (default: what the camera reports)");
     sub->footer("Exit codes: 0 ok, 2 usage, 3 bad input, 4 device error (after the reconnection attempts), 130 Ctrl-C");

@@ -30,6 +30,7 @@ int main(int argc, char** argv) {
     apps::addTrackCommand(app, runner);
     apps::addBenchCommand(app, runner);
     apps::addServeGigeCommand(app, runner);
+    apps::addPlotCommand(app, runner);
 
     try {
         app.parse(argc, argv);
