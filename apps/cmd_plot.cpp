@@ -43,6 +43,7 @@ std::vector<std::string> splitCsv(const std::string& line) {
         while (!cell.empty() && (cell.back() == '\r' || cell.back() == ' ')) cell.pop_back();
         cells.push_back(cell);
     }
+    if (!line.empty() && line.back() == ',') cells.emplace_back();  // an empty last cell
     return cells;
 }
 
@@ -71,9 +72,16 @@ int runPlot(const PlotOptions& options) {
     if (!std::getline(in, line)) return reportError(Error{ErrorCode::kBadInput, options.csv + ": empty file (no header row)"});
     const std::vector<std::string> header = splitCsv(line);
     std::vector<std::vector<double>> rows;
+    std::size_t line_number = 1;
     while (std::getline(in, line)) {
+        ++line_number;
         if (line.empty()) continue;
         std::vector<std::string> cells = splitCsv(line);
+        if (cells.size() != header.size()) {
+            return reportError(Error{ErrorCode::kBadInput, options.csv + ":" + std::to_string(line_number) + ": " + std::to_string(cells.size()) +
+                                                               " fields where the header has " + std::to_string(header.size()) +
+                                                               " (a truncated row?)"});
+        }
         std::vector<double> row(header.size(), std::numeric_limits<double>::quiet_NaN());
         for (std::size_t i = 0; i < std::min(cells.size(), header.size()); ++i) row[i] = parseCell(cells[i]);
         rows.push_back(std::move(row));
