@@ -14,6 +14,7 @@
 #include <Eigen/Geometry>
 #include <Eigen/LU>
 // The library (libtinygltf) holds the implementation and stb_image; only declarations here.
+#include <nlohmann/json.hpp>
 #include <tiny_gltf.h>
 #include <tiny_obj_loader.h>
 
@@ -504,6 +505,31 @@ private:
     std::vector<std::uint8_t> visited_;  // 1 for nodes already read: each has one parent at most
 };
 
+// tinygltf copies a GLB's first buffer (the BIN chunk) with data.at(0) after resizing it to the
+// buffer's byteLength, so a byteLength of 0 (which glTF forbids: its minimum is 1) threw
+// std::out_of_range from inside it (found by fuzz_glb). Every buffer's byteLength is checked in
+// the JSON chunk first; what cannot be parsed here is left to tinygltf's own errors.
+Result<void> checkGlbBufferLengths(const std::filesystem::path& file) {
+    std::vector<unsigned char> bytes;
+    if (!readRegularFile(file, bytes) || bytes.size() < 20) return {};
+    std::uint32_t json_length = 0;
+    std::memcpy(&json_length, bytes.data() + 12, 4);
+    if (std::memcmp(bytes.data() + 16, "JSON", 4) != 0 || json_length > bytes.size() - 20) return {};
+    const nlohmann::json j = nlohmann::json::parse(bytes.begin() + 20, bytes.begin() + 20 + json_length, nullptr, false);
+    if (j.is_discarded() || !j.is_object()) return {};
+    const auto buffers = j.find("buffers");
+    if (buffers == j.end() || !buffers->is_array()) return {};
+    for (std::size_t i = 0; i < buffers->size(); ++i) {
+        const nlohmann::json& b = (*buffers)[i];
+        if (!b.is_object()) continue;
+        const auto length = b.find("byteLength");
+        if (length != b.end() && length->is_number() && !(length->get<double>() >= 1.0)) {
+            return fail(meshError(file, "buffers[" + std::to_string(i) + "].byteLength must be at least 1"));
+        }
+    }
+    return {};
+}
+
 std::string lowerExtension(const std::filesystem::path& file) {
     std::string ext = file.extension().string();
     for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
@@ -515,6 +541,7 @@ std::string lowerExtension(const std::filesystem::path& file) {
 Result<Mesh> readGltfMesh(const std::filesystem::path& file, bool binary) {
     return guardReader(file, [&]() -> Result<Mesh> {
         CL_TRY_VOID(checkExists(file));
+        if (binary) CL_TRY_VOID(checkGlbBufferLengths(file));
         tinygltf::TinyGLTF loader;
         loader.SetImageLoader(&keepImageBytes, nullptr);
         loader.SetFsCallbacks(tinygltf::FsCallbacks{&regularFileExists, &samePath, &readWholeRegularFile,
