@@ -297,34 +297,25 @@ TEST_F(CompositorTest, AClosedProxyAroundTheCameraIsSeenFromInside) {
         f.mean_original = 1.0f;
         return f;
     };
-    {  // The room: 4 m on a side, floor at z = 0, the camera 2 m above it, inside.
+    // The linear value at the image centre with one box proxy (size, centre height), its floor face
+    // at z = 0 with ratio 0.5.
+    const auto centreWithBox = [&](const Eigen::Vector3d& size, double centre_z) {
         Scene scene;
-        RealObject room;
-        room.name = "room";
-        room.shape = BoxShape{Eigen::Vector3d(4.0, 4.0, 4.0)};
-        room.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 2));
-        scene.real_objects.push_back(room);
+        RealObject box;
+        box.name = "box";
+        box.shape = BoxShape{size};
+        box.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, centre_z));
+        scene.real_objects.push_back(box);
         lighting::LightingSnapshot snapshot;
         snapshot.version = 1;
         snapshot.faces.push_back(floorFace(0.0, 0.5f));
         auto c = make(scene, camera, response);
-        ASSERT_TRUE(c);
-        EXPECT_NEAR(centreLinear(render(*c, frame.view(), lookingDown(), snapshot)), 0.5 * in_linear, 0.02 * in_linear);
-    }
-    {  // A 1 m block below the camera, its bottom (ratio 0.5) behind its top (unmodulated).
-        Scene scene;
-        RealObject block;
-        block.name = "block";
-        block.shape = BoxShape{Eigen::Vector3d(4.0, 4.0, 1.0)};
-        block.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 0.5));
-        scene.real_objects.push_back(block);
-        lighting::LightingSnapshot snapshot;
-        snapshot.version = 1;
-        snapshot.faces.push_back(floorFace(0.0, 0.5f));
-        auto c = make(scene, camera, response);
-        ASSERT_TRUE(c);
-        EXPECT_NEAR(centreLinear(render(*c, frame.view(), lookingDown(), snapshot)), in_linear, 0.01 * in_linear);
-    }
+        return c ? centreLinear(render(*c, frame.view(), lookingDown(), snapshot)) : -1.0;
+    };
+    // The room: 4 m on a side, floor at z = 0, the camera 2 m above it, inside: the floor halved.
+    EXPECT_NEAR(centreWithBox(Eigen::Vector3d(4.0, 4.0, 4.0), 2.0), 0.5 * in_linear, 0.02 * in_linear);
+    // A 1 m block below the camera, its bottom (ratio 0.5) behind its top (unmodulated).
+    EXPECT_NEAR(centreWithBox(Eigen::Vector3d(4.0, 4.0, 1.0), 0.5), in_linear, 0.01 * in_linear);
 }
 
 // The final pass modulates only where the snapshot changes something: a 2 x 2 texel patch of
