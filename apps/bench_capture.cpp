@@ -20,7 +20,7 @@
 #include "apps/report.h"
 #include "capture/capture_session.h"
 #include "capture/convert.h"
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "core/clock.h"
 #include "core/log.h"
 
@@ -37,7 +37,7 @@ struct CaseResult {
     std::uint64_t dropped_device = 0;
     std::uint64_t dropped_pipeline = 0;  // no pool slot + replaced in the mailbox
     double fps = 0.0;
-    capture::Percentiles latency_ms;
+    Percentiles latency_ms;
     double cpu_ms_per_frame = 0.0;
     std::string error;  // the case could not run
 };
@@ -121,7 +121,7 @@ CaseResult runGstreamer(const std::string& name, const std::string& address, dou
         return result;
     }
     GstElement* sink = gst_bin_get_by_name(GST_BIN(pipeline), "sink");
-    capture::SampleReservoir latency;
+    SampleReservoir latency;
     capture::PixelConverter converter;
     Image rgb;
     const double cpu0 = cpuSeconds();

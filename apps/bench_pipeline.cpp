@@ -12,7 +12,7 @@
 #include "apps/app.h"
 #include "apps/report.h"
 #include "capture/capture_session.h"
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "core/clock.h"
 #include "core/log.h"
 #include "core/scene_io.h"
@@ -248,7 +248,7 @@ Result<nlohmann::json> benchCompositor(const Loaded& l, const BenchPipelineOptio
             }
         }
         std::sort(ms.begin(), ms.end());
-        const double p50 = capture::nearestRank(ms, 50), p95 = capture::nearestRank(ms, 95);
+        const double p50 = nearestRank(ms, 50), p95 = nearestRank(ms, 95);
         const double cpu_ms = 1e3 * cpu / static_cast<double>(ms.size());
         // Profiling: the same draws with glFinish after each pass.
         co.profile = true;

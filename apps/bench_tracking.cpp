@@ -16,7 +16,7 @@
 #include "apps/progress.h"
 #include "apps/report.h"
 #include "apps/track_input.h"
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "core/calibration_io.h"
 #include "core/file_util.h"
 #include "core/log.h"
@@ -239,7 +239,7 @@ struct ErrorStats {
     static double pct(std::vector<double> v, double p) {
         if (v.empty()) return NAN;
         std::sort(v.begin(), v.end());
-        return capture::nearestRank(v, p);
+        return nearestRank(v, p);
     }
     double gross() const {
         if (rot_deg.empty()) return NAN;

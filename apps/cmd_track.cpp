@@ -18,7 +18,7 @@
 #include "apps/progress.h"
 #include "apps/report.h"
 #include "apps/track_input.h"
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "core/calibration_io.h"
 #include "core/log.h"
 #include "core/scene_io.h"
@@ -204,7 +204,7 @@ int runTrack(TrackCommandOptions& options) {
     // Step 4: summary (stderr, so the CSV can go to stdout).
     const auto pct = [](std::vector<double> v, double q) {
         std::sort(v.begin(), v.end());
-        return capture::nearestRank(v, 100.0 * q);
+        return nearestRank(v, 100.0 * q);
     };
     sayErr("tracked %zu frames: %zu with a camera pose, %zu tag rows; %.2f ms per frame (p50)\n",
            input->frames.size() - unreadable, with_pose, tag_rows, total_ms.empty() ? 0.0 : pct(total_ms, 0.5));

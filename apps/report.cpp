@@ -6,7 +6,7 @@
 
 namespace commonlight::apps {
 
-nlohmann::json toJson(const capture::Percentiles& p) {
+nlohmann::json toJson(const Percentiles& p) {
     return {{"p50", p.p50}, {"p95", p.p95}, {"max", p.max}};
 }
 

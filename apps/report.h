@@ -5,7 +5,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "capture/stage_timings.h"
 #include "capture/stats.h"
 #include "core/pose.h"
@@ -13,7 +13,7 @@
 
 namespace commonlight::apps {
 
-nlohmann::json toJson(const capture::Percentiles& p);
+nlohmann::json toJson(const Percentiles& p);
 // The capture part of the metrics JSON (docs/cli.md): frames, fps, dropped_frames, latency_ms...
 nlohmann::json captureJson(const capture::CaptureStats& stats);
 nlohmann::json stagesJson(const capture::StageTimings& timings);

@@ -19,7 +19,7 @@
 #include <string_view>
 #include <vector>
 
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "core/clock.h"
 
 namespace commonlight::capture {

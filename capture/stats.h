@@ -10,7 +10,7 @@
 #include <cstdint>
 #include <mutex>
 
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "core/frame.h"
 
 namespace commonlight::capture {

@@ -26,7 +26,6 @@ struct OwnedObservation {
     std::uint64_t ticket = 0;       // submit order, from 1
 };
 
-constexpr std::size_t kMaxStatSamples = 1u << 16;
 
 }  // namespace
 
@@ -283,35 +282,28 @@ Result<void> LightingEngine::Impl::process(OwnedObservation& observation, const 
     ++stats.updates;
     const bool full = model->lastUpdateFull();
     if (full) ++stats.full_updates;
-    if (stats.update_ms.size() < kMaxStatSamples) {
-        stats.update_ms.push_back(static_cast<double>(end_ns - start_ns) / 1e6);
-        stats.lag_ms.push_back(static_cast<double>(end_ns - observation.submitted_ns) / 1e6);
-        if (!full) stats.incremental_ms.push_back(static_cast<double>(end_ns - start_ns) / 1e6);
-    }
+    stats.update_ms.add(static_cast<double>(end_ns - start_ns) / 1e6);
+    stats.lag_ms.add(static_cast<double>(end_ns - observation.submitted_ns) / 1e6);
+    if (!full) stats.incremental_ms.add(static_cast<double>(end_ns - start_ns) / 1e6);
     return {};
 }
 
 namespace {
 
-nlohmann::json percentiles(std::vector<double> values) {
-    std::sort(values.begin(), values.end());
-    const auto rank = [&](double p) {
-        if (values.empty()) return 0.0;
-        const auto k = static_cast<std::size_t>(std::ceil(p / 100.0 * static_cast<double>(values.size())));
-        return values[std::clamp<std::size_t>(k, 1, values.size()) - 1];
-    };
-    return {{"p50", rank(50)}, {"p95", rank(95)}, {"max", values.empty() ? 0.0 : values.back()}};
+nlohmann::json percentilesJson(const SampleReservoir& samples) {
+    const Percentiles p = samples.percentiles();
+    return {{"p50", p.p50}, {"p95", p.p95}, {"max", p.max}};
 }
 
 }  // namespace
 
 nlohmann::json lightingMetricsJson(const EngineStats& stats, const LightingSnapshot& snapshot) {
     nlohmann::json j;
-    j["update_ms"] = percentiles(stats.update_ms);
-    j["lag_ms"] = percentiles(stats.lag_ms);
+    j["update_ms"] = percentilesJson(stats.update_ms);
+    j["lag_ms"] = percentilesJson(stats.lag_ms);
     j["updates"] = stats.updates;
     j["full_updates"] = stats.full_updates;
-    j["incremental_update_ms"] = percentiles(stats.incremental_ms);
+    j["incremental_update_ms"] = percentilesJson(stats.incremental_ms);
     j["update_rate_hz"] = stats.updateRateHz();
     j["observations"] = {{"submitted", stats.submitted},
                          {"processed", stats.processed},

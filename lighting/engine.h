@@ -24,8 +24,10 @@
 
 #include "core/camera_model.h"
 #include "core/image.h"
+#include "core/percentiles.h"
 #include "core/pose.h"
 #include "core/response.h"
+#include "core/percentiles.h"
 #include "core/result.h"
 #include "core/scene.h"
 #include "lighting/snapshot.h"
@@ -62,9 +64,10 @@ struct EngineStats {
     std::uint64_t without_pose = 0;   // submitted without a camera pose
     std::uint64_t updates = 0;        // snapshots published
     std::uint64_t full_updates = 0;   // of them, full (light fit, B~ and the influence from scratch)
-    std::vector<double> update_ms;    // per update: accumulation + estimation + solve + publication
-    std::vector<double> incremental_ms;  // per incremental update (only the virtual objects' influence): the same
-    std::vector<double> lag_ms;       // per update: publication time - the observation's submit time
+    // Per-update times in ms, in fixed-size reservoirs (an hour of live use allocates nothing more):
+    SampleReservoir update_ms;        // accumulation + estimation + solve + publication
+    SampleReservoir incremental_ms;   // the same, incremental updates only (the virtual objects' influence)
+    SampleReservoir lag_ms;           // publication time - the observation's submit time
     double elapsed_s = 0.0;           // since start()
 
     double updateRateHz() const { return elapsed_s > 0.0 ? static_cast<double>(updates) / elapsed_s : 0.0; }

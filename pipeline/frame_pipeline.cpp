@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "core/frame_file.h"
 
 namespace commonlight::pipeline {
@@ -86,8 +86,8 @@ namespace {
 
 nlohmann::json percentilesOf(std::vector<double> values) {
     std::sort(values.begin(), values.end());
-    return {{"p50", capture::nearestRank(values, 50.0)},
-            {"p95", capture::nearestRank(values, 95.0)},
+    return {{"p50", nearestRank(values, 50.0)},
+            {"p95", nearestRank(values, 95.0)},
             {"max", values.empty() ? 0.0 : values.back()}};
 }
 

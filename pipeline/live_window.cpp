@@ -168,7 +168,7 @@ bool LiveWindow::show(const TrackedFrame* frame, bool fresh_composite) {
     if (window_->shouldClose()) return false;
     // Step 4: the title keeps the figures too.
     const FrameRunner::CompositeInfo& info = runner_->lastComposite();
-    const capture::Percentiles pipeline = runner_->timings().percentiles(runner_->timings().id("pipeline"));
+    const Percentiles pipeline = runner_->timings().percentiles(runner_->timings().id("pipeline"));
     std::string title = format("commonlight | %s | %.1f fps | pipeline p50 %.0f ms | lighting v%llu%s | %s",
                                frame ? tracking::trackStatusName(frame->track.status) : "no frame",
                                interval_ns_ > 0.0 ? 1e9 / interval_ns_ : 0.0, pipeline.p50,

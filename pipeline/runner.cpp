@@ -368,15 +368,15 @@ nlohmann::json FrameRunner::metricsJson() const {
         c["msaa_samples"] = compositor_->options().msaa_samples;
         c["renderer"] = context_->renderer();
         if (lag_ms_.count() > 0) {
-            const capture::Percentiles lag = lag_ms_.percentiles();
+            const Percentiles lag = lag_ms_.percentiles();
             c["lighting_lag_ms"] = {{"p50", lag.p50}, {"p95", lag.p95}, {"max", lag.max}};
         }
         if (latency_ms_.count() > 0) {
-            const capture::Percentiles latency = latency_ms_.percentiles();
+            const Percentiles latency = latency_ms_.percentiles();
             c["latency_ms"] = {{"p50", latency.p50}, {"p95", latency.p95}, {"max", latency.max}};
         }
         if (lag_frames_.count() > 0) {
-            const capture::Percentiles lag = lag_frames_.percentiles();
+            const Percentiles lag = lag_frames_.percentiles();
             c["lighting_lag_frames"] = {{"p50", lag.p50}, {"p95", lag.p95}, {"max", lag.max}};
         }
         metrics["compositor"] = c;

@@ -28,7 +28,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "capture/stage_timings.h"
 #include "core/camera_model.h"
 #include "core/frame.h"
@@ -166,9 +166,9 @@ private:
     std::unique_ptr<CompositeWriter> writer_;
     Image composite_;
     CompositeErrors composite_errors_;
-    capture::SampleReservoir lag_ms_;       // frame timestamp minus the snapshot's, per composite
-    capture::SampleReservoir lag_frames_;
-    capture::SampleReservoir latency_ms_;   // frame arrival to composite ready
+    SampleReservoir lag_ms_;       // frame timestamp minus the snapshot's, per composite
+    SampleReservoir lag_frames_;
+    SampleReservoir latency_ms_;   // frame arrival to composite ready
     CompositeInfo last_composite_;
     std::uint64_t processed_ = 0;  // frames composited (main thread)
     std::uint64_t tracked_ = 0;    // frames tracked (pipeline thread)

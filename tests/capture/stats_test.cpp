@@ -6,7 +6,7 @@
 
 #include <gtest/gtest.h>
 
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 #include "capture/stage_timings.h"
 #include "core/clock.h"
 

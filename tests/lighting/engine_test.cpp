@@ -88,7 +88,7 @@ TEST(LightingEngine, SyncModeProcessesEveryObservationInOrder) {
     EXPECT_EQ(stats.processed, 5u);
     EXPECT_EQ(stats.skipped, 0u);
     EXPECT_EQ(stats.updates, 5u);
-    EXPECT_EQ(stats.update_ms.size(), 5u);
+    EXPECT_EQ(stats.update_ms.count(), 5u);
 }
 
 TEST(LightingEngine, FrameWithoutPoseIsCountedAndBadInputIsRejected) {
@@ -215,7 +215,7 @@ TEST(LightingEngine, MovingObjectUpdatesIncrementallyAndItsShadowFollows) {
     EXPECT_EQ(stats.updates, 12u);
     // Full updates when the observations have doubled: after frames 1, 2, 4 and 8.
     EXPECT_EQ(stats.full_updates, 4u);
-    EXPECT_EQ(stats.incremental_ms.size(), 8u);
+    EXPECT_EQ(stats.incremental_ms.count(), 8u);
 }
 
 TEST(LightingEngine, StopIsIdempotentAndSubmitAfterStopFails) {

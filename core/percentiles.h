@@ -9,9 +9,9 @@
 #include <cstdint>
 #include <vector>
 
-namespace commonlight::capture {
+namespace commonlight {
 
-// p50 / p95 / max of a set of samples, in the samples' unit (milliseconds throughout capture and
+// p50 / p95 / max of a set of samples, in the samples' unit (milliseconds throughout capture, lighting and
 // in the app's metrics JSON: "stages_ms", "latency_ms"). All zero when there were no samples.
 struct Percentiles {
     double p50 = 0.0;
@@ -49,4 +49,4 @@ private:
     std::uint64_t state_;
 };
 
-}  // namespace commonlight::capture
+}  // namespace commonlight

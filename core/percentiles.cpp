@@ -1,10 +1,10 @@
-#include "capture/percentiles.h"
+#include "core/percentiles.h"
 
 #include <algorithm>
 #include <cassert>
 #include <cmath>
 
-namespace commonlight::capture {
+namespace commonlight {
 
 double nearestRank(const std::vector<double>& sorted, double p) noexcept {
     if (sorted.empty()) return 0.0;
@@ -60,4 +60,4 @@ Percentiles SampleReservoir::percentiles() const {
     return out;
 }
 
-}  // namespace commonlight::capture
+}  // namespace commonlight
