@@ -70,6 +70,9 @@ Result<void> TrackerOptions::validate() const {
     CL_TRY_VOID(tag_pose.validate());
     CL_TRY_VOID(bundle.validate());
     if (redetect_every < 1) return fail(ErrorCode::kUsage, "redetect_every must be >= 1");
+    if (!(jump_max_rms_px >= 0) || !std::isfinite(jump_max_rms_px)) {
+        return fail(ErrorCode::kUsage, "jump_max_rms_px must be a finite number of pixels >= 0");
+    }
     if (!(window_margin >= 0) || window_min_margin_px < 0) return fail(ErrorCode::kUsage, "window margins must be >= 0");
     if (!(default_tag_size >= 0) || !std::isfinite(default_tag_size)) {
         return fail(ErrorCode::kUsage, "the tag size must be a positive number of metres");
@@ -329,8 +332,22 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
     if (measurement) {
         out.status = edges_only ? TrackStatus::kEdgesOnly : TrackStatus::kTracked;
         if (s.options.filter) {
-            CL_TRY(const auto update, s.filter.update(*measurement));
-            (void)update;
+            CL_TRY(auto update, s.filter.update(*measurement));
+            // Hard case: the camera jumped (a fast move, a replay that loops, a tracker that
+            // had lost it). The gate rejects what the motion model cannot explain, which guards
+            // against a single tag's wrong candidate; but a bundle of two or more of the scene's
+            // tags that agree with each other has no planar ambiguity, so it is the camera that
+            // moved, not the measurement that is wrong: the filter starts again from it at once
+            // instead of reporting its own extrapolation for `max_consecutive_rejections` frames.
+            if (update == PoseFilter::UpdateResult::kRejected && out.bundle && !edges_only &&
+                out.bundle->tags_used.size() >= 2 && out.bundle->rms_px <= s.options.jump_max_rms_px) {
+                s.filter.reset();
+                CL_TRY(update, s.filter.update(*measurement));
+            }
+            if (update == PoseFilter::UpdateResult::kRejected) {
+                // The measurement was refused: what is reported is the prediction.
+                out.status = TrackStatus::kPredicted;
+            }
             const auto filtered = s.filter.predict(timestamp_ns);
             out.cam_from_world = filtered ? filtered->cam_from_world : measurement->cam_from_world;
             out.covariance = filtered ? filtered->covariance : measurement->covariance;

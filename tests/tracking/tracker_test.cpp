@@ -1,5 +1,6 @@
 // The tracking stage end to end on the bundled sample (the desk scene rendered by mocks/sim,
 // with its true camera poses), and its contract on frames without tags and bad frames.
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <map>
@@ -194,6 +195,48 @@ Image withoutTags(const Image& grey, const Rigid3d& cam_from_world, const Camera
     return out;
 }
 
+// A looping replay (or a fast move): the sample to its end, then its first frame again one frame
+// period later, 0.57 m and 24 degrees away from where the motion model expects the camera. Four
+// tags agree on the new pose, so it is reported at once (tracked), not the filter's extrapolation
+// of the old motion while its gate refuses the measurement. A single tag that disagrees with the
+// prediction is still refused, and the frame says it reports the prediction.
+TEST(Tracker, AJumpSeenByTwoOrMoreTagsIsTakenAtOnce) {
+    const Sample& s = sample();
+    TrackerOptions options;
+    options.tracking_mode = true;  // as play and live run it
+    Tracker tracker = makeTracker(options);
+    const std::size_t n = s.grey.size();
+    for (std::size_t i = 0; i < n; ++i) ASSERT_TRUE(tracker.process(s.grey[i].view(), s.seq.frames[i].timestamp_ns));
+    const std::int64_t period = s.seq.frames[1].timestamp_ns - s.seq.frames[0].timestamp_ns;
+    for (std::size_t k = 0; k < 4; ++k) {
+        const std::int64_t t = s.seq.frames[n - 1].timestamp_ns + static_cast<std::int64_t>(k + 1) * period;
+        auto track = tracker.process(s.grey[k].view(), t);
+        ASSERT_TRUE(track) << track.error().message;
+        ASSERT_EQ(track->status, TrackStatus::kTracked) << "frame " << k << " after the jump";
+        ASSERT_TRUE(track->cam_from_world);
+        const double mm = 1000 * (track->cam_from_world->inverse().translation - s.cam_from_world_true[k].inverse().translation).norm();
+        EXPECT_LT(rotationErrorDeg(*track->cam_from_world, s.cam_from_world_true[k]), 0.3) << "frame " << k << " after the jump";
+        EXPECT_LT(mm, 8.0) << "frame " << k << " after the jump";
+    }
+
+    // One tag only (the others painted over): beyond the gate, refused; the prediction, said so.
+    Tracker single = makeTracker(options);
+    for (std::size_t i = 0; i < n; ++i) ASSERT_TRUE(single.process(s.grey[i].view(), s.seq.frames[i].timestamp_ns));
+    Image first_only = Image::copyOf(s.grey[0].view());
+    for (std::size_t k = 1; k < s.scene.tags.items.size(); ++k) {  // each tag but the first, one at a time
+        TagSet one = s.scene.tags;
+        one.items = {s.scene.tags.items[k]};
+        first_only = withoutTags(first_only, s.cam_from_world_true[0], *s.seq.sensor.camera, one);
+    }
+    auto refused = single.process(first_only.view(), s.seq.frames[n - 1].timestamp_ns + period);
+    ASSERT_TRUE(refused) << refused.error().message;
+    ASSERT_TRUE(refused->bundle);
+    EXPECT_EQ(refused->bundle->tags_used.size(), 1u);
+    EXPECT_EQ(refused->status, TrackStatus::kPredicted);
+    ASSERT_TRUE(refused->cam_from_world);
+    EXPECT_GT(rotationErrorDeg(*refused->cam_from_world, s.cam_from_world_true[0]), 5.0) << "the prediction, not the measurement";
+}
+
 TEST(Tracker, EdgesCarryThePoseWhileTheTagsAreHidden) {
     const Sample& s = sample();
     TrackerOptions options;
@@ -263,6 +306,11 @@ TEST(Tracker, InvalidOptionsAreUsageErrors) {
     TrackerOptions edges_without_scene;
     edges_without_scene.edges = true;
     EXPECT_FALSE(Tracker::create(*s.seq.sensor.camera, s.scene.tags, nullptr, edges_without_scene));
+    TrackerOptions nan_rms;
+    nan_rms.jump_max_rms_px = std::nan("");
+    auto n = Tracker::create(*s.seq.sensor.camera, s.scene.tags, &s.scene, nan_rms);
+    ASSERT_FALSE(n);
+    EXPECT_NE(n.error().message.find("jump_max_rms_px"), std::string::npos);
 }
 
 }  // namespace
