@@ -16,6 +16,7 @@
 #include <sys/resource.h>
 
 #include "core/clock.h"
+#include "render/ggx_albedo.h"
 #include "render/gl_objects.h"
 #include "render/gpu_mesh.h"
 #include "render/light_samples.h"
@@ -54,7 +55,9 @@ constexpr float kNoIdeal = -1e6f;   // a camera pixel with no ideal position ins
 
 // Texture units of the final pass and of the virtual objects' program.
 enum FinalUnit : int { kUnitFrame = 0, kUnitFrameUv, kUnitUndistort, kUnitProxyAtlas, kUnitAtlasM, kUnitAtlasD, kUnitAtlasO, kUnitLayerV };
-enum VirtualUnit : int { kUnitShadowMaps = 3, kUnitSh = 4, kUnitBaseColour = 5, kUnitStaticShadowMaps = 6 };
+enum VirtualUnit : int { kUnitShadowMaps = 3, kUnitSh = 4, kUnitBaseColour = 5, kUnitStaticShadowMaps = 6, kUnitGgxAlbedo = 7 };
+constexpr int kGgxTableSize = 32;      // the GGX directional albedo table, per side (render/ggx_albedo.h)
+constexpr int kGgxTableSamples = 256;  // visible normals per entry: within 0.5% of a 262 144-sample integral
 
 GLuint floatTexture(int width, int height, GLenum internal, GLenum format, const float* data, GLenum filter) {
     const GLuint t = gl::newTexture();
@@ -192,6 +195,7 @@ struct VirtualProgram {
     GLint kind = -1, position = -1, axis = -1, power = -1, shadow_layer = -1, shadow_vp = -1, static_vp = -1, shadow_tile = -1, shadow_inset = -1,
           static_tile = -1, static_inset = -1;
     GLint has_sh = -1, bmin = -1, bmax = -1, sh_scale = -1, sh_offset = -1, sh_depth = -1, has_texture = -1;
+    GLint roughness = -1, radius = -1;  // GGX only
 };
 
 struct FinalProgram {
@@ -229,7 +233,9 @@ struct Compositor::Impl {
     GLuint compose_program = 0;
     GLint compose_sample_count = -1;
     ProxyProgram proxy_program;
-    VirtualProgram virtual_program;
+    VirtualProgram virtual_program;      // Lambertian
+    VirtualProgram virtual_ggx_program;  // `material: {type: ggx}`
+    GLuint ggx_albedo_texture = 0;       // RG32F (A, B) of render/ggx_albedo.h
     std::map<int, FinalProgram> final_programs;  // by FinalBits
     GLuint empty_vao = 0;
     std::vector<GpuMesh> real_meshes;     // by Scene::real_objects index
@@ -296,6 +302,7 @@ struct Compositor::Impl {
     }
 
     Result<void> makePrograms();
+    Result<void> makeVirtualProgram(VirtualProgram& vp, bool ggx);
     Result<const FinalProgram*> finalProgram(int bits);
     Result<void> makeLayerTargets();
     void makeFrameTextures(PixelFormat format);
@@ -353,8 +360,21 @@ Result<void> Compositor::Impl::makePrograms() {
     pp.atlas_rect = loc(pp.id, "u_atlas_rect");
     pp.clamp = loc(pp.id, "u_clamp");
 
-    CL_TRY(virtual_program.id, gl::newProgram("virtual", programSource({}, shaders::kVirtualVs), programSource({}, shaders::kVirtualFs)));
-    VirtualProgram& vp = virtual_program;
+    CL_TRY_VOID(makeVirtualProgram(virtual_program, false));
+    CL_TRY_VOID(makeVirtualProgram(virtual_ggx_program, true));
+
+    // The final pass's everyday variants (RGB8 frames); the others are made when first needed.
+    for (int bits : {0, int{kFinalModulation}, int{kFinalVirtual}, kFinalModulation | kFinalVirtual}) CL_TRY_VOID(finalProgram(bits));
+    return {};
+}
+
+Result<void> Compositor::Impl::makeVirtualProgram(VirtualProgram& vp, bool ggx) {
+    using shaders::programSource;
+    const std::string vs = std::string(shaders::kShIrradiance) + shaders::kVirtualVs;
+    const std::string fs = ggx ? std::string(shaders::kShIrradiance) + shaders::kVirtualFs : std::string(shaders::kVirtualFs);
+    const std::vector<std::string> defines =
+        ggx ? std::vector<std::string>{"GGX", "GGX_TABLE_SIZE " + std::to_string(kGgxTableSize) + ".0"} : std::vector<std::string>{};
+    CL_TRY(vp.id, gl::newProgram(ggx ? "virtual (ggx)" : "virtual", programSource({}, vs.c_str()), programSource(defines, fs.c_str())));
     vp.model = loc(vp.id, "u_model");
     vp.view_proj = loc(vp.id, "u_view_proj");
     vp.albedo = loc(vp.id, "u_albedo");
@@ -380,16 +400,16 @@ Result<void> Compositor::Impl::makePrograms() {
     vp.sh_offset = loc(vp.id, "u_sh_offset");
     vp.sh_depth = loc(vp.id, "u_sh_depth");
     vp.has_texture = loc(vp.id, "u_has_texture");
+    vp.roughness = loc(vp.id, "u_roughness");
+    vp.radius = loc(vp.id, "u_radius");
     glUseProgram(vp.id);
     glUniform1i(loc(vp.id, "u_shadow_maps"), kUnitShadowMaps);
     glUniform1i(loc(vp.id, "u_static_maps"), kUnitStaticShadowMaps);
     glUniform1i(loc(vp.id, "u_sh"), kUnitSh);
     glUniform1i(loc(vp.id, "u_base_colour"), kUnitBaseColour);
+    if (ggx) glUniform1i(loc(vp.id, "u_ggx_albedo"), kUnitGgxAlbedo);
     glUniform1f(vp.sh_depth, 1.0f / 9.0f);
     glUseProgram(0);
-
-    // The final pass's everyday variants (RGB8 frames); the others are made when first needed.
-    for (int bits : {0, int{kFinalModulation}, int{kFinalVirtual}, kFinalModulation | kFinalVirtual}) CL_TRY_VOID(finalProgram(bits));
     return {};
 }
 
@@ -866,51 +886,67 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
         glClear(GL_DEPTH_BUFFER_BIT);
         drawProxyDepth(camera_centre);
     }
-    const VirtualProgram& vp = virtual_program;
-    glUseProgram(vp.id);
-    setMat4(vp.view_proj, view_proj);
-    setVec3(vp.camera_centre, camera_centre);
-    const int n = static_cast<int>(samples.size());
-    glUniform1i(vp.samples, n);
-    if (n > 0) {
-        std::array<GLint, kMaxLightSamples> kinds{}, layers{};
-        std::array<float, 3 * kMaxLightSamples> positions{}, axes{}, powers{};
-        std::array<float, 16 * kMaxLightSamples> matrices{};
-        for (int k = 0; k < n; ++k) {
-            const LightSample& s = samples[static_cast<std::size_t>(k)];
-            const std::size_t i = static_cast<std::size_t>(k);
-            kinds[i] = s.kind;
-            layers[i] = s.layer;
-            for (int c = 0; c < 3; ++c) {
-                positions[3 * i + static_cast<std::size_t>(c)] = static_cast<float>(s.position[c]);
-                axes[3 * i + static_cast<std::size_t>(c)] = static_cast<float>(s.axis[c]);
-                powers[3 * i + static_cast<std::size_t>(c)] = static_cast<float>(s.power[c]);
+    // The frame's uniforms (camera, light samples, shadow maps) in each program that draws.
+    const auto setFrameUniforms = [&](const VirtualProgram& vp) {
+        glUseProgram(vp.id);
+        setMat4(vp.view_proj, view_proj);
+        setVec3(vp.camera_centre, camera_centre);
+        const int n = static_cast<int>(samples.size());
+        glUniform1i(vp.samples, n);
+        if (n > 0) {
+            std::array<GLint, kMaxLightSamples> kinds{}, layers{};
+            std::array<float, 3 * kMaxLightSamples> positions{}, axes{}, powers{};
+            std::array<float, 16 * kMaxLightSamples> matrices{};
+            for (int k = 0; k < n; ++k) {
+                const LightSample& s = samples[static_cast<std::size_t>(k)];
+                const std::size_t i = static_cast<std::size_t>(k);
+                kinds[i] = s.kind;
+                layers[i] = s.layer;
+                for (int c = 0; c < 3; ++c) {
+                    positions[3 * i + static_cast<std::size_t>(c)] = static_cast<float>(s.position[c]);
+                    axes[3 * i + static_cast<std::size_t>(c)] = static_cast<float>(s.axis[c]);
+                    powers[3 * i + static_cast<std::size_t>(c)] = static_cast<float>(s.power[c]);
+                }
+                std::copy(s.view_proj.data(), s.view_proj.data() + 16, matrices.begin() + static_cast<std::ptrdiff_t>(16 * i));
             }
-            std::copy(s.view_proj.data(), s.view_proj.data() + 16, matrices.begin() + static_cast<std::ptrdiff_t>(16 * i));
+            glUniform1iv(vp.kind, n, kinds.data());
+            glUniform1iv(vp.shadow_layer, n, layers.data());
+            glUniform3fv(vp.position, n, positions.data());
+            glUniform3fv(vp.axis, n, axes.data());
+            glUniform3fv(vp.power, n, powers.data());
+            glUniformMatrix4fv(vp.shadow_vp, n, GL_FALSE, matrices.data());
+            // The real proxies' views, and each sample's tile in each atlas (their map sizes differ).
+            std::array<float, 4 * kMaxLightSamples> tiles{}, static_tiles{};
+            for (int k = 0; k < n; ++k) {
+                const LightSample& s = samples[static_cast<std::size_t>(k)];
+                const std::size_t i = static_cast<std::size_t>(k);
+                std::copy(s.static_view_proj.data(), s.static_view_proj.data() + 16, matrices.begin() + static_cast<std::ptrdiff_t>(16 * i));
+                const Eigen::Vector4f t = s.layer >= 0 ? virtual_shadows.tile(s.layer) : Eigen::Vector4f::Zero();
+                std::copy(t.data(), t.data() + 4, tiles.begin() + static_cast<std::ptrdiff_t>(4 * i));
+                const Eigen::Vector4f st = s.layer >= 0 ? real_shadows.tile(s.layer) : Eigen::Vector4f::Zero();
+                std::copy(st.data(), st.data() + 4, static_tiles.begin() + static_cast<std::ptrdiff_t>(4 * i));
+            }
+            glUniformMatrix4fv(vp.static_vp, n, GL_FALSE, matrices.data());
+            glUniform4fv(vp.shadow_tile, n, tiles.data());
+            glUniform4fv(vp.static_tile, n, static_tiles.data());
+            glUniform1f(vp.shadow_inset, virtual_shadows.size > 0 ? 0.5f / static_cast<float>(virtual_shadows.size) : 0.0f);
+            glUniform1f(vp.static_inset, real_shadows.size > 0 ? 0.5f / static_cast<float>(real_shadows.size) : 0.0f);
+            if (vp.radius >= 0) {
+                std::array<float, kMaxLightSamples> radii{};
+                for (int k = 0; k < n; ++k) radii[static_cast<std::size_t>(k)] = static_cast<float>(samples[static_cast<std::size_t>(k)].radius);
+                glUniform1fv(vp.radius, n, radii.data());
+            }
         }
-        glUniform1iv(vp.kind, n, kinds.data());
-        glUniform1iv(vp.shadow_layer, n, layers.data());
-        glUniform3fv(vp.position, n, positions.data());
-        glUniform3fv(vp.axis, n, axes.data());
-        glUniform3fv(vp.power, n, powers.data());
-        glUniformMatrix4fv(vp.shadow_vp, n, GL_FALSE, matrices.data());
-        // The real proxies' views, and each sample's tile in each atlas (their map sizes differ).
-        std::array<float, 4 * kMaxLightSamples> tiles{}, static_tiles{};
-        for (int k = 0; k < n; ++k) {
-            const LightSample& s = samples[static_cast<std::size_t>(k)];
-            const std::size_t i = static_cast<std::size_t>(k);
-            std::copy(s.static_view_proj.data(), s.static_view_proj.data() + 16, matrices.begin() + static_cast<std::ptrdiff_t>(16 * i));
-            const Eigen::Vector4f t = s.layer >= 0 ? virtual_shadows.tile(s.layer) : Eigen::Vector4f::Zero();
-            std::copy(t.data(), t.data() + 4, tiles.begin() + static_cast<std::ptrdiff_t>(4 * i));
-            const Eigen::Vector4f st = s.layer >= 0 ? real_shadows.tile(s.layer) : Eigen::Vector4f::Zero();
-            std::copy(st.data(), st.data() + 4, static_tiles.begin() + static_cast<std::ptrdiff_t>(4 * i));
-        }
-        glUniformMatrix4fv(vp.static_vp, n, GL_FALSE, matrices.data());
-        glUniform4fv(vp.shadow_tile, n, tiles.data());
-        glUniform4fv(vp.static_tile, n, static_tiles.data());
-        glUniform1f(vp.shadow_inset, virtual_shadows.size > 0 ? 0.5f / static_cast<float>(virtual_shadows.size) : 0.0f);
-        glUniform1f(vp.static_inset, real_shadows.size > 0 ? 0.5f / static_cast<float>(real_shadows.size) : 0.0f);
+    };
+    bool any_ggx = false, any_lambertian = false;
+    for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
+        if (!models[i]) continue;
+        (scene.virtual_objects[i].material.type == MaterialType::kGgx ? any_ggx : any_lambertian) = true;
     }
+    if (any_ggx) setFrameUniforms(virtual_ggx_program);
+    if (any_lambertian) setFrameUniforms(virtual_program);
+    glActiveTexture(GL_TEXTURE0 + kUnitGgxAlbedo);
+    glBindTexture(GL_TEXTURE_2D, ggx_albedo_texture);
     glActiveTexture(GL_TEXTURE0 + kUnitStaticShadowMaps);
     glBindTexture(GL_TEXTURE_2D, real_shadows.texture);
     glActiveTexture(GL_TEXTURE0 + kUnitShadowMaps);
@@ -919,6 +955,10 @@ void Compositor::Impl::drawVirtualLayer(const Rect& rect, bool proxy_depth_drawn
     for (std::size_t i = 0; i < virtual_meshes.size(); ++i) {
         if (!models[i]) continue;
         const VirtualObject& object = scene.virtual_objects[i];
+        const bool ggx = object.material.type == MaterialType::kGgx;
+        const VirtualProgram& vp = ggx ? virtual_ggx_program : virtual_program;
+        glUseProgram(vp.id);
+        if (ggx) glUniform1f(vp.roughness, static_cast<float>(object.material.roughness));
         setVec3(vp.emission, (object.emission.value_or(Eigen::Vector3d::Zero()) * scale).cast<float>());
         const ProbeGrid* grid = snapshot_textures.probes(i);
         // With nothing estimated yet (and no light to shade with), a neutral light that shows the
@@ -1103,7 +1143,9 @@ void Compositor::Impl::releaseAll() {
     gl::deleteTexture(undistort_texture);
     gl::deleteBuffer(to_linear_ubo);
     gl::deleteBuffer(to_code_ubo);
-    for (GLuint* p : {&shadow_program.id, &line_program.id, &geometry_program.id, &compose_program, &proxy_program.id, &virtual_program.id}) {
+    gl::deleteTexture(ggx_albedo_texture);
+    for (GLuint* p : {&shadow_program.id, &line_program.id, &geometry_program.id, &compose_program, &proxy_program.id, &virtual_program.id,
+                      &virtual_ggx_program.id}) {
         gl::deleteProgram(*p);
     }
     for (auto& [bits, p] : final_programs) gl::deleteProgram(p.id);
@@ -1162,6 +1204,9 @@ Result<std::unique_ptr<Compositor>> Compositor::create(GlContext& context, const
     glBindBuffer(GL_UNIFORM_BUFFER, d.to_code_ubo);
     glBufferData(GL_UNIFORM_BUFFER, static_cast<GLsizeiptr>(code.size() * sizeof(float)), code.data(), GL_STATIC_DRAW);
     glBindBuffer(GL_UNIFORM_BUFFER, 0);
+    // The GGX lobe's directional albedo, for the indirect light on `type: ggx` objects.
+    const std::vector<float> ggx_table = ggxAlbedoTable(kGgxTableSize, kGgxTableSamples);
+    d.ggx_albedo_texture = floatTexture(kGgxTableSize, kGgxTableSize, GL_RG32F, GL_RG, ggx_table.data(), GL_LINEAR);
 
     // Targets: the proxies' atlas coordinates, the virtual layer (multisampled) and its resolve, the output.
     d.proxy_fbo = gl::newFramebuffer();

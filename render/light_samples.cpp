@@ -95,6 +95,7 @@ std::vector<LightSample> lightSamples(const lighting::LightingSnapshot& snapshot
                 s.position = light.world_from_object.rotation * local + light.world_from_object.translation;
                 s.axis = r.col(2);
                 s.power = power * (area / per_area);
+                s.radius = std::sqrt(area / (per_area * std::numbers::pi));
                 samples.push_back(s);
             }
         }

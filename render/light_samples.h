@@ -18,6 +18,7 @@ struct LightSample {
     Eigen::Vector3d position = Eigen::Vector3d::Zero();  // world (kinds 0, 1)
     Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();     // 0: the emitting normal; 2: the direction light travels
     Eigen::Vector3d power = Eigen::Vector3d::Zero();     // relative: L A / n (area), I (point), E (directional)
+    double radius = 0.0;  // m: the radius of a disc of the area this sample stands for (kind 0); 0: a point
     int layer = -1;                                      // shadow map layer, -1: none
     Eigen::Matrix4f view_proj = Eigen::Matrix4f::Identity();  // world -> the shadow map's clip space (virtual objects)
     Eigen::Matrix4f static_view_proj = Eigen::Matrix4f::Identity();  // world -> the real proxies' shadow map's clip space

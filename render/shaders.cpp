@@ -74,15 +74,9 @@ void main() {
 }
 )";
 
-// Virtual objects: the vertex stage also evaluates the snapshot's indirect SH irradiance for both
-// sides of the surface (smooth over the object: trilinear between probes, order-2 SH over the
-// normal), so the fragment stage only picks the side it sees.
-const char* const kVirtualVs = R"(
-layout(location = 0) in vec3 a_position;
-layout(location = 1) in vec3 a_normal;
-layout(location = 2) in vec2 a_uv;
-uniform mat4 u_model;
-uniform mat4 u_view_proj;
+// The snapshot's indirect irradiance around a virtual object: order-2 spherical harmonics on a grid
+// of probes over its bounds (trilinear between probes by the GL's filtering).
+const char* const kShIrradiance = R"(
 uniform int u_has_sh;
 uniform vec3 u_bmin;
 uniform vec3 u_bmax;
@@ -90,6 +84,36 @@ uniform vec3 u_sh_scale;        // texture coordinates of the probe grid: g scal
 uniform vec3 u_sh_offset;
 uniform float u_sh_depth;       // 1 / 9: the coefficients are stacked along the texture's depth
 uniform sampler3D u_sh;         // RGB32F, probes x, y and 9 stacks of z (coefficient k at depth k)
+// Relative irradiance at world point p on a surface facing the unit direction n (front) and -n (back).
+void shIrradiance(vec3 p, vec3 n, out vec3 front, out vec3 back) {
+    front = vec3(0.0);
+    back = vec3(0.0);
+    if (u_has_sh == 0) return;
+    vec3 extent = max(u_bmax - u_bmin, vec3(1e-6));
+    vec3 t = clamp((p - u_bmin) / extent, 0.0, 1.0) * u_sh_scale + u_sh_offset;
+    // Y_k(n) with its sign for -n: the odd band (k = 1..3) flips.
+    float basis[9] = float[9](0.282095, 0.488603 * n.y, 0.488603 * n.z, 0.488603 * n.x, 1.092548 * n.x * n.y,
+                              1.092548 * n.y * n.z, 0.315392 * (3.0 * n.z * n.z - 1.0), 1.092548 * n.x * n.z,
+                              0.546274 * (n.x * n.x - n.y * n.y));
+    for (int k = 0; k < 9; ++k) {
+        vec3 c = texture(u_sh, vec3(t.xy, (t.z + float(k)) * u_sh_depth)).rgb * basis[k];
+        front += c;
+        back += (k >= 1 && k <= 3) ? -c : c;
+    }
+    front = max(front, vec3(0.0));
+    back = max(back, vec3(0.0));
+}
+)";
+
+// Virtual objects: the vertex stage also evaluates the snapshot's indirect SH irradiance for both
+// sides of the surface (smooth over the object: trilinear between probes, order-2 SH over the
+// normal), so the fragment stage only picks the side it sees. Preceded by kShIrradiance.
+const char* const kVirtualVs = R"(
+layout(location = 0) in vec3 a_position;
+layout(location = 1) in vec3 a_normal;
+layout(location = 2) in vec2 a_uv;
+uniform mat4 u_model;
+uniform mat4 u_view_proj;
 out vec3 v_world;
 out vec3 v_normal;
 out vec2 v_uv;
@@ -101,29 +125,19 @@ void main() {
     v_normal = mat3(u_model) * a_normal;
     v_uv = a_uv;
     gl_Position = u_view_proj * world;
-    v_indirect_front = vec3(0.0);
-    v_indirect_back = vec3(0.0);
-    if (u_has_sh != 0) {
-        vec3 n = normalize(v_normal);
-        vec3 extent = max(u_bmax - u_bmin, vec3(1e-6));
-        vec3 t = clamp((v_world - u_bmin) / extent, 0.0, 1.0) * u_sh_scale + u_sh_offset;
-        // Y_k(n) with its sign for -n: the odd band (k = 1..3) flips.
-        float basis[9] = float[9](0.282095, 0.488603 * n.y, 0.488603 * n.z, 0.488603 * n.x, 1.092548 * n.x * n.y,
-                                  1.092548 * n.y * n.z, 0.315392 * (3.0 * n.z * n.z - 1.0), 1.092548 * n.x * n.z,
-                                  0.546274 * (n.x * n.x - n.y * n.y));
-        for (int k = 0; k < 9; ++k) {
-            vec3 c = texture(u_sh, vec3(t.xy, (t.z + float(k)) * u_sh_depth)).rgb * basis[k];
-            v_indirect_front += c;
-            v_indirect_back += (k >= 1 && k <= 3) ? -c : c;
-        }
-        v_indirect_front = max(v_indirect_front, vec3(0.0));
-        v_indirect_back = max(v_indirect_back, vec3(0.0));
-    }
+    shIrradiance(v_world, normalize(v_normal), v_indirect_front, v_indirect_back);
 }
 )";
 
-// Virtual objects: Lambertian, direct light with shadow maps, the snapshot's indirect SH
-// irradiance (from the vertex stage), emission. Linear relative radiance.
+// Virtual objects: direct light with shadow maps, the snapshot's indirect SH irradiance, emission.
+// Linear relative radiance. Lambertian (albedo / pi times the irradiance, the indirect part from
+// the vertex stage), or with GGX defined (and kShIrradiance before it) the metal-like GGX lobe of
+// render/ggx_albedo.h: each light sample through the BRDF, its lobe widened by the patch of the
+// light the sample stands for (a = roughness^2 + radius / (2 distance), the peak scaled by
+// (a_0 / a)^2 so the energy stays: four points of an area light then give one highlight, not
+// four); the indirect light as the irradiance the snapshot gives for a surface facing the mirror
+// direction, over pi, times the lobe's directional albedo F0 A + B (ggx_albedo.h) read from
+// u_ggx_albedo: exact for uniform surroundings, a blur of them otherwise (SH have no finer detail).
 const char* const kVirtualFs = R"(
 in vec3 v_world;
 in vec3 v_normal;
@@ -171,30 +185,86 @@ float visibility(int i, vec3 world, vec3 n) {
            mapVisibility(u_static_maps, u_static_vp[i], u_static_tile[i], u_static_inset, p);
 }
 
+#ifdef GGX
+uniform float u_roughness;                 // perceptual; a = roughness^2, at least 1e-3
+uniform float u_radius[kMaxSamples];       // the light patch a sample stands for, m (0: a point)
+uniform sampler2D u_ggx_albedo;            // RG32F (A, B) by (cos_o, roughness), texel k at k / (size - 1)
+
+float ggxD(float cos_h, float a) {
+    float a2 = a * a;
+    float d = cos_h * cos_h * (a2 - 1.0) + 1.0;
+    return a2 / (3.14159265 * d * d);
+}
+// G1(v) / (2 cos_v): finite at grazing angles (the denominator is at least a).
+float smithG1OverTwoCos(float c, float a) {
+    float a2 = a * a;
+    return 1.0 / (c + sqrt(a2 + (1.0 - a2) * c * c));
+}
+vec3 schlick(vec3 f0, float c) {
+    float m = clamp(1.0 - c, 0.0, 1.0);
+    float m2 = m * m;
+    return f0 + (vec3(1.0) - f0) * (m2 * m2 * m);
+}
+#endif
+
 void main() {
     vec3 n = normalize(v_normal);
     // Two-sided: a face seen from behind is lit on the side the camera sees.
-    bool back = dot(n, u_camera_centre - v_world) < 0.0;
+    vec3 to_eye = u_camera_centre - v_world;
+    bool back = dot(n, to_eye) < 0.0;
     if (back) n = -n;
+    vec3 albedo = u_albedo;
+    if (u_has_texture != 0) albedo *= texture(u_base_colour, v_uv).rgb;
+#ifdef GGX
+    vec3 wo = normalize(to_eye);
+    float cos_o = max(dot(n, wo), 1e-4);
+    float a0 = max(u_roughness * u_roughness, 1e-3);
+    vec3 radiance = vec3(0.0);
+#else
     vec3 e = u_ambient + (back ? v_indirect_back : v_indirect_front);
+#endif
     for (int i = 0; i < u_samples; ++i) {
         vec3 irradiance;
+        vec3 l;
+        float d = 1.0;
         if (u_kind[i] == 2) {
-            irradiance = u_power[i] * max(dot(n, -u_axis[i]), 0.0);
+            l = -u_axis[i];
+            irradiance = u_power[i] * max(dot(n, l), 0.0);
         } else {
             vec3 to_light = u_position[i] - v_world;
             float d2 = max(dot(to_light, to_light), 1e-4);
-            vec3 l = to_light * inversesqrt(d2);
+            d = sqrt(d2);
+            l = to_light / d;
             float cos_r = max(dot(n, l), 0.0);
             float cos_l = u_kind[i] == 0 ? max(dot(u_axis[i], -l), 0.0) : 1.0;
             irradiance = u_power[i] * cos_r * cos_l / d2;
         }
         if (any(greaterThan(irradiance, vec3(0.0)))) irradiance *= visibility(i, v_world, n);
+#ifdef GGX
+        float cos_i = dot(n, l);
+        if (cos_i > 0.0) {
+            vec3 h = normalize(wo + l);
+            float a = min(a0 + u_radius[i] / (2.0 * d), 1.0);
+            float peak = (a0 / a) * (a0 / a);
+            vec3 f = schlick(albedo, dot(l, h)) * (ggxD(dot(n, h), a) * peak * smithG1OverTwoCos(cos_o, a0) * smithG1OverTwoCos(cos_i, a0));
+            radiance += f * irradiance;
+        }
+#else
         e += irradiance;
+#endif
     }
-    vec3 albedo = u_albedo;
-    if (u_has_texture != 0) albedo *= texture(u_base_colour, v_uv).rgb;
+#ifdef GGX
+    vec3 mirror = reflect(-wo, n);
+    vec3 front, unused;
+    shIrradiance(v_world, mirror, front, unused);
+    float r_cos = (cos_o * (GGX_TABLE_SIZE - 1.0) + 0.5) / GGX_TABLE_SIZE;
+    float r_rough = (clamp(u_roughness, 0.0, 1.0) * (GGX_TABLE_SIZE - 1.0) + 0.5) / GGX_TABLE_SIZE;
+    vec2 ab = texture(u_ggx_albedo, vec2(r_cos, r_rough)).rg;
+    radiance += (albedo * ab.x + vec3(ab.y)) * (front + u_ambient) / 3.14159265;
+    o_virtual = vec4(radiance + u_emission, 1.0);
+#else
     o_virtual = vec4(albedo / 3.14159265 * e + u_emission, 1.0);
+#endif
     o_geometry = vec4(normalize(v_normal), 1.0 / gl_FragCoord.w);
 }
 )";

@@ -19,8 +19,11 @@ extern const char* const kShadowFs;   // depth only
 extern const char* const kSceneVs;    // position, normal, texture coordinates -> world, normal, uv
 extern const char* const kProxyVs;    // real proxies: position, the atlas coordinates of the face's modulation
 extern const char* const kProxyFs;    // real proxies: those coordinates packed in RGBA8 (location 0)
-extern const char* const kVirtualVs;  // virtual objects: kSceneVs's outputs and the indirect irradiance of both sides
-extern const char* const kVirtualFs;  // radiance (location 0), normal and camera depth (location 1)  // virtual objects: linear relative radiance, alpha 1 (location 0)
+extern const char* const kShIrradiance;  // shIrradiance(): the snapshot's SH irradiance at a point (prepended to what uses it)
+extern const char* const kVirtualVs;  // virtual objects (after kShIrradiance): kSceneVs's outputs and the indirect irradiance of both sides
+// Virtual objects: linear relative radiance, alpha 1 (location 0), normal and camera depth
+// (location 1). Lambertian; with the defines GGX and GGX_TABLE_SIZE (after kShIrradiance) the GGX lobe.
+extern const char* const kVirtualFs;
 extern const char* const kLineFs;     // debug lines: a constant colour (location 0), geometry (location 1)
 extern const char* const kGeometryFs; // the surface's normal and camera depth (location 0): the multisampled pass
 extern const char* const kComposeFs;  // the virtual layer from the shaded pixels and the samples' geometry (full-screen triangle)

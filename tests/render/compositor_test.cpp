@@ -742,6 +742,139 @@ lighting::LightingSnapshot pointLampSnapshot(const Eigen::Vector3d& at, double i
     return snapshot;
 }
 
+// A GGX virtual tile (`material: {type: ggx}`) under one point lamp, seen from above: every pixel's
+// relative radiance is the GGX BRDF (written here from its definition: D G F / (4 cos_o cos_i),
+// Trowbridge-Reitz D, separable Smith G, Schlick F with F0 = the albedo) times the lamp's
+// irradiance I cos_i / d^2, a highlight where the lamp's mirror image is. (With nothing
+// estimated around it there is no indirect light.)
+TEST_F(CompositorTest, GgxObjectsReflectTheLightThroughTheirLobe) {
+    Scene scene;
+    VirtualObject tile;
+    tile.name = "tile";
+    tile.shape = PlaneShape{Eigen::Vector2d(2.0, 2.0)};
+    tile.material.type = MaterialType::kGgx;
+    tile.material.albedo = Eigen::Vector3d(0.9, 0.6, 0.3);
+    tile.material.roughness = 0.5;
+    scene.virtual_objects.push_back(tile);
+    const Eigen::Vector3d lamp(0.3, 0.1, 0.8);
+    const double intensity = 0.5;
+    const lighting::LightingSnapshot snapshot = pointLampSnapshot(lamp, intensity);
+    const CameraModel camera = smallCamera();
+    auto c = make(scene, camera, ResponseCurve::linear());
+    ASSERT_TRUE(c);
+    const Eigen::Vector3d eye(0, 0, 2);
+    const double a = 0.25, a2 = a * a;  // roughness 0.5
+    const auto radiance = [&](const Eigen::Vector3d& p) {  // relative radiance towards the eye, per channel
+        const Eigen::Vector3d wo = (eye - p).normalized(), wi = (lamp - p).normalized();
+        const double d2 = (lamp - p).squaredNorm();
+        const Eigen::Vector3d h = (wo + wi).normalized();
+        const double co = wo.z(), ci = wi.z(), ch = h.z();
+        const double den = ch * ch * (a2 - 1.0) + 1.0;
+        const double d = a2 / (std::numbers::pi * den * den);
+        const auto g1 = [&](double x) { return 2.0 * x / (x + std::sqrt(a2 + (1.0 - a2) * x * x)); };
+        const double fresnel_weight = std::pow(1.0 - wi.dot(h), 5);
+        const Eigen::Vector3d f = (tile.material.albedo * (1.0 - fresnel_weight) + Eigen::Vector3d::Constant(fresnel_weight)) *
+                                  (d * g1(co) * g1(ci) / (4.0 * co * ci));
+        return Eigen::Vector3d(f * intensity * ci / d2);
+    };
+    // The exposure that puts the brightest point (the mirror image of the lamp) at about 200 codes.
+    const Eigen::Vector3d mirror = eye + (Eigen::Vector3d(lamp.x(), lamp.y(), -lamp.z()) - eye) * (eye.z() / (eye.z() + lamp.z()));
+    const double eg = 200.0 / (255.0 * radiance(mirror).maxCoeff());
+    const Image frame = constantFrame(camera.width, camera.height, 0);
+    const Image out = render(*c, frame.view(), lookingDown(), snapshot, {}, eg);
+    int compared = 0, wrong = 0, brightest = 0;
+    Eigen::Vector2i brightest_at(-1, -1);
+    for (int y = 2; y < camera.height - 2; ++y) {
+        for (int x = 2; x < camera.width - 2; ++x) {
+            // The pixel centre's ray from (0, 0, 2) meets the tile (z = 0) at twice its direction.
+            const Eigen::Vector3d p(2.0 * (x - camera.cx) / camera.fx, -2.0 * (y - camera.cy) / camera.fy, 0.0);
+            const Eigen::Vector3d expected = radiance(p) * eg * 255.0;
+            for (int ch = 0; ch < 3; ++ch) {
+                const int code = out.view().row(y)[3 * x + ch];
+                if (ch == 0 && code > brightest) {
+                    brightest = code;
+                    brightest_at = {x, y};
+                }
+                if (expected[ch] < 8.0 || expected[ch] > 250.0) continue;
+                ++compared;
+                if (std::abs(code - expected[ch]) > 0.02 * expected[ch] + 1.0) {
+                    if (wrong++ < 5) ADD_FAILURE() << "pixel " << x << "," << y << " channel " << ch << ": " << code << ", expected " << expected[ch];
+                }
+            }
+        }
+    }
+    EXPECT_GT(compared, 10000);
+    EXPECT_EQ(wrong, 0) << "of " << compared;
+    // The highlight is where the lamp's mirror image is.
+    const auto at = camera.project(lookingDown() * mirror);
+    ASSERT_TRUE(at);
+    EXPECT_LT((brightest_at.cast<double>() - *at).norm(), 3.0);
+}
+
+// An area light is drawn with a few point samples (4 by default); a GGX lobe narrower than the
+// light would show each of them as a highlight of its own. The lobe is widened by the patch each
+// sample stands for, so a glossy tile under a 0.5 m panel shows one highlight: along the row through
+// it and the column, no valley between the samples' images.
+TEST_F(CompositorTest, AnAreaLightGivesAGgxObjectOneHighlight) {
+    Scene scene;
+    VirtualObject tile;
+    tile.name = "tile";
+    tile.shape = PlaneShape{Eigen::Vector2d(2.0, 2.0)};
+    tile.material.type = MaterialType::kGgx;
+    tile.material.albedo = Eigen::Vector3d::Constant(0.9);
+    tile.material.roughness = 0.2;
+    scene.virtual_objects.push_back(tile);
+    lighting::LightingSnapshot snapshot;
+    snapshot.version = 1;
+    lighting::EstimatedLight panel;
+    panel.name = "panel";
+    panel.kind = lighting::LightKind::kArea;
+    panel.size = {0.5, 0.5};
+    // Facing down (its +z along world -z), 1 m above the tile.
+    panel.world_from_object = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(std::numbers::pi, Eigen::Vector3d::UnitX())), Eigen::Vector3d(0, 0, 1.0));
+    panel.emission = Eigen::Vector3d::Constant(1.0);
+    snapshot.lights.push_back(panel);
+    const CameraModel camera = smallCamera();
+    auto c = make(scene, camera, ResponseCurve::linear());
+    ASSERT_TRUE(c);
+    const Image frame = constantFrame(camera.width, camera.height, 0);
+    // The exposure that keeps the highlight below the top code: probe once, then draw again.
+    Image out = render(*c, frame.view(), lookingDown(), snapshot, {}, 1.0);
+    int peak = 0;
+    for (int y = 0; y < camera.height; ++y) {
+        for (int x = 0; x < camera.width; ++x) peak = std::max(peak, static_cast<int>(out.view().row(y)[3 * x + 1]));
+    }
+    ASSERT_GT(peak, 0);
+    if (peak >= 255 || peak < 100) out = render(*c, frame.view(), lookingDown(), snapshot, {}, peak >= 255 ? 0.05 : 180.0 / peak);
+    if (std::getenv("CL_RENDER_DUMP")) cv::imwrite("/tmp/ggx_area.png", cv::Mat(out.height(), out.width(), CV_8UC3, const_cast<std::uint8_t*>(out.view().data)));
+    // The row and the column through the brightest pixel.
+    int bx = 0, by = 0, best = -1;
+    for (int y = 0; y < camera.height; ++y) {
+        for (int x = 0; x < camera.width; ++x) {
+            const int v = out.view().row(y)[3 * x + 1];
+            if (v > best) best = v, bx = x, by = y;
+        }
+    }
+    ASSERT_LT(best, 255);
+    ASSERT_GT(best, 50);
+    // No valley: every point is at least 95% of the lower of the highest points on either side of
+    // it (the four samples' images, without the widening, leave valleys at a quarter of the peak;
+    // a panel's true reflection is a plateau).
+    const auto oneHighlight = [&](const std::vector<int>& line) {
+        for (std::size_t k = 1; k + 1 < line.size(); ++k) {
+            const int left = *std::max_element(line.begin(), line.begin() + static_cast<std::ptrdiff_t>(k));
+            const int right = *std::max_element(line.begin() + static_cast<std::ptrdiff_t>(k) + 1, line.end());
+            if (line[k] + 1 < 0.95 * std::min(left, right)) return false;
+        }
+        return true;
+    };
+    std::vector<int> row, column;
+    for (int x = 0; x < camera.width; ++x) row.push_back(out.view().row(by)[3 * x + 1]);
+    for (int y = 0; y < camera.height; ++y) column.push_back(out.view().row(y)[3 * bx + 1]);
+    EXPECT_TRUE(oneHighlight(row)) << "row " << by;
+    EXPECT_TRUE(oneHighlight(column)) << "column " << bx;
+}
+
 // Shadow maps: a virtual floor tile under a point light is darker under a virtual box and under a
 // real box (real proxies are occluders too) than in the open.
 TEST_F(CompositorTest, ShadowMapsHaveRealAndVirtualOccluders) {
