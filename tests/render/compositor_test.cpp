@@ -742,6 +742,17 @@ lighting::LightingSnapshot pointLampSnapshot(const Eigen::Vector3d& at, double i
     return snapshot;
 }
 
+// A 2 m x 2 m virtual tile at the origin with a GGX material.
+VirtualObject ggxTile(const Eigen::Vector3d& f0, double roughness) {
+    VirtualObject tile;
+    tile.name = "tile";
+    tile.shape = PlaneShape{Eigen::Vector2d(2.0, 2.0)};
+    tile.material.type = MaterialType::kGgx;
+    tile.material.albedo = f0;
+    tile.material.roughness = roughness;
+    return tile;
+}
+
 // A GGX virtual tile (`material: {type: ggx}`) under one point lamp, seen from above: every pixel's
 // relative radiance is the GGX BRDF (written here from its definition: D G F / (4 cos_o cos_i),
 // Trowbridge-Reitz D, separable Smith G, Schlick F with F0 = the albedo) times the lamp's
@@ -749,12 +760,7 @@ lighting::LightingSnapshot pointLampSnapshot(const Eigen::Vector3d& at, double i
 // estimated around it there is no indirect light.)
 TEST_F(CompositorTest, GgxObjectsReflectTheLightThroughTheirLobe) {
     Scene scene;
-    VirtualObject tile;
-    tile.name = "tile";
-    tile.shape = PlaneShape{Eigen::Vector2d(2.0, 2.0)};
-    tile.material.type = MaterialType::kGgx;
-    tile.material.albedo = Eigen::Vector3d(0.9, 0.6, 0.3);
-    tile.material.roughness = 0.5;
+    const VirtualObject tile = ggxTile(Eigen::Vector3d(0.9, 0.6, 0.3), 0.5);
     scene.virtual_objects.push_back(tile);
     const Eigen::Vector3d lamp(0.3, 0.1, 0.8);
     const double intensity = 0.5;
@@ -817,13 +823,7 @@ TEST_F(CompositorTest, GgxObjectsReflectTheLightThroughTheirLobe) {
 // it and the column, no valley between the samples' images.
 TEST_F(CompositorTest, AnAreaLightGivesAGgxObjectOneHighlight) {
     Scene scene;
-    VirtualObject tile;
-    tile.name = "tile";
-    tile.shape = PlaneShape{Eigen::Vector2d(2.0, 2.0)};
-    tile.material.type = MaterialType::kGgx;
-    tile.material.albedo = Eigen::Vector3d::Constant(0.9);
-    tile.material.roughness = 0.2;
-    scene.virtual_objects.push_back(tile);
+    scene.virtual_objects.push_back(ggxTile(Eigen::Vector3d::Constant(0.9), 0.2));
     lighting::LightingSnapshot snapshot;
     snapshot.version = 1;
     lighting::EstimatedLight panel;
