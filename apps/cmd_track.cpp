@@ -134,7 +134,8 @@ int runTrack(TrackCommandOptions& options) {
         if (!file) return reportError(Error{ErrorCode::kIo, options.out + ": cannot create the file"});
         csv = file.get();
     }
-    std::fprintf(csv, "image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status\n");
+    std::fprintf(csv, "image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status,"
+                      "pose_timestamp_ns\n");
 
     // Step 3: track every frame.
     GreyFrameLoader loader;
@@ -150,16 +151,16 @@ int runTrack(TrackCommandOptions& options) {
         if (auto ok = loader.load(*input, i, grey); !ok) {
             log::warning(ok.error().message);
             if (unreadable++ == 0) first_unreadable = ok.error().message;
-            std::fprintf(csv, "%s,%lld,-1,,,,,,,,,,,,,,,,unreadable\n", image.c_str(), static_cast<long long>(frame.timestamp_ns));
+            std::fprintf(csv, "%s,%lld,-1,,,,,,,,,,,,,,,,unreadable,\n", image.c_str(), static_cast<long long>(frame.timestamp_ns));
             continue;
         }
-        auto track = tracker->process(grey.view(), frame.timestamp_ns);
+        auto track = tracker->process(grey.view(), frame.meta());
         if (!track) {
             // The wrong size for the calibration is the input's fault; report it and stop.
             if (track.error().code == ErrorCode::kBadInput) {
                 log::warning(frame.path.string() + ": " + track.error().message);
                 if (unreadable++ == 0) first_unreadable = frame.path.string() + ": " + track.error().message;
-                std::fprintf(csv, "%s,%lld,-1,,,,,,,,,,,,,,,,bad_frame\n", image.c_str(),
+                std::fprintf(csv, "%s,%lld,-1,,,,,,,,,,,,,,,,bad_frame,\n", image.c_str(),
                              static_cast<long long>(frame.timestamp_ns));
                 continue;
             }
@@ -169,30 +170,28 @@ int runTrack(TrackCommandOptions& options) {
             // libapriltag's pixel convention in the file (top-left pixel centre at (0.5, 0.5)).
             std::array<Eigen::Vector2d, 4> c = tag.detection.corners;
             for (auto& corner : c) corner += Eigen::Vector2d(0.5, 0.5);
-            std::fprintf(csv, "%s,%lld,%d,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%s,%s\n", image.c_str(),
+            std::fprintf(csv, "%s,%lld,%d,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%s,%s,%lld\n", image.c_str(),
                          static_cast<long long>(frame.timestamp_ns), tag.detection.id, c[0].x(), c[0].y(), c[1].x(),
                          c[1].y(), c[2].x(), c[2].y(), c[3].x(), c[3].y(),
                          tag.pose ? poseColumns(tag.pose->cam_from_tag).c_str() : ",,,,,,",
                          tag.pose ? "ok" : (scene && !scene->tags.find(tag.detection.id) && options.tag_size <= 0
                                                 ? "unknown_tag"
-                                                : "pose_failed"));
+                                                : "pose_failed"),
+                         static_cast<long long>(track->pose_timestamp_ns));
             ++tag_rows;
         }
-        std::fprintf(csv, "%s,%lld,-1,,,,,,,,,%s,%s\n", image.c_str(), static_cast<long long>(frame.timestamp_ns),
+        std::fprintf(csv, "%s,%lld,-1,,,,,,,,,%s,%s,%lld\n", image.c_str(), static_cast<long long>(frame.timestamp_ns),
                      track->cam_from_world ? poseColumns(*track->cam_from_world).c_str() : ",,,,,,",
-                     tracking::trackStatusName(track->status));
+                     tracking::trackStatusName(track->status), static_cast<long long>(track->pose_timestamp_ns));
         total_ms.push_back(track->times.total_ms);
         if (track->cam_from_world) {
             ++with_pose;
             // Ground truth of a sequence (the simulated camera's, or a motion-capture system's).
+            // At the instant the pose is for, the middle of the exposure (groundTruthOfFrame).
             if (input->sequence && !input->sequence->groundtruth_poses.empty()) {
-                for (const PoseRecord& gt : input->sequence->groundtruth_poses) {
-                    if (gt.timestamp_ns != frame.timestamp_ns) continue;
-                    const Rigid3d cam_from_world_true = gt.world_from_cam.inverse();
-                    rot_err.push_back(rotationErrorDeg(*track->cam_from_world, cam_from_world_true));
-                    trans_err.push_back(1000.0 *
-                                        translationError(track->cam_from_world->inverse(), gt.world_from_cam));
-                    break;
+                if (const auto world_from_cam = groundTruthOfFrame(*input->sequence, i)) {
+                    rot_err.push_back(rotationErrorDeg(*track->cam_from_world, world_from_cam->inverse()));
+                    trans_err.push_back(1000.0 * translationError(track->cam_from_world->inverse(), *world_from_cam));
                 }
             }
         }
@@ -252,7 +251,8 @@ void addTrackCommand(CLI::App& app, Runner& runner) {
                     "The camera's response: srgb, linear, gamma:G or a response file (default: the sequence's sensor.yaml, else srgb)");
     sub->footer(
         "CSV columns: image,timestamp_ns,tag_id,c0x..c3y (pixels, libapriltag's corner order and pixel convention),"
-        "tx,ty,tz,qw,qx,qy,qz,status. Tag rows hold cam_from_tag; the frame row (tag_id -1) holds cam_from_world. "
+        "tx,ty,tz,qw,qx,qy,qz,status,pose_timestamp_ns. Tag rows hold cam_from_tag; the frame row (tag_id -1) holds "
+        "cam_from_world; both for pose_timestamp_ns, the middle of the exposure (timestamp_ns is its start). "
         "See docs/tracking.md. Exit codes: 0 ok, 2 usage, 3 bad input.");
     sub->callback([options, &runner] { runner = [options] { return runTrack(*options); }; });
 }

@@ -93,7 +93,8 @@ struct Tracker::State {
     std::int64_t frames = 0;
     std::int64_t frames_since_full = 0;
     std::optional<std::int64_t> last_timestamp;
-    std::optional<std::int64_t> last_measurement_timestamp;
+    std::optional<std::int64_t> last_pose_instant;        // the last frame's FrameTrack::pose_timestamp_ns
+    std::optional<std::int64_t> last_measurement_instant;  // ... of the last frame with a measurement
     // Without the filter: the last pose, used as the prediction.
     std::optional<Rigid3d> last_cam_from_world;
     // The last frame's detections and single-tag poses (windows and predictions for tags the
@@ -165,7 +166,15 @@ const TrackerOptions& Tracker::options() const noexcept { return state_->options
 
 std::optional<Rigid3d> Tracker::predict(std::int64_t timestamp_ns) const { return state_->prediction(timestamp_ns); }
 
+Result<FrameTrack> Tracker::process(const ImageView& gray8, const FrameMetadata& meta) {
+    return processAt(gray8, meta.timestamp_ns, midExposureNs(meta));
+}
+
 Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timestamp_ns) {
+    return processAt(gray8, timestamp_ns, timestamp_ns);
+}
+
+Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t timestamp_ns, std::int64_t pose_instant_ns) {
     State& s = *state_;
     const auto start = Clock::now();
     if (gray8.format != PixelFormat::kGray8) {
@@ -177,9 +186,14 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
         return fail(ErrorCode::kBadInput, "frame timestamp " + std::to_string(timestamp_ns) +
                                               " ns is earlier than the previous frame's");
     }
+    // Hard case: metadata whose exposure shrinks so fast that this frame's middle comes before
+    // the last one's; the filter needs non-decreasing instants.
+    if (s.last_pose_instant && pose_instant_ns < *s.last_pose_instant) pose_instant_ns = *s.last_pose_instant;
+    const std::int64_t instant = pose_instant_ns;
     FrameTrack out;
     out.timestamp_ns = timestamp_ns;
-    const std::optional<Rigid3d> predicted = s.prediction(timestamp_ns);
+    out.pose_timestamp_ns = instant;
+    const std::optional<Rigid3d> predicted = s.prediction(instant);
 
     // Step 1: detection.
     auto t0 = Clock::now();
@@ -301,7 +315,7 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
         if (!bundle_tags.empty()) {
             auto bundle = solveBundle(bundle_tags, s.tags, s.camera, predicted, s.options.bundle);
             if (bundle) {
-                measurement = PoseMeasurement{timestamp_ns, bundle->cam_from_world, bundle->covariance};
+                measurement = PoseMeasurement{instant, bundle->cam_from_world, bundle->covariance};
                 out.bundle = std::move(*bundle);
             }
         }
@@ -317,7 +331,7 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
         if (refined) {
             if (refined->ok) {
                 edges_only = !measurement.has_value();
-                measurement = PoseMeasurement{timestamp_ns, refined->cam_from_world, refined->covariance};
+                measurement = PoseMeasurement{instant, refined->cam_from_world, refined->covariance};
             }
             out.edges = std::move(*refined);
         }
@@ -331,7 +345,7 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
         if (s.options.filter) {
             CL_TRY(const auto update, s.filter.update(*measurement));
             (void)update;
-            const auto filtered = s.filter.predict(timestamp_ns);
+            const auto filtered = s.filter.predict(instant);
             out.cam_from_world = filtered ? filtered->cam_from_world : measurement->cam_from_world;
             out.covariance = filtered ? filtered->covariance : measurement->covariance;
         } else {
@@ -340,9 +354,9 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
         }
         s.last_cam_from_world = out.cam_from_world;
     } else if (s.options.filter && predicted) {
-        const auto p = s.filter.predict(timestamp_ns);
-        const bool recent = s.last_measurement_timestamp &&
-                            timestamp_ns - *s.last_measurement_timestamp <= s.options.filter_options.max_gap_ns;
+        const auto p = s.filter.predict(instant);
+        const bool recent = s.last_measurement_instant &&
+                            instant - *s.last_measurement_instant <= s.options.filter_options.max_gap_ns;
         if (p && recent) {
             out.status = TrackStatus::kPredicted;
             out.cam_from_world = p->cam_from_world;
@@ -357,8 +371,9 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
     for (const TrackedTag& t : out.tags) {
         if (t.pose) s.last_cam_from_tag[t.detection.id] = t.pose->cam_from_tag;
     }
-    if (measurement) s.last_measurement_timestamp = timestamp_ns;
+    if (measurement) s.last_measurement_instant = instant;
     s.last_timestamp = timestamp_ns;
+    s.last_pose_instant = instant;
     ++s.frames;
     out.times.total_ms = msSince(start);
     return out;

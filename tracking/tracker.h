@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "core/camera_model.h"
+#include "core/frame.h"
 #include "core/image.h"
 #include "core/scene.h"
 #include "tracking/bundle.h"
@@ -81,7 +82,11 @@ struct StageTimes {
 };
 
 struct FrameTrack {
-    std::int64_t timestamp_ns = 0;
+    std::int64_t timestamp_ns = 0;  // the frame's (the start of its exposure)
+    // The instant every pose of this frame is for (cam_from_world, the tags' cam_from_tag, the
+    // filter's update and prediction): the middle of the exposure (core/frame.h midExposureNs);
+    // timestamp_ns when the exposure is unknown. docs/tracking.md, "Timestamps".
+    std::int64_t pose_timestamp_ns = 0;
     bool full_frame_detection = true;
     std::vector<TrackedTag> tags;
     std::optional<BundleResult> bundle;
@@ -106,13 +111,21 @@ public:
     Tracker& operator=(Tracker&&) noexcept;
     ~Tracker();
 
-    // `gray8`: the distorted 8-bit grey frame, the calibration's size. Timestamps must not
-    // decrease. Errors: a wrong format or size (kBadInput), a detector failure (kInternal). A
-    // frame without tags is not an error: status kNoPose (or kPredicted / kEdgesOnly).
+    // `gray8`: the distorted 8-bit grey frame, the calibration's size. `meta`: its timestamp (the
+    // start of its exposure; see midExposureNs for end-of-frame sources) and exposure: the poses
+    // are for the middle of the exposure (FrameTrack::pose_timestamp_ns), and the filter predicts
+    // to, and is updated at, that instant. Frame timestamps must not decrease; a pose instant
+    // earlier than the previous frame's (an exposure shrinking by more than twice the frame
+    // interval: metadata no camera produces) is raised to the previous one. Errors: a wrong
+    // format or size (kBadInput), a detector failure (kInternal). A frame without tags is not an
+    // error: status kNoPose (or kPredicted / kEdgesOnly).
+    Result<FrameTrack> process(const ImageView& gray8, const FrameMetadata& meta);
+    // The exposure unknown: the poses are for `timestamp_ns` itself (an instantaneous exposure).
     Result<FrameTrack> process(const ImageView& gray8, std::int64_t timestamp_ns);
 
-    // The filter's pose at any timestamp (the renderer asks for the frame's own); nullopt before
-    // the first measurement or with the filter off and no pose yet.
+    // The filter's pose at any instant (the renderer asks for the frame's
+    // FrameTrack::pose_timestamp_ns); nullopt before the first measurement or with the filter off
+    // and no pose yet.
     std::optional<Rigid3d> predict(std::int64_t timestamp_ns) const;
 
     const TrackerOptions& options() const noexcept;
@@ -120,6 +133,7 @@ public:
 private:
     struct State;
     explicit Tracker(std::unique_ptr<State> state);
+    Result<FrameTrack> processAt(const ImageView& gray8, std::int64_t timestamp_ns, std::int64_t pose_instant_ns);
     std::unique_ptr<State> state_;
 };
 
