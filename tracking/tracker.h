@@ -4,8 +4,10 @@
 //           prediction puts the tags; the whole frame again every N frames and whenever the
 //           windows find nothing
 //   Step 2  corners refined from the tags' edges; single-tag poses; each tag's cell pattern
-//           aligned with the image (both candidates; the prediction chooses when there is one)
-//   Step 3  bundle: one cam_from_world from every corner of the scene's tags
+//           aligned with the image (the candidate the prediction chooses; without one, both
+//           candidates, and the pattern's residuals choose or say the tag is ambiguous)
+//   Step 3  bundle: one cam_from_world from every corner of the scene's tags; with two or more
+//           tags, the bundle chooses each ambiguous tag's candidate
 //   Step 4  model-edge refinement (optional): the proxies' edges sharpen the pose, or carry it
 //           for a while when no tag is in view
 //   Step 5  temporal filter (optional): constant-velocity Kalman filter on SE(3)
@@ -66,6 +68,10 @@ enum class TrackStatus {
     kEdgesOnly,  // no usable tag; the proxies' edges carried the pose from the prediction
     kPredicted,  // nothing measured; the filter's prediction (still recent enough)
     kNoPose,     // no tag of the scene in view and nothing to predict from
+    // The pose rests on one tag whose two candidate poses the image cannot tell apart, and nothing
+    // (prediction, other tags, proxies' edges) chose: cam_from_world is the candidate with the
+    // smaller residual, alternative_cam_from_world the other. The filter is not updated.
+    kAmbiguous,
 };
 const char* trackStatusName(TrackStatus status) noexcept;
 
@@ -94,6 +100,9 @@ struct FrameTrack {
     TrackStatus status = TrackStatus::kNoPose;
     std::optional<Rigid3d> cam_from_world;  // the stage's answer: filtered when the filter is on
     std::optional<Matrix6d> covariance;
+    // Status kAmbiguous: the other candidate's camera pose, and the tag's ambiguity ratio.
+    std::optional<Rigid3d> alternative_cam_from_world;
+    double ambiguity_ratio = 0.0;
     // The dilation of the tags' black regions (in cells of each tag, > 0 grown): the median of
     // the aligned tags' (TagAlignResult::dilation_cells), used to refine the corners of tags that
     // could not be aligned; in a sequence, the last frame's when no tag was aligned.

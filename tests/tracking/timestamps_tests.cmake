@@ -5,3 +5,6 @@ target_link_libraries(commonlight_test_synthetic_tags PUBLIC commonlight_options
                       opencv_imgproc)
 commonlight_test(tracking timestamps SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/timestamps_test.cpp
                  DEPS commonlight::tracking commonlight_test_synthetic_tags)
+# Ambiguous single tags: reported as such alone, chosen by a second tag in view.
+commonlight_test(tracking ambiguity SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/ambiguity_test.cpp
+                 DEPS commonlight::tracking commonlight_test_synthetic_tags)
