@@ -1,5 +1,5 @@
-# The instant a pose is for (the middle of the exposure), on synthetic motion-blurred frames
-# (tests/tracking/synthetic_tags.h renders them with mocks/sim's tag texture).
+# Tracking tests on synthetic frames (tests/tracking/synthetic_tags.h renders them with mocks/sim's
+# tag texture). The instant a pose is for (the middle of the exposure), on motion-blurred frames.
 add_library(commonlight_test_synthetic_tags STATIC ${CMAKE_CURRENT_SOURCE_DIR}/synthetic_tags.cpp)
 target_link_libraries(commonlight_test_synthetic_tags PUBLIC commonlight_options commonlight::core commonlight::sim
                       opencv_imgproc)
