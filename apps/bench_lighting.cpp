@@ -94,7 +94,10 @@ Result<SimSequence> renderOrLoadScene(const Scene& truth, const mocks::sim::Traj
     out.camera = camera;
     for (std::size_t i = 0; i < seq.frames.size(); ++i) {
         const std::string stem = fs::path(seq.frames[i].filename).stem().string();
-        out.world_from_cam.push_back(seq.groundtruth_poses[i].world_from_cam);
+        // The pose the frame was rendered at (the middle of its exposure).
+        const std::optional<Rigid3d> world_from_cam = groundTruthOfFrame(seq, i);
+        if (!world_from_cam) return fail(ErrorCode::kBadInput, dir.string() + ": frame " + stem + " has no ground-truth pose");
+        out.world_from_cam.push_back(*world_from_cam);
         CL_TRY(cv::Mat r, readExrRgb(dir / "groundtruth/radiance" / (stem + ".exr")));
         CL_TRY(cv::Mat c, readExrRgb(dir / "groundtruth/radiance_composite" / (stem + ".exr")));
         out.radiance.push_back(r);

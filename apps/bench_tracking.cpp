@@ -104,6 +104,9 @@ const std::vector<CaseSpec>& cases() {
 
 std::string renderKey(const CaseSpec& c, int spp) {
     std::string key = std::string("case=") + c.name + " spp=" + std::to_string(spp) + " version=2";
+    // Motion blur: rendered since the ground truth has the mid-exposure pose (the blurred image's
+    // instant); older renders of it are compared with the start of the exposure and are redone.
+    if (c.motion_blur) key += " truth=mid-exposure";
     // The rendering conditions, when not the defaults (so older renders stay valid).
     if (c.response != mocks::sim::SensorResponse::kSrgb || c.ink_spread_cells != 0 || c.defocus_radius_px != 0) {
         char conditions[160];
@@ -179,8 +182,8 @@ struct LoadedCase {
     const CaseSpec* spec = nullptr;
     fs::path path;
     std::vector<Image> frames;
-    std::vector<std::int64_t> timestamps;
-    std::vector<Rigid3d> cam_from_world_true;
+    std::vector<FrameMetadata> meta;          // timestamp (start of exposure) and exposure
+    std::vector<Rigid3d> cam_from_world_true;  // at the middle of each frame's exposure
     CameraModel camera;
     Scene scene;
 };
@@ -194,21 +197,20 @@ Result<LoadedCase> loadCase(const CaseSpec& spec, const fs::path& path, int max_
     out.camera = *input.sensor_camera;
     if (!input.scene_path) return fail(ErrorCode::kBadInput, path.string() + ": no scene.yaml");
     CL_TRY(out.scene, readScene(*input.scene_path));
-    std::map<std::int64_t, Rigid3d> truth;
-    for (const PoseRecord& p : input.sequence->groundtruth_poses) truth[p.timestamp_ns] = p.world_from_cam.inverse();
     GreyFrameLoader loader;
     const std::size_t n = max_frames > 0 ? std::min<std::size_t>(input.frames.size(), max_frames) : input.frames.size();
     for (std::size_t i = 0; i < n; ++i) {
-        const auto it = truth.find(input.frames[i].timestamp_ns);
-        if (it == truth.end()) {
+        // The truth at the instant the poses are for: the middle of the exposure.
+        const auto truth = groundTruthOfFrame(*input.sequence, i);
+        if (!truth) {
             return fail(ErrorCode::kBadInput, path.string() + ": frame " + input.frames[i].name +
-                                                  " has no row in groundtruth/cam_poses.csv");
+                                                  " has no ground truth at the middle of its exposure (groundtruth/)");
         }
         Image grey;
         CL_TRY_VOID(loader.load(input, i, grey));
         out.frames.push_back(std::move(grey));
-        out.timestamps.push_back(input.frames[i].timestamp_ns);
-        out.cam_from_world_true.push_back(it->second);
+        out.meta.push_back(input.frames[i].meta());
+        out.cam_from_world_true.push_back(truth->inverse());
     }
     return out;
 }
@@ -358,7 +360,7 @@ Result<TrackerRun> runTracker(const LoadedCase& lc, const tracking::TrackerOptio
     TrackerRun run;
     std::vector<double> detect_ms;
     for (std::size_t i = 0; i < lc.frames.size(); ++i) {
-        CL_TRY(auto track, tracker.process(lc.frames[i].view(), lc.timestamps[i]));
+        CL_TRY(auto track, tracker.process(lc.frames[i].view(), lc.meta[i]));
         ++run.camera.attempts;
         run.camera.ms.push_back(track.times.total_ms);
         detect_ms.push_back(track.times.detect_ms);

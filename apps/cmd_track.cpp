@@ -134,13 +134,15 @@ int runTrack(TrackCommandOptions& options) {
         if (!file) return reportError(Error{ErrorCode::kIo, options.out + ": cannot create the file"});
         csv = file.get();
     }
-    std::fprintf(csv, "image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status\n");
+    std::fprintf(csv, "image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status,"
+                      "pose_timestamp_ns,ambiguity_ratio,alt_tx,alt_ty,alt_tz,alt_qw,alt_qx,alt_qy,alt_qz\n");
+    constexpr const char* kNoAlternative = ",,,,,,,";  // ambiguity_ratio and the alternative pose, empty
 
     // Step 3: track every frame.
     GreyFrameLoader loader;
     Image grey;
     Progress progress("track", input->frames.size());
-    std::size_t unreadable = 0, with_pose = 0, tag_rows = 0;
+    std::size_t unreadable = 0, with_pose = 0, tag_rows = 0, ambiguous_tags = 0, ambiguous_frames = 0;
     std::string first_unreadable;
     std::vector<double> rot_err, trans_err, total_ms;
     for (std::size_t i = 0; i < input->frames.size(); ++i) {
@@ -150,49 +152,67 @@ int runTrack(TrackCommandOptions& options) {
         if (auto ok = loader.load(*input, i, grey); !ok) {
             log::warning(ok.error().message);
             if (unreadable++ == 0) first_unreadable = ok.error().message;
-            std::fprintf(csv, "%s,%lld,-1,,,,,,,,,,,,,,,,unreadable\n", image.c_str(), static_cast<long long>(frame.timestamp_ns));
+            std::fprintf(csv, "%s,%lld,-1,,,,,,,,,,,,,,,,unreadable,,%s\n", image.c_str(),
+                         static_cast<long long>(frame.timestamp_ns), kNoAlternative);
             continue;
         }
-        auto track = tracker->process(grey.view(), frame.timestamp_ns);
+        auto track = tracker->process(grey.view(), frame.meta());
         if (!track) {
             // The wrong size for the calibration is the input's fault; report it and stop.
             if (track.error().code == ErrorCode::kBadInput) {
                 log::warning(frame.path.string() + ": " + track.error().message);
                 if (unreadable++ == 0) first_unreadable = frame.path.string() + ": " + track.error().message;
-                std::fprintf(csv, "%s,%lld,-1,,,,,,,,,,,,,,,,bad_frame\n", image.c_str(),
-                             static_cast<long long>(frame.timestamp_ns));
+                std::fprintf(csv, "%s,%lld,-1,,,,,,,,,,,,,,,,bad_frame,,%s\n", image.c_str(),
+                             static_cast<long long>(frame.timestamp_ns), kNoAlternative);
                 continue;
             }
             return reportError(track.error());
         }
+        // The ambiguity ratio and the other candidate (when there is one), after the status.
+        const auto alternativeColumns = [&](double ratio, const std::optional<Rigid3d>& alt) {
+            char r[32];
+            std::snprintf(r, sizeof r, "%.6g", ratio);
+            return std::string(r) + "," + (alt ? poseColumns(*alt) : std::string(",,,,,,"));
+        };
         for (const auto& tag : track->tags) {
             // libapriltag's pixel convention in the file (top-left pixel centre at (0.5, 0.5)).
             std::array<Eigen::Vector2d, 4> c = tag.detection.corners;
             for (auto& corner : c) corner += Eigen::Vector2d(0.5, 0.5);
-            std::fprintf(csv, "%s,%lld,%d,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%s,%s\n", image.c_str(),
+            const char* status = tag.pose ? (tag.pose->ambiguous ? "ambiguous" : "ok")
+                                          : (scene && !scene->tags.find(tag.detection.id) && options.tag_size <= 0
+                                                 ? "unknown_tag"
+                                                 : "pose_failed");
+            std::string extra = kNoAlternative;
+            if (tag.pose) {
+                std::optional<Rigid3d> alt;
+                if (tag.pose->candidates.size() > 1) alt = tag.pose->candidates[1].cam_from_tag;
+                extra = alternativeColumns(tag.pose->ambiguity_ratio, alt);
+            }
+            std::fprintf(csv, "%s,%lld,%d,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%s,%s,%lld,%s\n", image.c_str(),
                          static_cast<long long>(frame.timestamp_ns), tag.detection.id, c[0].x(), c[0].y(), c[1].x(),
                          c[1].y(), c[2].x(), c[2].y(), c[3].x(), c[3].y(),
-                         tag.pose ? poseColumns(tag.pose->cam_from_tag).c_str() : ",,,,,,",
-                         tag.pose ? "ok" : (scene && !scene->tags.find(tag.detection.id) && options.tag_size <= 0
-                                                ? "unknown_tag"
-                                                : "pose_failed"));
+                         tag.pose ? poseColumns(tag.pose->cam_from_tag).c_str() : ",,,,,,", status,
+                         static_cast<long long>(track->pose_timestamp_ns), extra.c_str());
             ++tag_rows;
+            if (tag.pose && tag.pose->ambiguous) ++ambiguous_tags;
         }
-        std::fprintf(csv, "%s,%lld,-1,,,,,,,,,%s,%s\n", image.c_str(), static_cast<long long>(frame.timestamp_ns),
+        const std::string frame_extra = track->status == tracking::TrackStatus::kAmbiguous
+                                            ? alternativeColumns(track->ambiguity_ratio, track->alternative_cam_from_world)
+                                            : std::string(kNoAlternative);
+        std::fprintf(csv, "%s,%lld,-1,,,,,,,,,%s,%s,%lld,%s\n", image.c_str(), static_cast<long long>(frame.timestamp_ns),
                      track->cam_from_world ? poseColumns(*track->cam_from_world).c_str() : ",,,,,,",
-                     tracking::trackStatusName(track->status));
+                     tracking::trackStatusName(track->status), static_cast<long long>(track->pose_timestamp_ns),
+                     frame_extra.c_str());
+        if (track->status == tracking::TrackStatus::kAmbiguous) ++ambiguous_frames;
         total_ms.push_back(track->times.total_ms);
         if (track->cam_from_world) {
             ++with_pose;
             // Ground truth of a sequence (the simulated camera's, or a motion-capture system's).
+            // At the instant the pose is for, the middle of the exposure (groundTruthOfFrame).
             if (input->sequence && !input->sequence->groundtruth_poses.empty()) {
-                for (const PoseRecord& gt : input->sequence->groundtruth_poses) {
-                    if (gt.timestamp_ns != frame.timestamp_ns) continue;
-                    const Rigid3d cam_from_world_true = gt.world_from_cam.inverse();
-                    rot_err.push_back(rotationErrorDeg(*track->cam_from_world, cam_from_world_true));
-                    trans_err.push_back(1000.0 *
-                                        translationError(track->cam_from_world->inverse(), gt.world_from_cam));
-                    break;
+                if (const auto world_from_cam = groundTruthOfFrame(*input->sequence, i)) {
+                    rot_err.push_back(rotationErrorDeg(*track->cam_from_world, world_from_cam->inverse()));
+                    trans_err.push_back(1000.0 * translationError(track->cam_from_world->inverse(), *world_from_cam));
                 }
             }
         }
@@ -206,8 +226,10 @@ int runTrack(TrackCommandOptions& options) {
         std::sort(v.begin(), v.end());
         return nearestRank(v, 100.0 * q);
     };
-    sayErr("tracked %zu frames: %zu with a camera pose, %zu tag rows; %.2f ms per frame (p50)\n",
-           input->frames.size() - unreadable, with_pose, tag_rows, total_ms.empty() ? 0.0 : pct(total_ms, 0.5));
+    sayErr("tracked %zu frames: %zu with a camera pose (%zu ambiguous), %zu tag rows (%zu ambiguous); %.2f ms per frame "
+           "(p50)\n",
+           input->frames.size() - unreadable, with_pose, ambiguous_frames, tag_rows, ambiguous_tags,
+           total_ms.empty() ? 0.0 : pct(total_ms, 0.5));
     if (!rot_err.empty()) {
         sayErr("pose error against groundtruth/cam_poses.csv (%zu frames): rotation p50 %.3f p95 %.3f max %.3f "
                "deg; camera position p50 %.2f p95 %.2f max %.2f mm\n",
@@ -252,7 +274,9 @@ void addTrackCommand(CLI::App& app, Runner& runner) {
                     "The camera's response: srgb, linear, gamma:G or a response file (default: the sequence's sensor.yaml, else srgb)");
     sub->footer(
         "CSV columns: image,timestamp_ns,tag_id,c0x..c3y (pixels, libapriltag's corner order and pixel convention),"
-        "tx,ty,tz,qw,qx,qy,qz,status. Tag rows hold cam_from_tag; the frame row (tag_id -1) holds cam_from_world. "
+        "tx,ty,tz,qw,qx,qy,qz,status,pose_timestamp_ns,ambiguity_ratio,alt_tx..alt_qz. Tag rows hold cam_from_tag; the "
+        "frame row (tag_id -1) holds cam_from_world; both for pose_timestamp_ns, the middle of the exposure "
+        "(timestamp_ns is its start). Status ambiguous: the image cannot tell the pose from the alt_ one. "
         "See docs/tracking.md. Exit codes: 0 ok, 2 usage, 3 bad input.");
     sub->callback([options, &runner] { runner = [options] { return runTrack(*options); }; });
 }

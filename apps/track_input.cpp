@@ -34,7 +34,8 @@ Result<TrackInput> openTrackInput(const fs::path& input) {
         CL_TRY(Sequence seq, readSequence(input));
         out.kind = TrackInput::Kind::kSequence;
         for (std::size_t i = 0; i < seq.frames.size(); ++i) {
-            out.frames.push_back({seq.frames[i].filename, seq.framePath(i), seq.frames[i].timestamp_ns});
+            const double exposure_us = i < seq.meta.size() && seq.meta[i] ? seq.meta[i]->exposure_us : 0.0;
+            out.frames.push_back({seq.frames[i].filename, seq.framePath(i), seq.frames[i].timestamp_ns, exposure_us});
         }
         out.sensor_camera = seq.sensor.camera;
         out.scene_path = seq.scenePath();

@@ -20,6 +20,15 @@ struct TrackInputFrame {
     std::string name;               // the CSV's "image" column: file name (relative to its folder)
     std::filesystem::path path;
     std::int64_t timestamp_ns = 0;  // the sequence's; for images, 0 (they are independent photos)
+    double exposure_us = 0.0;       // meta.csv's; 0 when unknown (images, no meta.csv)
+    // What the tracker needs of it: the pose is for the middle of the exposure (docs/tracking.md).
+    FrameMetadata meta() const {
+        FrameMetadata m;
+        m.timestamp_ns = timestamp_ns;
+        m.timestamp_source = TimestampSource::kRecording;
+        m.exposure_us = exposure_us;
+        return m;
+    }
 };
 
 struct TrackInput {

@@ -42,6 +42,19 @@ struct FrameMetadata {
     FrameStatus status = FrameStatus::kOk;
 };
 
+// The instant a frame's image stands for (docs/tracking.md, "Timestamps"): the middle of its
+// exposure. A frame's timestamp_ns is the start of its exposure (as libcamera's SensorTimestamp
+// and V4L2's start-of-exposure buffers stamp it): the image is the light gathered over
+// [timestamp_ns, timestamp_ns + exposure], so a moving camera's image shows, to first order, the
+// pose at its middle.
+// - exposure unknown (0, negative, not finite): the timestamp itself (an instantaneous exposure);
+// - `end_of_frame` (V4L2's end-of-frame buffer timestamps, kDriver; a host's arrival time, kHost):
+//   the exposure ended at about the timestamp (the readout, unknown, is neglected), so its middle
+//   is half an exposure before it.
+std::int64_t midExposureNs(std::int64_t timestamp_ns, double exposure_us, bool end_of_frame = false) noexcept;
+// The same from a frame's metadata: end_of_frame for kDriver and kHost timestamps.
+std::int64_t midExposureNs(const FrameMetadata& meta) noexcept;
+
 struct Frame {
     Image image;
     FrameMetadata meta;

@@ -1,5 +1,6 @@
 #include "core/sequence_io.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -307,7 +308,63 @@ Result<Sequence> readSequence(const fs::path& dir) {
     if (fs::exists(poses_file, ec)) {
         CL_TRY(seq.groundtruth_poses, readPosesCsv(poses_file));
     }
+    const fs::path mid_file = seq.root / "groundtruth" / kMidExposurePosesFile;
+    if (fs::exists(mid_file, ec)) {
+        CL_TRY(seq.groundtruth_mid_exposure_poses, readPosesCsv(mid_file));
+    }
     return seq;
+}
+
+namespace {
+
+// The row at exactly `t`, or the rows just before and after it (either may be missing).
+struct Bracket {
+    const PoseRecord* exact = nullptr;
+    const PoseRecord* before = nullptr;
+    const PoseRecord* after = nullptr;
+};
+
+void bracketIn(const std::vector<PoseRecord>& poses, std::int64_t t, Bracket& b) {
+    const auto it = std::lower_bound(poses.begin(), poses.end(), t,
+                                     [](const PoseRecord& p, std::int64_t v) { return p.timestamp_ns < v; });
+    if (it != poses.end() && it->timestamp_ns == t) {
+        b.exact = &*it;
+        return;
+    }
+    if (it != poses.end() && (!b.after || it->timestamp_ns < b.after->timestamp_ns)) b.after = &*it;
+    if (it != poses.begin() && (!b.before || std::prev(it)->timestamp_ns > b.before->timestamp_ns)) b.before = &*std::prev(it);
+}
+
+}  // namespace
+
+std::optional<Rigid3d> groundTruthAt(const Sequence& sequence, std::int64_t instant_ns) {
+    Bracket b;
+    for (const auto* poses : {&sequence.groundtruth_poses, &sequence.groundtruth_mid_exposure_poses}) {
+        bracketIn(*poses, instant_ns, b);
+        if (b.exact) return b.exact->world_from_cam;
+    }
+    if (!b.before || !b.after) return std::nullopt;
+    const std::int64_t gap = b.after->timestamp_ns - b.before->timestamp_ns;
+    if (gap > kMaxGroundTruthGapNs) return std::nullopt;
+    const double s = static_cast<double>(instant_ns - b.before->timestamp_ns) / static_cast<double>(gap);
+    return interpolateSe3(b.before->world_from_cam, b.after->world_from_cam, s);
+}
+
+std::int64_t framePoseInstantNs(const Sequence& sequence, std::size_t index) {
+    const std::int64_t t = sequence.frames.at(index).timestamp_ns;
+    if (index < sequence.meta.size() && sequence.meta[index]) return midExposureNs(t, sequence.meta[index]->exposure_us);
+    return t;
+}
+
+std::optional<Rigid3d> groundTruthOfFrame(const Sequence& sequence, std::size_t index) {
+    const std::int64_t t = sequence.frames.at(index).timestamp_ns;
+    if (sequence.groundtruth_mid_exposure_poses.empty()) {
+        // Written before the mid-exposure file: its simulated frames show their timestamp's pose.
+        Bracket b;
+        bracketIn(sequence.groundtruth_poses, t, b);
+        if (b.exact) return b.exact->world_from_cam;
+    }
+    return groundTruthAt(sequence, framePoseInstantNs(sequence, index));
 }
 
 }  // namespace commonlight

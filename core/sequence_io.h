@@ -5,6 +5,7 @@
 //   SEQ/cam0/sensor.yaml                ASL keys + response, pixel_format
 //   SEQ/cam0/meta.csv        optional   timestamp_ns,sequence,exposure_us,analog_gain,status
 //   SEQ/groundtruth/cam_poses.csv  opt. timestamp_ns,p_x,p_y,p_z,q_w,q_x,q_y,q_z (world_from_cam)
+//   SEQ/groundtruth/cam_poses_mid_exposure.csv  optional, the same at each frame's mid-exposure
 //   SEQ/scene.yaml           optional
 //
 // A EuRoC "mav0" folder or its "mav0/cam0" folder reads as is.
@@ -68,6 +69,10 @@ struct Sequence {
     std::vector<SequenceFrame> frames;             // timestamps strictly increasing
     std::vector<std::optional<FrameMetaRecord>> meta;  // parallel to frames; empty without meta.csv
     std::vector<PoseRecord> groundtruth_poses;     // empty without groundtruth/cam_poses.csv
+    // groundtruth/cam_poses_mid_exposure.csv (same format and meaning: the pose at each row's
+    // instant), the pose at the middle of each frame's exposure; empty in sequences written
+    // before it (docs/formats-sequence.md).
+    std::vector<PoseRecord> groundtruth_mid_exposure_poses;
 
     std::filesystem::path framePath(std::size_t index) const { return cam_dir / "data" / frames[index].filename; }
     // root/scene.yaml when it exists.
@@ -89,9 +94,24 @@ Result<void> writePosesCsv(const std::filesystem::path& file, const std::vector<
 // One row of cam_poses.csv (with its newline), as writePosesCsv writes it: exact round trip.
 std::string poseCsvRow(const PoseRecord& pose);
 
+// The true world_from_cam at `instant_ns`: a row of cam_poses.csv or cam_poses_mid_exposure.csv
+// at exactly that instant, else interpolated on SE(3) between the rows of both files just before
+// and after it when they are at most kMaxGroundTruthGapNs apart; nullopt outside them.
+inline constexpr std::int64_t kMaxGroundTruthGapNs = 250'000'000;
+std::optional<Rigid3d> groundTruthAt(const Sequence& sequence, std::int64_t instant_ns);
+// The instant frame `index` stands for: the middle of its exposure (core/frame.h midExposureNs;
+// meta.csv's exposure_us, its timestamp when unknown).
+std::int64_t framePoseInstantNs(const Sequence& sequence, std::size_t index);
+// The true pose of frame `index`, what every comparison with the tracker uses: at the middle of
+// its exposure. A sequence without cam_poses_mid_exposure.csv (written before it existed) whose
+// cam_poses.csv has a row at the frame's own timestamp gives that row: its frames were rendered
+// at that instant (the simulator's convention then); otherwise groundTruthAt(the middle).
+std::optional<Rigid3d> groundTruthOfFrame(const Sequence& sequence, std::size_t index);
+
 // The fixed headers, written by SequenceWriter and expected by the readers.
 inline constexpr const char* kDataCsvHeader = "#timestamp [ns],filename\n";
 inline constexpr const char* kMetaCsvHeader = "#timestamp_ns,sequence,exposure_us,analog_gain,status\n";
+inline constexpr const char* kMidExposurePosesFile = "cam_poses_mid_exposure.csv";  // in groundtruth/
 inline constexpr const char* kPosesCsvHeader = "#timestamp_ns,p_x,p_y,p_z,q_w,q_x,q_y,q_z\n";
 
 }  // namespace commonlight

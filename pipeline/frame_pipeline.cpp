@@ -38,7 +38,10 @@ Result<GroundTruth> GroundTruth::fromSequence(const Sequence& sequence, bool by_
                                               ": no ground-truth poses in this sequence");
     }
     GroundTruth truth;
-    for (const PoseRecord& pose : sequence.groundtruth_poses) truth.by_timestamp_.emplace(pose.timestamp_ns, pose.world_from_cam);
+    // Each frame's truth at the instant the tracker reports its pose for (the middle of its exposure).
+    for (std::size_t i = 0; i < sequence.frames.size(); ++i) {
+        if (auto pose = groundTruthOfFrame(sequence, i)) truth.by_timestamp_.emplace(sequence.frames[i].timestamp_ns, *pose);
+    }
     if (by_content) {
         // A camera serving the recording sends its frames as stored, or decoded to RGB8 or GRAY8
         // when its protocol cannot carry the stored format (GigE Vision has no JPEG): all three
@@ -146,7 +149,7 @@ Result<tracking::FrameTrack> FramePipeline::process(const Frame& frame) {
         CL_TRY_VOID(converter_.convert(frame.image.view(), PixelFormat::kGray8, gray_));
     }
     capture::StageTimer timer(*timings_, track_stage_);
-    CL_TRY(tracking::FrameTrack track, tracker_.process(gray_.view(), frame.meta.timestamp_ns));
+    CL_TRY(tracking::FrameTrack track, tracker_.process(gray_.view(), frame.meta));
     if (track.cam_from_world) {
         ++with_pose_;
         if (options_.ground_truth != nullptr) {

@@ -36,7 +36,8 @@ public:
     // stored, as RGB8 and as GRAY8 (errors name the file). kBadInput when the sequence has no groundtruth/cam_poses.csv.
     static Result<GroundTruth> fromSequence(const Sequence& sequence, bool by_content);
 
-    // world_from_cam of the frame with this timestamp, or of the recorded frame with these pixels.
+    // world_from_cam of the frame with this timestamp, or of the recorded frame with these pixels,
+    // at the middle of its exposure (groundTruthOfFrame, core/sequence_io.h).
     std::optional<Rigid3d> atTimestamp(std::int64_t timestamp_ns) const;
     std::optional<Rigid3d> ofPixels(const ImageView& view) const;
     bool byContent() const noexcept { return !by_hash_.empty(); }

@@ -6,6 +6,7 @@
 #include <string>
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
 
@@ -70,6 +71,9 @@ const char* poseChoiceName(PoseChoice choice) noexcept {
         case PoseChoice::kOnlyCandidate: return "only_candidate";
         case PoseChoice::kResidual: return "residual";
         case PoseChoice::kPrediction: return "prediction";
+        case PoseChoice::kPattern: return "pattern";
+        case PoseChoice::kScene: return "scene";
+        case PoseChoice::kEdges: return "edges";
     }
     return "?";
 }
@@ -79,7 +83,28 @@ Result<void> TagPoseOptions::validate() const {
     if (!(prediction_gate_deg > 0) || !(prediction_gate_deg <= 180)) {
         return fail(ErrorCode::kUsage, "prediction_gate_deg must be in (0, 180]");
     }
+    for (const double r : {ambiguous_corner_ratio, ambiguous_pattern_ratio}) {
+        if (!(r >= 0) || !(r <= 1)) {
+            return fail(ErrorCode::kUsage, "TagPoseOptions: ambiguous_corner_ratio and ambiguous_pattern_ratio must be in [0, 1]");
+        }
+    }
+    CL_TRY_VOID(requirePositive(ambiguous_rotation_sigma_deg, "TagPoseOptions", "ambiguous_rotation_sigma_deg"));
     return {};
+}
+
+double rotationSigmaDeg(const Matrix6d& covariance) {
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(covariance.topLeftCorner<3, 3>());
+    return std::sqrt(std::max(0.0, eigen.eigenvalues().maxCoeff())) * 180.0 / M_PI;
+}
+
+Rigid3d planarMirror(const Rigid3d& cam_from_tag) {
+    const Eigen::Vector3d v = cam_from_tag.translation.normalized();
+    const Eigen::Vector3d n = cam_from_tag.rotation * Eigen::Vector3d::UnitZ();
+    const Eigen::Vector3d mirrored = 2.0 * n.dot(v) * v - n;
+    // Hard case: a tag seen exactly along its normal is its own mirror (FromTwoVectors of equal
+    // vectors is the identity).
+    const Eigen::Quaterniond turn = Eigen::Quaterniond::FromTwoVectors(n, mirrored);
+    return Rigid3d(turn * cam_from_tag.rotation, cam_from_tag.translation);
 }
 
 Result<void> checkQuadCorners(const std::array<Eigen::Vector2d, 4>& c, double min_separation_px) {
@@ -261,6 +286,7 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
     const auto sq = [](double rms) { return 4.0 * rms * rms; };
     out.ambiguity_ratio = candidates.size() == 2 ? (sq(candidates[0].rms_px) + kFloor) / (sq(candidates[1].rms_px) + kFloor)
                                                  : 0.0;
+    out.ambiguous = out.choice == PoseChoice::kResidual && out.ambiguity_ratio > options.ambiguous_corner_ratio;
     out.cam_from_tag = candidates[0].cam_from_tag;
     out.rms_px = candidates[0].rms_px;
     out.candidates = std::move(candidates);
@@ -279,6 +305,9 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
     out.covariance = 0.5 * (out.covariance + out.covariance.transpose()).eval();
     if (!out.covariance.allFinite() || !out.cam_from_tag.isValid()) {
         return fail(ErrorCode::kBadInput, what + ": the pose is not finite");
+    }
+    if (out.choice != PoseChoice::kPrediction && rotationSigmaDeg(out.covariance) > options.ambiguous_rotation_sigma_deg) {
+        out.ambiguous = true;
     }
     return out;
 }

@@ -31,6 +31,16 @@ struct TagPoseOptions {
     // With a prediction, a candidate whose rotation is within this of the predicted one wins
     // over a candidate with a smaller residual (the residuals of the two differ by noise only).
     double prediction_gate_deg = 20.0;
+    // Without a prediction, the two candidates' residual ratio (chosen over other, in [0, 1])
+    // above which the residuals cannot tell them apart: the pose is reported `ambiguous`
+    // (docs/tracking.md, "Ambiguous single tags": measured on synthetic 12-42 px tags).
+    // Corner residuals (a tag too small for its pattern to be aligned) and the cell pattern's
+    // alignment residuals (the tracker aligns both candidates) have their own threshold.
+    double ambiguous_corner_ratio = 0.3;
+    double ambiguous_pattern_ratio = 0.7;
+    // Likewise when the chosen pose's rotation is this uncertain (1 sigma along its worst axis,
+    // from its covariance): a small tag seen nearly head-on, whose tilt the image hardly fixes.
+    double ambiguous_rotation_sigma_deg = 2.0;
     Result<void> validate() const;
 };
 
@@ -43,6 +53,9 @@ enum class PoseChoice {
     kOnlyCandidate,  // the second candidate did not exist or coincided with the first
     kResidual,       // the smaller reprojection error won
     kPrediction,     // the candidate closer to the temporal prediction won
+    kPattern,        // the smaller residual of the tag's cell pattern aligned from each candidate (tracker)
+    kScene,          // the candidate that agrees with the scene's other tags in view (tracker, bundle)
+    kEdges,          // the candidate whose camera pose the proxies' edges confirm (tracker, edge refinement)
 };
 const char* poseChoiceName(PoseChoice choice) noexcept;
 
@@ -55,6 +68,10 @@ struct TagPose {
     // exceed 1 when the prediction chose the candidate with the larger residual.
     double ambiguity_ratio = 0.0;
     PoseChoice choice = PoseChoice::kOnlyCandidate;
+    // Nothing chose (no prediction, no other evidence) and the residuals cannot tell the two
+    // candidates apart (ambiguity_ratio above TagPoseOptions' threshold): cam_from_tag is the one
+    // with the smaller residual, candidates[1] the other, and either may be the truth.
+    bool ambiguous = false;
     std::vector<TagPoseCandidate> candidates;  // 1 or 2, refined; candidates[0] is the chosen one
     Matrix6d covariance = Matrix6d::Identity();  // of cam_from_tag (pose_types.h convention)
 };
@@ -66,6 +83,15 @@ struct TagPose {
 Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corners, double size,
                              const CameraModel& camera, const std::optional<Rigid3d>& predicted_cam_from_tag = std::nullopt,
                              const TagPoseOptions& options = {});
+
+// The standard deviation of a pose's rotation along its worst axis (degrees), from its covariance
+// (pose_types.h convention).
+double rotationSigmaDeg(const Matrix6d& covariance);
+
+// The other side of the planar ambiguity, approximately (weak perspective): the tag's normal
+// reflected about the line of sight to its centre, the same centre. A start for refinement
+// when the solver found one candidate only.
+Rigid3d planarMirror(const Rigid3d& cam_from_tag);
 
 // Checks four image corners of a quad: finite, pairwise at least `min_separation_px` apart, no
 // three (nearly) collinear, convex and not self-crossing. The error names the defect.

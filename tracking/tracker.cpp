@@ -61,6 +61,7 @@ const char* trackStatusName(TrackStatus status) noexcept {
         case TrackStatus::kEdgesOnly: return "edges_only";
         case TrackStatus::kPredicted: return "predicted";
         case TrackStatus::kNoPose: return "no_pose";
+        case TrackStatus::kAmbiguous: return "ambiguous";
     }
     return "?";
 }
@@ -96,7 +97,8 @@ struct Tracker::State {
     std::int64_t frames = 0;
     std::int64_t frames_since_full = 0;
     std::optional<std::int64_t> last_timestamp;
-    std::optional<std::int64_t> last_measurement_timestamp;
+    std::optional<std::int64_t> last_pose_instant;        // the last frame's FrameTrack::pose_timestamp_ns
+    std::optional<std::int64_t> last_measurement_instant;  // ... of the last frame with a measurement
     // Without the filter: the last pose, used as the prediction.
     std::optional<Rigid3d> last_cam_from_world;
     // The last frame's detections and single-tag poses (windows and predictions for tags the
@@ -168,7 +170,15 @@ const TrackerOptions& Tracker::options() const noexcept { return state_->options
 
 std::optional<Rigid3d> Tracker::predict(std::int64_t timestamp_ns) const { return state_->prediction(timestamp_ns); }
 
+Result<FrameTrack> Tracker::process(const ImageView& gray8, const FrameMetadata& meta) {
+    return processAt(gray8, meta.timestamp_ns, midExposureNs(meta));
+}
+
 Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timestamp_ns) {
+    return processAt(gray8, timestamp_ns, timestamp_ns);
+}
+
+Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t timestamp_ns, std::int64_t pose_instant_ns) {
     State& s = *state_;
     const auto start = Clock::now();
     if (gray8.format != PixelFormat::kGray8) {
@@ -180,9 +190,14 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
         return fail(ErrorCode::kBadInput, "frame timestamp " + std::to_string(timestamp_ns) +
                                               " ns is earlier than the previous frame's");
     }
+    // Hard case: metadata whose exposure shrinks so fast that this frame's middle comes before
+    // the last one's; the filter needs non-decreasing instants.
+    if (s.last_pose_instant && pose_instant_ns < *s.last_pose_instant) pose_instant_ns = *s.last_pose_instant;
+    const std::int64_t instant = pose_instant_ns;
     FrameTrack out;
     out.timestamp_ns = timestamp_ns;
-    const std::optional<Rigid3d> predicted = s.prediction(timestamp_ns);
+    out.pose_timestamp_ns = instant;
+    const std::optional<Rigid3d> predicted = s.prediction(instant);
 
     // Step 1: detection.
     auto t0 = Clock::now();
@@ -238,27 +253,59 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
             predicted_cam_from_tag = it->second;
         }
         auto pose = solveTagPose(d.id, tag.detection.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
-        if (pose && s.options.align_tags) {
-            if (const TagPattern* pattern = s.patterns.get(d.id)) {
-                const TagAlignResult a = alignTagPose(gray8, s.camera, *pattern, size, pose->cam_from_tag, s.options.align);
-                if (a.ok) {
-                    pose->cam_from_tag = a.cam_from_tag;
-                    pose->covariance = a.covariance;
-                    pose->candidates[0].cam_from_tag = a.cam_from_tag;
-                    // The corners where the aligned pose puts them.
-                    bool all = true;
-                    std::array<Eigen::Vector2d, 4> corners;
-                    for (int c = 0; c < 4 && all; ++c) {
-                        const auto px = s.camera.project(a.cam_from_tag * tagCornerInTag(c, size));
-                        all = px.has_value();
-                        if (all) corners[c] = *px;
+        const TagPattern* pattern = pose && s.options.align_tags ? s.patterns.get(d.id) : nullptr;
+        // The aligned pose becomes the tag's: its corners are where the aligned pose puts them.
+        const auto adopt = [&](const TagAlignResult& a) {
+            std::array<Eigen::Vector2d, 4> corners;
+            for (int c = 0; c < 4; ++c) {
+                const auto px = s.camera.project(a.cam_from_tag * tagCornerInTag(c, size));
+                if (!px) return false;
+                corners[c] = *px;
+            }
+            pose->cam_from_tag = a.cam_from_tag;
+            pose->covariance = a.covariance;
+            pose->rms_px = a.rms_px;
+            tag.detection.corners = corners;
+            tag.aligned = true;
+            if (measured_dilation_cells) *measured_dilation_cells = a.dilation_cells;
+            return true;
+        };
+        if (pattern && pose->choice == PoseChoice::kPrediction) {
+            const TagAlignResult a = alignTagPose(gray8, s.camera, *pattern, size, pose->cam_from_tag, s.options.align);
+            if (a.ok && adopt(a)) pose->candidates[0] = {a.cam_from_tag, a.rms_px};
+        } else if (pattern) {
+            // Nothing predicted: the cell pattern chooses. Both candidates (the second one, when
+            // the corners gave one only, from the mirrored pose) are aligned; the smaller
+            // alignment residual wins, and when the two residuals are too close to tell
+            // (ambiguous_pattern_ratio) the tag is ambiguous. Two alignments that end on the
+            // same pose, or a second one refused, leave no ambiguity.
+            const Rigid3d other_start = pose->candidates.size() > 1 ? pose->candidates[1].cam_from_tag
+                                                                      : planarMirror(pose->candidates[0].cam_from_tag);
+            TagAlignResult a[2] = {alignTagPose(gray8, s.camera, *pattern, size, pose->candidates[0].cam_from_tag, s.options.align),
+                                   alignTagPose(gray8, s.camera, *pattern, size, other_start, s.options.align)};
+            if (a[0].ok || a[1].ok) {
+                const int best = !a[1].ok || (a[0].ok && a[0].rms_px <= a[1].rms_px) ? 0 : 1;
+                const TagAlignResult& chosen = a[best];
+                const TagAlignResult& other = a[1 - best];
+                const double corner_rms_other =
+                    best == 0 ? tagReprojectionRms(tag.detection.corners, size, s.camera, other_start) : pose->candidates[0].rms_px;
+                if (adopt(chosen)) {
+                    pose->choice = PoseChoice::kPattern;
+                    pose->candidates.assign(1, {chosen.cam_from_tag, chosen.rms_px});
+                    pose->ambiguity_ratio = 0.0;
+                    pose->ambiguous = false;
+                    if (other.ok && rotationErrorDeg(other.cam_from_tag, chosen.cam_from_tag) > 2.0) {
+                        constexpr double kFloor = 1e-6;
+                        pose->candidates.push_back({other.cam_from_tag, other.rms_px});
+                        pose->ambiguity_ratio = (chosen.rms_px * chosen.rms_px + kFloor) / (other.rms_px * other.rms_px + kFloor);
+                        pose->ambiguous = pose->ambiguity_ratio > s.options.tag_pose.ambiguous_pattern_ratio;
+                    } else if (!other.ok) {
+                        // Refused: not a pose the pattern fits. Kept as the alternative, unaligned.
+                        pose->candidates.push_back({other.cam_from_tag, corner_rms_other});
                     }
-                    if (all) {
-                        tag.detection.corners = corners;
-                        pose->rms_px = a.rms_px;
-                        pose->candidates[0].rms_px = a.rms_px;
-                        tag.aligned = true;
-                        if (measured_dilation_cells) *measured_dilation_cells = a.dilation_cells;
+                    // A tilt the pattern hardly fixes is not a choice either.
+                    if (rotationSigmaDeg(chosen.covariance) > s.options.tag_pose.ambiguous_rotation_sigma_deg) {
+                        pose->ambiguous = true;
                     }
                 }
             }
@@ -293,9 +340,11 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
     }
     out.times.tag_pose_ms = msSince(t0);
 
-    // Step 3: bundle over the scene's tags.
+    // Step 3: bundle over the scene's tags. Where two or more of them are in view, they choose
+    // each ambiguous tag's candidate: the one nearer the pose the bundle gives it.
     t0 = Clock::now();
     std::optional<PoseMeasurement> measurement;
+    std::optional<std::size_t> alone_ambiguous;  // the frame's pose rests on this ambiguous tag (out.tags) alone
     {
         std::vector<BundleTag> bundle_tags;
         for (const TrackedTag& t : out.tags) {
@@ -304,32 +353,96 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
         if (!bundle_tags.empty()) {
             auto bundle = solveBundle(bundle_tags, s.tags, s.camera, predicted, s.options.bundle);
             if (bundle) {
-                measurement = PoseMeasurement{timestamp_ns, bundle->cam_from_world, bundle->covariance};
+                measurement = PoseMeasurement{instant, bundle->cam_from_world, bundle->covariance};
+                for (std::size_t k = 0; k < out.tags.size(); ++k) {
+                    TrackedTag& t = out.tags[k];
+                    if (!t.pose || !t.pose->ambiguous) continue;
+                    const TagItem* item = s.tags.find(t.detection.id);
+                    const auto used = std::find(bundle->tags_used.begin(), bundle->tags_used.end(), t.detection.id);
+                    if (!item || used == bundle->tags_used.end()) continue;
+                    if (bundle->tags_used.size() == 1) {
+                        alone_ambiguous = k;
+                        continue;
+                    }
+                    // The candidate nearer the pose the scene gives the tag goes first; the tag's
+                    // pose becomes the scene's (its own tilt is what the image hardly fixed).
+                    const Rigid3d implied = bundle->cam_from_world * item->world_from_tag;
+                    TagPose& p = *t.pose;
+                    if (p.candidates.size() > 1 && rotationErrorDeg(p.candidates[1].cam_from_tag, implied) <
+                                                       rotationErrorDeg(p.candidates[0].cam_from_tag, implied)) {
+                        std::swap(p.candidates[0], p.candidates[1]);
+                        p.ambiguity_ratio = 1.0 / p.ambiguity_ratio;
+                    }
+                    p.cam_from_tag = implied;
+                    p.rms_px = tagReprojectionRms(t.detection.corners, item->size, s.camera, implied);
+                    p.choice = PoseChoice::kScene;
+                    p.ambiguous = false;
+                }
                 out.bundle = std::move(*bundle);
             }
         }
     }
     out.times.bundle_ms = msSince(t0);
 
-    // Step 4: model edges.
+    // Step 4: model edges. A frame resting on one ambiguous tag: refined from both candidates,
+    // the proxies' edges choose when only one of them converges (or both end on one pose).
     t0 = Clock::now();
     bool edges_only = false;
+    std::optional<Rigid3d> alternative;  // the other candidate's camera pose while ambiguous
+    if (alone_ambiguous && out.tags[*alone_ambiguous].pose->candidates.size() > 1) {
+        const TrackedTag& t = out.tags[*alone_ambiguous];
+        alternative = t.pose->candidates[1].cam_from_tag * s.tags.find(t.detection.id)->world_from_tag.inverse();
+    }
     if (s.edge_model && (measurement || predicted)) {
         const Rigid3d initial = measurement ? measurement->cam_from_world : *predicted;
         auto refined = refinePoseWithEdges(gray8, s.camera, *s.edge_model, initial, s.options.edge_options, measurement);
+        if (refined && alternative) {
+            const PoseMeasurement alt_prior{instant, *alternative, measurement->covariance};
+            auto alt = refinePoseWithEdges(gray8, s.camera, *s.edge_model, *alternative, s.options.edge_options, alt_prior);
+            const bool alt_ok = alt && alt->ok;
+            bool resolved = false;
+            TagPose& p = *out.tags[*alone_ambiguous].pose;
+            if (alt_ok && !refined->ok) {
+                // The edges confirm the other candidate only: it becomes the tag's and the frame's.
+                std::swap(p.candidates[0], p.candidates[1]);
+                p.cam_from_tag = p.candidates[0].cam_from_tag;
+                p.rms_px = p.candidates[0].rms_px;
+                p.ambiguity_ratio = 1.0 / p.ambiguity_ratio;
+                measurement->cam_from_world = *alternative;
+                refined = std::move(alt);
+                resolved = true;
+            } else if (refined->ok) {
+                // Confirmed: the other did not converge, or converged onto the same pose.
+                resolved = !alt_ok || rotationErrorDeg(alt->cam_from_world, refined->cam_from_world) < 1.0;
+            }
+            if (resolved) {
+                p.choice = PoseChoice::kEdges;
+                p.ambiguous = false;
+                alone_ambiguous.reset();
+                alternative.reset();
+            }
+        }
         if (refined) {
             if (refined->ok) {
                 edges_only = !measurement.has_value();
-                measurement = PoseMeasurement{timestamp_ns, refined->cam_from_world, refined->covariance};
+                measurement = PoseMeasurement{instant, refined->cam_from_world, refined->covariance};
             }
             out.edges = std::move(*refined);
         }
     }
     out.times.edges_ms = msSince(t0);
 
-    // Step 5: filter.
+    // Step 5: filter. A pose resting on one ambiguous tag is reported as such (both candidates)
+    // and neither updates the filter nor predicts the next frame: either may be the truth.
     t0 = Clock::now();
-    if (measurement) {
+    if (measurement && alone_ambiguous) {
+        out.status = TrackStatus::kAmbiguous;
+        out.cam_from_world = measurement->cam_from_world;
+        out.covariance = measurement->covariance;
+        out.alternative_cam_from_world = alternative;
+        out.ambiguity_ratio = out.tags[*alone_ambiguous].pose->ambiguity_ratio;
+        measurement.reset();
+    } else if (measurement) {
         out.status = edges_only ? TrackStatus::kEdgesOnly : TrackStatus::kTracked;
         if (s.options.filter) {
             CL_TRY(auto update, s.filter.update(*measurement));
@@ -348,7 +461,7 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
                 // The measurement was refused: what is reported is the prediction.
                 out.status = TrackStatus::kPredicted;
             }
-            const auto filtered = s.filter.predict(timestamp_ns);
+            const auto filtered = s.filter.predict(instant);
             out.cam_from_world = filtered ? filtered->cam_from_world : measurement->cam_from_world;
             out.covariance = filtered ? filtered->covariance : measurement->covariance;
         } else {
@@ -357,9 +470,9 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
         }
         s.last_cam_from_world = out.cam_from_world;
     } else if (s.options.filter && predicted) {
-        const auto p = s.filter.predict(timestamp_ns);
-        const bool recent = s.last_measurement_timestamp &&
-                            timestamp_ns - *s.last_measurement_timestamp <= s.options.filter_options.max_gap_ns;
+        const auto p = s.filter.predict(instant);
+        const bool recent = s.last_measurement_instant &&
+                            instant - *s.last_measurement_instant <= s.options.filter_options.max_gap_ns;
         if (p && recent) {
             out.status = TrackStatus::kPredicted;
             out.cam_from_world = p->cam_from_world;
@@ -372,10 +485,11 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
     s.last_detections = std::move(detections);
     s.last_cam_from_tag.clear();
     for (const TrackedTag& t : out.tags) {
-        if (t.pose) s.last_cam_from_tag[t.detection.id] = t.pose->cam_from_tag;
+        if (t.pose && !t.pose->ambiguous) s.last_cam_from_tag[t.detection.id] = t.pose->cam_from_tag;
     }
-    if (measurement) s.last_measurement_timestamp = timestamp_ns;
+    if (measurement) s.last_measurement_instant = instant;
     s.last_timestamp = timestamp_ns;
+    s.last_pose_instant = instant;
     ++s.frames;
     out.times.total_ms = msSince(start);
     return out;

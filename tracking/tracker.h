@@ -4,8 +4,10 @@
 //           prediction puts the tags; the whole frame again every N frames and whenever the
 //           windows find nothing
 //   Step 2  corners refined from the tags' edges; single-tag poses; each tag's cell pattern
-//           aligned with the image (both candidates; the prediction chooses when there is one)
-//   Step 3  bundle: one cam_from_world from every corner of the scene's tags
+//           aligned with the image (the candidate the prediction chooses; without one, both
+//           candidates, and the pattern's residuals choose or say the tag is ambiguous)
+//   Step 3  bundle: one cam_from_world from every corner of the scene's tags; with two or more
+//           tags, the bundle chooses each ambiguous tag's candidate
 //   Step 4  model-edge refinement (optional): the proxies' edges sharpen the pose, or carry it
 //           for a while when no tag is in view
 //   Step 5  temporal filter (optional): constant-velocity Kalman filter on SE(3)
@@ -18,6 +20,7 @@
 #include <vector>
 
 #include "core/camera_model.h"
+#include "core/frame.h"
 #include "core/image.h"
 #include "core/scene.h"
 #include "tracking/bundle.h"
@@ -69,6 +72,10 @@ enum class TrackStatus {
     kEdgesOnly,  // no usable tag; the proxies' edges carried the pose from the prediction
     kPredicted,  // nothing measured; the filter's prediction (still recent enough)
     kNoPose,     // no tag of the scene in view and nothing to predict from
+    // The pose rests on one tag whose two candidate poses the image cannot tell apart, and nothing
+    // (prediction, other tags, proxies' edges) chose: cam_from_world is the candidate with the
+    // smaller residual, alternative_cam_from_world the other. The filter is not updated.
+    kAmbiguous,
 };
 const char* trackStatusName(TrackStatus status) noexcept;
 
@@ -85,7 +92,11 @@ struct StageTimes {
 };
 
 struct FrameTrack {
-    std::int64_t timestamp_ns = 0;
+    std::int64_t timestamp_ns = 0;  // the frame's (the start of its exposure)
+    // The instant every pose of this frame is for (cam_from_world, the tags' cam_from_tag, the
+    // filter's update and prediction): the middle of the exposure (core/frame.h midExposureNs);
+    // timestamp_ns when the exposure is unknown. docs/tracking.md, "Timestamps".
+    std::int64_t pose_timestamp_ns = 0;
     bool full_frame_detection = true;
     std::vector<TrackedTag> tags;
     std::optional<BundleResult> bundle;
@@ -93,6 +104,9 @@ struct FrameTrack {
     TrackStatus status = TrackStatus::kNoPose;
     std::optional<Rigid3d> cam_from_world;  // the stage's answer: filtered when the filter is on
     std::optional<Matrix6d> covariance;
+    // Status kAmbiguous: the other candidate's camera pose, and the tag's ambiguity ratio.
+    std::optional<Rigid3d> alternative_cam_from_world;
+    double ambiguity_ratio = 0.0;
     // The dilation of the tags' black regions (in cells of each tag, > 0 grown): the median of
     // the aligned tags' (TagAlignResult::dilation_cells), used to refine the corners of tags that
     // could not be aligned; in a sequence, the last frame's when no tag was aligned.
@@ -110,13 +124,21 @@ public:
     Tracker& operator=(Tracker&&) noexcept;
     ~Tracker();
 
-    // `gray8`: the distorted 8-bit grey frame, the calibration's size. Timestamps must not
-    // decrease. Errors: a wrong format or size (kBadInput), a detector failure (kInternal). A
-    // frame without tags is not an error: status kNoPose (or kPredicted / kEdgesOnly).
+    // `gray8`: the distorted 8-bit grey frame, the calibration's size. `meta`: its timestamp (the
+    // start of its exposure; see midExposureNs for end-of-frame sources) and exposure: the poses
+    // are for the middle of the exposure (FrameTrack::pose_timestamp_ns), and the filter predicts
+    // to, and is updated at, that instant. Frame timestamps must not decrease; a pose instant
+    // earlier than the previous frame's (an exposure shrinking by more than twice the frame
+    // interval: metadata no camera produces) is raised to the previous one. Errors: a wrong
+    // format or size (kBadInput), a detector failure (kInternal). A frame without tags is not an
+    // error: status kNoPose (or kPredicted / kEdgesOnly).
+    Result<FrameTrack> process(const ImageView& gray8, const FrameMetadata& meta);
+    // The exposure unknown: the poses are for `timestamp_ns` itself (an instantaneous exposure).
     Result<FrameTrack> process(const ImageView& gray8, std::int64_t timestamp_ns);
 
-    // The filter's pose at any timestamp (the renderer asks for the frame's own); nullopt before
-    // the first measurement or with the filter off and no pose yet.
+    // The filter's pose at any instant (the renderer asks for the frame's
+    // FrameTrack::pose_timestamp_ns); nullopt before the first measurement or with the filter off
+    // and no pose yet.
     std::optional<Rigid3d> predict(std::int64_t timestamp_ns) const;
 
     const TrackerOptions& options() const noexcept;
@@ -124,6 +146,7 @@ public:
 private:
     struct State;
     explicit Tracker(std::unique_ptr<State> state);
+    Result<FrameTrack> processAt(const ImageView& gray8, std::int64_t timestamp_ns, std::int64_t pose_instant_ns);
     std::unique_ptr<State> state_;
 };
 

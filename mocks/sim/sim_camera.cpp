@@ -116,7 +116,9 @@ void SimCamera::run(std::stop_token stop) {
         RenderRequest request;
         request.scene = &scene_;
         request.camera = camera_;
-        request.world_from_cam = trajectory_.worldFromCam(t);
+        // At the middle of the exposure (the timestamp is its start): what a real camera's image
+        // of a moving scene stands for (docs/tracking.md, "Timestamps").
+        request.world_from_cam = trajectory_.worldFromCam(t + 0.5e-6 * currentSensor()->params().exposure_us);
         request.spp = options_.spp;
         request.seed = options_.seed;
         request.frame_index = n;

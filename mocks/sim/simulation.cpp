@@ -255,6 +255,8 @@ Result<SimulationSummary> simulate(const Scene& scene, const Trajectory& traject
     CL_TRY_VOID(createFolders(options.out, options));
     CL_TRY_VOID(writeSceneFiles(scene, options));
     CL_TRY(LineAppender poses, LineAppender::open(options.out / "groundtruth" / "cam_poses.csv", kPosesCsvHeader));
+    CL_TRY(LineAppender mid_poses,
+           LineAppender::open(options.out / "groundtruth" / kMidExposurePosesFile, kPosesCsvHeader));
 
     // Step 3: the frames.
     const int total = options.frames > 0 ? options.frames : trajectory.frameCount();
@@ -278,12 +280,20 @@ Result<SimulationSummary> simulate(const Scene& scene, const Trajectory& traject
         const std::int64_t timestamp_ns = std::llround(t * 1e9);
         const std::string stem = std::to_string(timestamp_ns);
 
+        // The timestamp is the start of the exposure; the image is the light gathered over it
+        // (docs/tracking.md, "Timestamps"). With motion blur, each sample's time is spread over
+        // the exposure; without, the whole frame is rendered at the middle of the exposure, the
+        // instant a blurred image stands for (so both give the same ground truth,
+        // cam_poses_mid_exposure.csv).
+        const std::int64_t mid_ns = midExposureNs(timestamp_ns, options.sensor.exposure_us);
+        const double t_mid = t + 0.5e-6 * options.sensor.exposure_us;
+        const double t_render = options.motion_blur ? t : t_mid;
         RenderRequest request;
         request.scene = &real_scene;
         request.camera = *camera;
-        request.world_from_cam = trajectory.worldFromCam(t);
+        request.world_from_cam = trajectory.worldFromCam(t_render);
         if (options.motion_blur || options.rolling_shutter_row_time_s > 0) {
-            request.world_from_cam_at = [&trajectory, t](double dt) { return trajectory.worldFromCam(t + dt); };
+            request.world_from_cam_at = [&trajectory, t_render](double dt) { return trajectory.worldFromCam(t_render + dt); };
         }
         request.spp = options.spp;
         request.seed = options.seed;
@@ -340,7 +350,8 @@ Result<SimulationSummary> simulate(const Scene& scene, const Trajectory& traject
         meta.exposure_us = options.sensor.exposure_us;
         meta.analog_gain = options.sensor.analog_gain;
         CL_TRY_VOID(writer.write(frame_image, meta));
-        CL_TRY_VOID(poses.append(poseCsvRow({timestamp_ns, request.world_from_cam})));
+        CL_TRY_VOID(poses.append(poseCsvRow({timestamp_ns, trajectory.worldFromCam(t)})));
+        CL_TRY_VOID(mid_poses.append(poseCsvRow({mid_ns, trajectory.worldFromCam(t_mid)})));
         ++summary.frames_written;
         if (progress) progress(i + 1, total);
     }

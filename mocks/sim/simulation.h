@@ -4,7 +4,9 @@
 //   SEQ/cam0/            frames through the sensor model (PNG, or JPEG as an MJPEG camera sends
 //                        them), data.csv, sensor.yaml (true intrinsics), meta.csv (exposure, gain)
 //   SEQ/scene.yaml       the scene as the estimator gets it: real albedos and lights `estimate`
-//   SEQ/groundtruth/     cam_poses.csv (world_from_cam), scene.yaml (the true scene),
+//   SEQ/groundtruth/     cam_poses.csv (world_from_cam at each frame's timestamp, the start of
+//                        its exposure), cam_poses_mid_exposure.csv (at the middle of its exposure,
+//                        the instant the frame was rendered for), scene.yaml (the true scene),
 //                        lights.yaml (the true lights), sensor.yaml (the sensor parameters),
 //                        composite/ (the same frames with the virtual objects really there, same
 //                        sample and noise seeds), masks/virtual/ (virtual-object coverage),

@@ -2,7 +2,7 @@
 # one image, and bad input. The figures themselves are checked by tests/tracking and the bench.
 source "$(dirname "$0")/lib.sh"
 
-header='image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status'
+header='image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status,pose_timestamp_ns,ambiguity_ratio,alt_tx,alt_ty,alt_tz,alt_qw,alt_qx,alt_qy,alt_qz'
 
 # 1. The sample with its scene: a header, one frame row per frame, tag rows with poses.
 expect_exit 0 "$COMMONLIGHT" track "$SAMPLE" --out "$TMP/poses.csv"
@@ -13,8 +13,10 @@ tracked=$(awk -F, 'NR > 1 && $3 == -1 && $19 == "tracked"' "$TMP/poses.csv" | wc
 [[ $tracked == "$SAMPLE_FRAMES" ]] || fail "expected every frame tracked, got $tracked"
 tag_rows=$(awk -F, 'NR > 1 && $3 >= 0 && $19 == "ok"' "$TMP/poses.csv" | wc -l)
 (( tag_rows >= 3 * SAMPLE_FRAMES )) || fail "expected at least 3 tags per frame, got $tag_rows rows"
-# Every row has 19 fields; quaternions are unit length.
-awk -F, 'NR > 1 && NF != 19 { exit 1 }' "$TMP/poses.csv" || fail "a row without 19 fields"
+# Every row has 28 fields; quaternions are unit length.
+awk -F, 'NR > 1 && NF != 28 { exit 1 }' "$TMP/poses.csv" || fail "a row without 28 fields"
+# Poses are for the middle of the exposure: the sample's meta.csv has 10 ms, so 5 ms after the timestamp.
+awk -F, 'NR > 1 && $20 != $2 + 5000000 { exit 1 }' "$TMP/poses.csv" || fail "pose_timestamp_ns is not mid-exposure"
 awk -F, 'NR > 1 && $15 != "" { n = $15*$15 + $16*$16 + $17*$17 + $18*$18; if (n < 0.999999 || n > 1.000001) exit 1 }' \
     "$TMP/poses.csv" || fail "a quaternion that is not unit length"
 # The summary reports the error against the sample's ground truth, well under a degree.
@@ -48,7 +50,9 @@ head -c 2000 "$TMP/photos/photo_40.jpg" > "$TMP/photos/photo_30.jpg"
 expect_exit 3 "$COMMONLIGHT" track "$TMP/photos" --calib "$SRC/data/scenes/desk/calib.yaml" --tag-size 0.08 \
     --out "$TMP/corrupt.csv"
 expect_text "photo_30.jpg" "$TMP/err"
-expect_text "photo_30.jpg,0,-1,,,,,,,,,,,,,,,,unreadable" "$TMP/corrupt.csv"
+expect_text "photo_30.jpg,0,-1,,,,,,,,,,,,,,,,unreadable," "$TMP/corrupt.csv"
+# Photos have no exposure: their poses are for their timestamp (0).
+awk -F, 'NR > 1 && $3 >= 0 && $20 != 0 { exit 1 }' "$TMP/corrupt.csv" || fail "photos' pose_timestamp_ns is not 0"
 [[ $(awk -F, 'NR > 1 && $3 >= 0 && $19 == "ok"' "$TMP/corrupt.csv" | wc -l) -ge 9 ]] || fail "good photos lost"
 
 # 6. Tags the scene does not place are reported, not posed, and leave the bundle alone.

@@ -84,6 +84,14 @@ TEST(Simulation, WritesASequenceWithItsGroundTruth) {
     EXPECT_LT(translationError(seq->groundtruth_poses[2].world_from_cam, testTrajectory().worldFromCam(0.2)), 1e-12);
     ASSERT_TRUE(seq->meta[0]);
     EXPECT_EQ(seq->meta[0]->exposure_us, SensorParams{}.exposure_us);
+    // The pose at the middle of each exposure: the instant the frames were rendered at.
+    const double half_exposure_s = 0.5e-6 * SensorParams{}.exposure_us;
+    ASSERT_EQ(seq->groundtruth_mid_exposure_poses.size(), 3u);
+    EXPECT_EQ(seq->groundtruth_mid_exposure_poses[1].timestamp_ns, 100'000'000 + std::llround(half_exposure_s * 1e9));
+    const Rigid3d mid = testTrajectory().worldFromCam(0.1 + half_exposure_s);
+    EXPECT_GT(translationError(mid, testTrajectory().worldFromCam(0.1)), 1e-4);  // it moves
+    EXPECT_LT(translationError(seq->groundtruth_mid_exposure_poses[1].world_from_cam, mid), 1e-12);
+    EXPECT_LT(translationError(*groundTruthOfFrame(*seq, 1), mid), 1e-12);
 
     // The estimator's scene hides the truth; the ground truth keeps it.
     auto estimator = readScene(seq_dir / "scene.yaml");

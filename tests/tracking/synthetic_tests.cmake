@@ -1,0 +1,10 @@
+# Tracking tests on synthetic frames (tests/tracking/synthetic_tags.h renders them with mocks/sim's
+# tag texture). The instant a pose is for (the middle of the exposure), on motion-blurred frames.
+add_library(commonlight_test_synthetic_tags STATIC ${CMAKE_CURRENT_SOURCE_DIR}/synthetic_tags.cpp)
+target_link_libraries(commonlight_test_synthetic_tags PUBLIC commonlight_options commonlight::core commonlight::sim
+                      opencv_imgproc)
+commonlight_test(tracking timestamps SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/timestamps_test.cpp
+                 DEPS commonlight::tracking commonlight_test_synthetic_tags)
+# Ambiguous single tags: reported as such alone, chosen by a second tag in view.
+commonlight_test(tracking ambiguity SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/ambiguity_test.cpp
+                 DEPS commonlight::tracking commonlight_test_synthetic_tags)
