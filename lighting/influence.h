@@ -117,6 +117,8 @@ struct InfluenceStats {
     int touched = 0;             // base leaves recomputed
     int evaluated = 0;           // elements whose terms were computed (every level of the recomputed base leaves)
     int link_evaluated = 0;      // of them, with the corrections of blocked links
+    long answers_computed = 0;   // items (a light, a blocked link, an object's light at an element) answered again
+    long answers_kept = 0;       // items whose last answer stood (no moved object's old or new bounds in the shaft)
     int leaves = 0;              // real leaves in use (base and refined)
     int refined = 0;             // of them, under the base leaves
     int corrections = 0;         // blocked base links corrected at leaves
