@@ -453,6 +453,7 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
         }
         obj.centre_local = box.isEmpty() ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : Eigen::Vector3d(box.center());
         obj.sphere = radiosity_.sphereRadius(static_cast<int>(o)) > 0.0;
+        obj.sphere_radius = radiosity_.sphereRadius(static_cast<int>(o));
         for (const Eigen::Vector3d& c : corners) obj.radius = std::max(obj.radius, (c - obj.centre_local).norm());
         // Rays are lifted off surfaces by the scene's epsilon: a little margin on the ball.
         obj.radius += 4.0 * rays_.epsilon();
@@ -509,13 +510,14 @@ double VirtualInfluence::Impl::objectBlocks(int object, int element, double omeg
 
 // Object o's largest effect on B/B~ at base leaf b through light k (its share of b's light, times
 // the fraction of the light the object can hide) or through base link l.
-double VirtualInfluence::Impl::lightSignificance(int b, int light, int object) const {
+void VirtualInfluence::Impl::lightSignificanceParts(int b, int light, double& share, double& omega) const {
     const InfluenceLight& l = base.lights[static_cast<std::size_t>(light)];
     const auto i = static_cast<std::size_t>(b);
     const double col = i < l.column->real.size() ? l.column->real[i] : 0.0;
-    if (!(col > 0.0)) return 0.0;
+    share = omega = 0.0;
+    if (!(col > 0.0)) return;
     const DirectSource& s = *l.source;
-    double omega = 1e-12;  // a point or a direction: all of it can be hidden
+    omega = 1e-12;  // a point or a direction: all of it can be hidden
     if (s.kind == DirectSource::Kind::kPolygon) {
         const Eigen::Vector3d v = shape[i].centroid - s.polygon->centre;
         const double dist = v.norm();
@@ -524,21 +526,31 @@ double VirtualInfluence::Impl::lightSignificance(int b, int light, int object) c
     } else if (s.kind == DirectSource::Kind::kCell) {
         omega = s.solidAngle();
     }
-    const double share = lumaOf(base.rho[i].cwiseProduct(l.emission)) * col / kPi / denominator(b);
-    return share * objectBlocks(object, b, omega);
+    share = lumaOf(base.rho[i].cwiseProduct(l.emission)) * col / kPi / denominator(b);
 }
 
-double VirtualInfluence::Impl::linkSignificance(int b, int link, int object) const {
+void VirtualInfluence::Impl::linkSignificanceParts(int b, int link, double& share, double& omega) const {
     const Link& l = self.radiosity_.links()[static_cast<std::size_t>(link)];
     const auto i = static_cast<std::size_t>(b);
     const ElementShape& src = shape[static_cast<std::size_t>(l.source)];
     const Eigen::Vector3d v = shape[i].centroid - src.centroid;
     const double dist = v.norm();
     const Eigen::Vector3d ns = self.radiosity_.face(self.radiosity_.hierarchy()[l.source].face).normal;
-    const double omega = std::min(2.0 * kPi, self.radiosity_.hierarchy()[l.source].area * std::max(0.05, std::abs(ns.dot(v / std::max(dist, 1e-12)))) /
-                                                 std::max(dist * dist, 1e-12));
+    omega = std::min(2.0 * kPi, self.radiosity_.hierarchy()[l.source].area * std::max(0.05, std::abs(ns.dot(v / std::max(dist, 1e-12)))) /
+                                    std::max(dist * dist, 1e-12));
     const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
-    const double share = lumaOf(base.rho[i]) / kPi * w * lumaOf(base.radiance[static_cast<std::size_t>(l.source)]) / denominator(b);
+    share = lumaOf(base.rho[i]) / kPi * w * lumaOf(base.radiance[static_cast<std::size_t>(l.source)]) / denominator(b);
+}
+
+double VirtualInfluence::Impl::lightSignificance(int b, int light, int object) const {
+    double share = 0.0, omega = 0.0;
+    lightSignificanceParts(b, light, share, omega);
+    return share > 0.0 ? share * objectBlocks(object, b, omega) : 0.0;
+}
+
+double VirtualInfluence::Impl::linkSignificance(int b, int link, int object) const {
+    double share = 0.0, omega = 0.0;
+    linkSignificanceParts(b, link, share, omega);
     return share * objectBlocks(object, b, omega);
 }
 
@@ -701,6 +713,14 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     const double item = 0.1 * self.options_.link_epsilon;
     ObjectState& obj = objects[static_cast<std::size_t>(object)];
     bool refreshed = true;
+    std::vector<std::pair<int, int>> old_pairs;
+    std::vector<HullPlanes> old_hulls;
+    std::vector<char> old_known;
+    if (!scan) {
+        old_pairs.swap(obj.cache_pairs);
+        old_hulls.swap(obj.cache_hulls);
+        old_known.swap(obj.cache_hull_known);
+    }
     if (scan) {
         obj.cache_valid = false;
         collectPairs(object, ball, true, obj.cache_pairs);
@@ -710,10 +730,24 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         obj.cache_valid = true;
     } else {
         refreshed = false;
+        obj.cache_pairs.swap(old_pairs);
+        obj.cache_hulls.swap(old_hulls);
+        obj.cache_hull_known.swap(old_known);
     }
     if (refreshed) {
+        // Sorted; the hull planes of the pairs the last cache had, kept (both lists sorted).
+        std::sort(obj.cache_pairs.begin(), obj.cache_pairs.end());
         obj.cache_hulls.resize(obj.cache_pairs.size());
         obj.cache_hull_known.assign(obj.cache_pairs.size(), 0);
+        obj.cache_sig.assign(obj.cache_pairs.size(), {0.0, -1.0});
+        std::size_t j = 0;
+        for (std::size_t i = 0; i < obj.cache_pairs.size() && j < old_pairs.size(); ++i) {
+            while (j < old_pairs.size() && old_pairs[j] < obj.cache_pairs[i]) ++j;
+            if (j < old_pairs.size() && old_pairs[j] == obj.cache_pairs[i] && old_known[j]) {
+                obj.cache_hulls[i] = old_hulls[j];
+                obj.cache_hull_known[i] = 1;
+            }
+        }
     }
     std::vector<std::pair<int, double>> sums;       // base leaf, significance
     std::vector<std::pair<int, int>> link_entries;  // base leaf, link
@@ -723,7 +757,16 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, obj.cache_pairs.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             const auto [b, what] = obj.cache_pairs[i];
-            const double sig = what < 0 ? lightSignificance(b, -1 - what, object) : linkSignificance(b, what, object);
+            // (What does not depend on where the object is, found once per pair.)
+            auto& parts = obj.cache_sig[i];
+            if (!(parts[1] >= 0.0)) {
+                if (what < 0) {
+                    lightSignificanceParts(b, -1 - what, parts[0], parts[1]);
+                } else {
+                    linkSignificanceParts(b, what, parts[0], parts[1]);
+                }
+            }
+            const double sig = parts[0] > 0.0 ? parts[0] * objectBlocks(object, b, parts[1]) : 0.0;
             if (sig >= item && cachedPairMeets(obj, i, ball)) kept[i] = sig;
         }
     });

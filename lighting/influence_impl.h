@@ -118,7 +118,8 @@ struct ObjectState {
     Ball ball;                      // world
     Eigen::Vector3d centre_local = Eigen::Vector3d::Zero();
     double radius = 0.0;            // of the bounding ball
-    bool sphere = false;            // an exact sphere (its cluster form factor is exact above the horizon)
+    bool sphere = false;            // an exact sphere (its form factor in closed form: pointToSphere())
+    double sphere_radius = 0.0;
     std::vector<int> faces;         // global face indices
     std::vector<int> touched;       // base leaves it affected last time (sorted)
     std::vector<int> cluster_leaves;  // base leaves whose own leaves link to it (sorted)
@@ -140,6 +141,9 @@ struct ObjectState {
     // Per cache pair, its hull's face planes once found (at the first move that needs them).
     std::vector<HullPlanes> cache_hulls;
     std::vector<char> cache_hull_known;
+    // Per cache pair, the parts of its significance that do not depend on where the object is
+    // (share, solid angle; < 0: not found yet).
+    std::vector<std::array<double, 2>> cache_sig;
 };
 
 struct VirtualInfluence::Impl {
@@ -235,6 +239,9 @@ struct VirtualInfluence::Impl {
     double objectBlocks(int object, int element, double omega) const;  // fraction of a solid angle it can cover
     double lightSignificance(int b, int light, int object) const;
     double linkSignificance(int b, int link, int object) const;
+    // Their parts that do not depend on the object: significance = share x objectBlocks(omega).
+    void lightSignificanceParts(int b, int light, double& share, double& omega) const;
+    void linkSignificanceParts(int b, int link, double& share, double& omega) const;
     std::uint32_t objectMask(int b) const;  // objects significant at base leaf b (ray mask bits)
     void select(int b);
     struct LeafResult {
@@ -249,7 +256,8 @@ struct VirtualInfluence::Impl {
     int evaluated = 0, link_evaluated = 0;  // in the last refine()
     long items_computed = 0, items_reused = 0;
     // Direct light and the objects' light (clears every term); `reach` in, `met` out (Reach).
-    LeafResult computeTerms(int c, int b, const Reach& reach, Reach& met);
+    // `links_open`: c may carry corrections (no element above it does).
+    LeafResult computeTerms(int c, int b, bool links_open, const Reach& reach, Reach& met);
     // Corrections; returns their variation.
     double computeLinks(int c, int b, const Reach& met, LeafResult& out);
     double linkSize(int b) const;  // elements of about this size carry the corrections

@@ -217,7 +217,7 @@ bool contains(const std::vector<int>& sorted, int key) { return std::binary_sear
 // when no object that moved had its old or new bounds in that item's shaft (`reach`: the items
 // whose shaft at c's parent met them; `met`: those whose shaft at c does): the rays in a shaft no
 // moved object was or is in give what they gave.
-VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, int b, const Reach& reach, Reach& met) {
+VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, int b, bool links_open, const Reach& reach, Reach& met) {
     LeafTerms& t = terms[static_cast<std::size_t>(c)];
     t.clear();
     LeafResult out;
@@ -241,9 +241,10 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
     for (int k : sel.lights) {
         const InfluenceLight& l = base.lights[static_cast<std::size_t>(k)];
         const double col = l.column->real[static_cast<std::size_t>(c)];
-        if (!(col > 0.0)) continue;
+        // (The reach first: a child may see a light its parent's estimate missed.)
         const bool reached = contains(reach.lights, k) && reachedByMove([&](const Ball& ball) { return lightMeetsBall(c, k, ball); });
         if (reached) met.lights.push_back(k);
+        if (!(col > 0.0)) continue;
         const LightAnswer* old = have && !reached ? findAnswer(ans.lights, k, &LightAnswer::light) : nullptr;
         LightAnswer a;
         if (old) {
@@ -263,15 +264,22 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
             out.deferred.emplace_back(k, a.pilot);
         }
     }
-    // The blocked base links' reach, for the children (their corrections: computeLinks()). An
-    // answer whose shaft the move reached, or whose link is no longer selected, is dropped.
-    const std::vector<Link>& links = self.radiosity_.links();
-    for (int li : sel.links) {
-        const int source = links[static_cast<std::size_t>(li)].source;
-        if (contains(reach.links, li) && reachedByMove([&](const Ball& ball) { return linkMeetsBall(c, source, ball); })) met.links.push_back(li);
-    }
-    if (ans.links_valid) {
-        std::erase_if(ans.links, [&](const LinkAnswer& a) { return !contains(sel.links, a.link) || contains(met.links, a.link); });
+    // The blocked base links' reach, for c and its children (their corrections: computeLinks()),
+    // where corrections may be made (`links_open`; below them no element has any: their answers
+    // go). An answer whose shaft the move reached, or whose link is no longer selected, is dropped.
+    if (links_open) {
+        const std::vector<Link>& links = self.radiosity_.links();
+        for (int li : reach.links) {
+            if (!contains(sel.links, li)) continue;
+            const int source = links[static_cast<std::size_t>(li)].source;
+            if (reachedByMove([&](const Ball& ball) { return linkMeetsBall(c, source, ball); })) met.links.push_back(li);
+        }
+        if (ans.links_valid) {
+            std::erase_if(ans.links, [&](const LinkAnswer& a) { return !contains(sel.links, a.link) || contains(met.links, a.link); });
+        }
+    } else {
+        ans.links.clear();
+        ans.links_valid = false;
     }
     // Step 2: light from the objects that reach b at leaf level (an object that moved or changed
     // its emission: always again).
@@ -416,7 +424,7 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
                 return;
             }
             const int b = base_of[i];
-            results[i] = computeTerms(c, b, reach[i], met[i]);
+            results[i] = computeTerms(c, b, links_open[i] != 0, reach[i], met[i]);
             // The corrections where they stay: at the link level, or on an element larger than
             // that which its direct light and the objects' light do not split (where the blocked
             // links' own variation may still split it).

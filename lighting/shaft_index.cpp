@@ -178,6 +178,7 @@ struct Errors {
 }  // namespace
 
 struct ShaftIndex::Impl {
+    std::vector<std::array<float, 6>> boxes;  // each shaft's box (lo, hi), rounded outwards
     Errors errors;
     RTCDevice device = nullptr;
     RTCBVH bvh = nullptr;
@@ -213,6 +214,7 @@ Result<std::unique_ptr<ShaftIndex>> ShaftIndex::build(std::vector<Shaft> shafts)
             p.upper_z = std::nextafter(static_cast<float>(hi.z()), std::numeric_limits<float>::infinity());
             p.geomID = 0;
             p.primID = static_cast<unsigned>(i);
+            impl->boxes.push_back({p.lower_x, p.lower_y, p.lower_z, p.upper_x, p.upper_y, p.upper_z});
         }
         // Step 2: Embree's SAH builder with our node layout (binary, up to 8 shafts per leaf).
         impl->bvh = rtcNewBVH(impl->device);
@@ -243,11 +245,14 @@ namespace {
 
 // The shafts under a node whose cone of balls meets the ball, in the hierarchy's order; the two
 // children of the top levels in parallel.
-void queryNode(const Node* n, const std::vector<Shaft>& shafts, const Ball& ball, const float (&lo)[3], const float (&hi)[3],
-               std::vector<int>& out, int depth) {
+void queryNode(const Node* n, const std::vector<Shaft>& shafts, const std::vector<std::array<float, 6>>& boxes, const Ball& ball,
+               const float (&lo)[3], const float (&hi)[3], std::vector<int>& out, int depth) {
     if (n->leaf) {
         for (std::uint32_t i = 0; i < n->count; ++i) {
             const int id = static_cast<int>(n->ids[i]);
+            // The shaft's own box first (a leaf's box holds up to 8 of them).
+            const auto& b = boxes[static_cast<std::size_t>(id)];
+            if (b[0] > hi[0] || b[3] < lo[0] || b[1] > hi[1] || b[4] < lo[1] || b[2] > hi[2] || b[5] < lo[2]) continue;
             if (shaftMeetsBall(shafts[static_cast<std::size_t>(id)], ball)) out.push_back(id);
         }
         return;
@@ -259,13 +264,13 @@ void queryNode(const Node* n, const std::vector<Shaft>& shafts, const Ball& ball
     }
     if (overlap[0] && overlap[1] && depth < 6) {
         std::vector<int> second;
-        tbb::parallel_invoke([&] { queryNode(n->child[0], shafts, ball, lo, hi, out, depth + 1); },
-                             [&] { queryNode(n->child[1], shafts, ball, lo, hi, second, depth + 1); });
+        tbb::parallel_invoke([&] { queryNode(n->child[0], shafts, boxes, ball, lo, hi, out, depth + 1); },
+                             [&] { queryNode(n->child[1], shafts, boxes, ball, lo, hi, second, depth + 1); });
         out.insert(out.end(), second.begin(), second.end());
         return;
     }
     for (int c = 0; c < 2; ++c) {
-        if (overlap[c]) queryNode(n->child[c], shafts, ball, lo, hi, out, depth + 1);
+        if (overlap[c]) queryNode(n->child[c], shafts, boxes, ball, lo, hi, out, depth + 1);
     }
 }
 
@@ -279,7 +284,7 @@ void ShaftIndex::query(const Ball& ball, std::vector<int>& out) const {
     const float hi[3] = {static_cast<float>(ball.centre.x() + ball.radius), static_cast<float>(ball.centre.y() + ball.radius),
                          static_cast<float>(ball.centre.z() + ball.radius)};
     // Depth first: a child is visited when its box meets the ball's box.
-    queryNode(root, shafts_, ball, lo, hi, out, 0);
+    queryNode(root, shafts_, impl_->boxes, ball, lo, hi, out, 0);
 }
 
 }  // namespace commonlight::lighting
