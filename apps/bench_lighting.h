@@ -48,7 +48,9 @@ struct BenchLightingOptions {
     // the room, updated incrementally (lighting/influence.h) against full re-solves and the path tracer.
     int steps = 300;            // steps of the path
     int truth_every = 60;       // path-traced truth at every n-th step (and the last)
-    int full_every = 20;        // a full re-solve beside the incremental update at every n-th step
+    int full_every = 20;        // a full re-solve beside the incremental update at every n-th step (0: none, not
+                                // even at the truth's steps: for profiling the incremental update alone)
+    std::vector<std::string> incremental_scenes;  // of "desk", "room"; empty: both
     int stress_moves = 10000;   // random moves of the long check (desk); 0: none
     bool sweep = true;          // the refinement thresholds swept
 };

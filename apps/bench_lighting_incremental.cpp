@@ -240,7 +240,8 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
     const int base_leaves = static_cast<int>(inc->radiosity().leaves(Mode::kReal).size());
     const int base_links = inc->radiosity().linkCount(Mode::kReal);
     std::vector<double> cpu_ms;
-    std::vector<double> update_ms, influence_ms, snapshot_ms, full_ms, rebuild_ms, agreement, candidates_ms, refine_ms, solve_ms, touched, evaluated;
+    std::vector<double> update_ms, influence_ms, snapshot_ms, full_ms, rebuild_ms, agreement, candidates_ms, refine_ms, solve_ms, touched, evaluated,
+        answers_computed, answers_kept;
     Series ser;
     ser.scene = ps.name;
     std::vector<RatioFigures> inc_ratio, full_ratio;
@@ -262,12 +263,14 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
         solve_ms.push_back(is.ms_solve);
         touched.push_back(is.touched);
         evaluated.push_back(is.evaluated);
+        answers_computed.push_back(static_cast<double>(is.answers_computed));
+        answers_kept.push_back(static_cast<double>(is.answers_kept));
         ser.leaves.push_back(is.leaves);
         ser.links.push_back(base_links + is.corrections + is.cluster_links);
         most_leaves = std::max(most_leaves, is.leaves);
         const bool checkpoint = std::find(truth_steps.begin(), truth_steps.end(), step) != truth_steps.end();
         if (checkpoint) inc_ratio.push_back(ratioAgainst(*inc, snapshot, truth.at(step), s.world_from_cam));
-        if (checkpoint || k % std::max(1, o.full_every) == 0) {
+        if (o.full_every > 0 && (checkpoint || k % o.full_every == 0)) {
             // The full re-solve: B~, the index and the influence from nothing, every texture.
             full->requestFullUpdate();
             const auto t1 = std::chrono::steady_clock::now();
@@ -315,6 +318,8 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
     std::printf("        influence p50: candidates %.1f ms, refinement %.1f ms (%.0f base leaves recomputed, %.0f elements evaluated), "
                 "propagation %.1f ms\n",
                 percentile(candidates_ms, 50), percentile(refine_ms, 50), percentile(touched, 50), percentile(evaluated, 50), percentile(solve_ms, 50));
+    std::printf("        answers per move p50 (a light, a blocked link or an object's light at an element): %.0f computed, %.0f kept\n",
+                percentile(answers_computed, 50), percentile(answers_kept, 50));
     std::printf("        full re-solve ms p50 %.0f (influence from scratch alone p50 %.0f): %.0fx (%.0fx) the incremental p50\n",
                 percentile(full_ms, 50), percentile(rebuild_ms, 50), percentile(full_ms, 50) / percentile(update_ms, 50),
                 percentile(rebuild_ms, 50) / percentile(update_ms, 50));
@@ -338,6 +343,8 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
                        {"propagation_ms", stats(solve_ms)},
                        {"touched_base_leaves", stats(touched)},
                        {"evaluated_elements", stats(evaluated)},
+                       {"answers_computed", stats(answers_computed)},
+                       {"answers_kept", stats(answers_kept)},
                        {"full_resolve_ms", stats(full_ms)},
                        {"influence_rebuild_ms", stats(rebuild_ms)},
                        {"speedup_full_over_incremental_p50", percentile(full_ms, 50) / percentile(update_ms, 50)},
@@ -529,6 +536,9 @@ Result<nlohmann::json> runIncrementalCase(const BenchLightingOptions& o, const s
     std::vector<SweepPoint> sweep;
     std::vector<Series> series;
     for (const PathScene& ps : scenes) {
+        if (!o.incremental_scenes.empty() && std::find(o.incremental_scenes.begin(), o.incremental_scenes.end(), ps.name) == o.incremental_scenes.end()) {
+            continue;
+        }
         CL_TRY(nlohmann::json j, runScene(o, ps, sweep, series));
         out.push_back(j);
         std::fflush(stdout);

@@ -73,6 +73,13 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
         ->check(CLI::Range(0, 10000000));
     lighting->add_flag("--no-sweep", [lighting_options](std::int64_t) { lighting_options->sweep = false; },
                        "Incremental case: do not sweep the refinement thresholds");
+    lighting->add_option("--full-every", lighting_options->full_every,
+                         "Incremental case: a full re-solve beside the update every N steps and at the truth's steps (0: none, for profiling)")
+        ->check(CLI::Range(0, 100000))
+        ->capture_default_str();
+    lighting->add_option("--scenes", lighting_options->incremental_scenes, "Incremental case: the scenes (default: desk and room)")
+        ->check(CLI::IsMember({"desk", "room"}))
+        ->delimiter(',');
     lighting->footer("Cases: solver (radiosity against the path tracer, hierarchical against uniform), known (desk: "
                      "emissions, reflectances), distant (sunlit: direction), nothing (no light in the scene), ratio "
                      "(B/B~ against the simulator over masks/changed). Sequences are rendered once and kept.");

@@ -163,4 +163,19 @@ Eigen::Vector3d samplePolygon(const Eigen::Vector3d& corner, const Eigen::Vector
     return corner + u * edge_s + v * edge_t;
 }
 
+double pointToSphere(double distance, double radius, double cos_phi) {
+    if (!(radius > 0.0) || !(distance > 0.0)) return 0.0;
+    const double h = std::max(1.0, distance / radius);
+    const double c = std::clamp(cos_phi, -1.0, 1.0);
+    const double sin_phi = std::sqrt(std::max(0.0, 1.0 - c * c));
+    const double root = std::sqrt(h * h - 1.0);
+    // Wholly above the horizon (phi <= acos(1 / H)), or wholly below (phi >= pi/2 + asin(1 / H)).
+    if (c * h >= 1.0) return c / (h * h);
+    if (-c * h >= 1.0) return 0.0;
+    constexpr double kPi = std::numbers::pi;
+    const double a = std::asin(std::clamp(root / (h * sin_phi), -1.0, 1.0));
+    const double b = std::acos(std::clamp(-root * c / sin_phi, -1.0, 1.0));
+    return std::max(0.0, 0.5 - a / kPi + (c * b - root * std::sqrt(std::max(0.0, 1.0 - h * h * c * c))) / (kPi * h * h));
+}
+
 }  // namespace commonlight::lighting

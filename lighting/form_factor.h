@@ -30,6 +30,16 @@ namespace commonlight::lighting {
 double pointToPolygon(const Eigen::Vector3d& x, const Eigen::Vector3d& n, std::span<const Eigen::Vector3d> polygon,
                       const Eigen::Vector3d& source_normal = Eigen::Vector3d::Zero());
 
+// F from a point to a sphere of radius `radius` whose centre is `distance` away, `cos_phi` the
+// cosine between the point's normal and the direction to the centre; the part of the sphere below
+// the point's horizon hidden (Howell's catalogue, "differential planar element to sphere"):
+// cos(phi) / H^2 (H = distance / radius) while the whole sphere is above the horizon, 0 when it is
+// wholly below, and in between
+//   1/2 - asin(sqrt(H^2 - 1) / (H sin phi)) / pi
+//       + (cos phi acos(-sqrt(H^2 - 1) cot phi) - sqrt(H^2 - 1) sqrt(1 - H^2 cos^2 phi)) / (pi H^2).
+// A point inside the sphere is taken on its surface (H = 1).
+double pointToSphere(double distance, double radius, double cos_phi);
+
 // A point of a quadrature rule on a receiver: position (world) and weight (weights sum to 1).
 struct QuadraturePoint {
     Eigen::Vector3d x;

@@ -93,6 +93,7 @@ void VirtualInfluence::Impl::grow() {
     pending_flag.resize(n, 0);
     column_known.resize(n, 0);
     terms.resize(n);
+    answers.resize(n);
     has_terms.resize(n, 0);
     masks.resize(n);
     corr_source.resize(n, 0);
@@ -180,6 +181,32 @@ bool VirtualInfluence::Impl::lightMeetsBall(int element, int light, const Ball& 
     return segmentMeetsBall(e.centroid, target, ball) || hullMeetsBall(e.polygon(), lightPolygon(light), ball);
 }
 
+bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball) const {
+    const auto [element, what] = obj.cache_pairs[i];
+    const ElementShape& e = shape[static_cast<std::size_t>(element)];
+    std::span<const Eigen::Vector3d> other;
+    if (what < 0) {
+        const int light = -1 - what;
+        const DirectSource& s = *base.lights[static_cast<std::size_t>(light)].source;
+        if (s.kind != DirectSource::Kind::kPolygon && s.kind != DirectSource::Kind::kPoint) return farLightMeetsBall(element, light, ball);
+        if (!shaftMeetsBall(lightShaft(element, light), ball)) return false;
+        const Eigen::Vector3d& target = s.kind == DirectSource::Kind::kPolygon ? s.polygon->centre : s.position;
+        if (segmentMeetsBall(e.centroid, target, ball)) return true;
+        other = lightPolygon(light);
+    } else {
+        const int source = self.radiosity_.links()[static_cast<std::size_t>(what)].source;
+        if (!shaftMeetsBall(elementShaft(element, source), ball)) return false;
+        const ElementShape& s = shape[static_cast<std::size_t>(source)];
+        if (segmentMeetsBall(e.centroid, s.centroid, ball)) return true;
+        other = s.polygon();
+    }
+    if (!obj.cache_hull_known[i]) {
+        obj.cache_hulls[i] = HullPlanes::of(e.polygon(), other);
+        obj.cache_hull_known[i] = 1;
+    }
+    return obj.cache_hulls[i].meets(ball);
+}
+
 // A directional light or a distant cell: the element swept towards the light (a cone of the
 // cell's directions) meets the ball. Conservative: the direction from the element's centre to the
 // ball's is within the cone widened by the angle the ball and the element subtend.
@@ -208,6 +235,18 @@ bool VirtualInfluence::Impl::farLightMeetsBall(int element, int light, const Bal
         }
     }
     return std::acos(std::clamp(c.dot(w), -1.0, 1.0)) <= widen + cell_radius;
+}
+
+int VirtualInfluence::Impl::tableIndex(const Eigen::Vector3d& w) const {
+    int axis = 0;
+    if (std::abs(w.y()) > std::abs(w[axis])) axis = 1;
+    if (std::abs(w.z()) > std::abs(w[axis])) axis = 2;
+    const double m = std::abs(w[axis]);
+    if (!(m > 0.0)) return 0;
+    const int face = 2 * axis + (w[axis] < 0.0 ? 1 : 0);
+    const auto cell = [&](double x) { return std::clamp(static_cast<int>((x / m + 1.0) * 0.5 * kLookup), 0, kLookup - 1); };
+    const int i = cell(w[(axis + 1) % 3]), j = cell(w[(axis + 2) % 3]);
+    return table_lookup[static_cast<std::size_t>((face * kLookup + j) * kLookup + i)];
 }
 
 int VirtualInfluence::Impl::boundLevel(int element) const {
@@ -258,6 +297,7 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
     d.pending_flag.assign(n, 0);
     d.column_known.assign(n, 1);
     d.terms.assign(n, LeafTerms{});
+    d.answers.assign(n, Answers{});
     d.has_terms.assign(n, 0);
     d.masks.assign(n, {});
     d.selection.assign(n, Selection{});
@@ -413,6 +453,7 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
         }
         obj.centre_local = box.isEmpty() ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : Eigen::Vector3d(box.center());
         obj.sphere = radiosity_.sphereRadius(static_cast<int>(o)) > 0.0;
+        obj.sphere_radius = radiosity_.sphereRadius(static_cast<int>(o));
         for (const Eigen::Vector3d& c : corners) obj.radius = std::max(obj.radius, (c - obj.centre_local).norm());
         // Rays are lifted off surfaces by the scene's epsilon: a little margin on the ball.
         obj.radius += 4.0 * rays_.epsilon();
@@ -426,184 +467,29 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
         const double r = std::sqrt(std::max(0.0, 1.0 - z * z));
         d.table.emplace_back(r * std::cos(golden * i), r * std::sin(golden * i), z);
     }
+    d.table_lookup.assign(static_cast<std::size_t>(6 * Impl::kLookup * Impl::kLookup), 0);
+    for (int face = 0; face < 6; ++face) {
+        for (int j = 0; j < Impl::kLookup; ++j) {
+            for (int i = 0; i < Impl::kLookup; ++i) {
+                // The cell's centre on the cube's face, as a direction.
+                const double u = 2.0 * (i + 0.5) / Impl::kLookup - 1.0, v = 2.0 * (j + 0.5) / Impl::kLookup - 1.0;
+                Eigen::Vector3d w;
+                const int axis = face / 2;
+                const double sign = face % 2 == 0 ? 1.0 : -1.0;
+                w[axis] = sign;
+                w[(axis + 1) % 3] = u;
+                w[(axis + 2) % 3] = v;
+                w.normalize();
+                std::size_t best = 0;
+                for (std::size_t k = 1; k < d.table.size(); ++k) {
+                    if (d.table[k].dot(w) > d.table[best].dot(w)) best = k;
+                }
+                d.table_lookup[static_cast<std::size_t>((face * Impl::kLookup + j) * Impl::kLookup + i)] = static_cast<std::uint8_t>(best);
+            }
+        }
+    }
     has_base_ = true;
     return {};
-}
-
-RealMask& VirtualInfluence::Impl::mask(int element, int key) {
-    auto& list = masks[static_cast<std::size_t>(element)];
-    for (RealMask& m : list) {
-        if (m.key == key) return m;
-    }
-    list.push_back(RealMask{key, 0, 0, 0});
-    return list.back();
-}
-
-// Virtual transmission of the light between leaf c and light k: the kernel-weighted fraction of
-// the pairs the real scene leaves open that the virtual objects leave open too (the same pairs'
-// real answers are kept: a move costs virtual rays only). `mixed`: some blocked, some not (a
-// penumbra or a shadow's edge across the leaf).
-double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask_bits, bool full_estimate) {
-    const Radiosity& rad = self.radiosity_;
-    const RayScene& rays = self.rays_;
-    const DirectSource& s = *base.lights[static_cast<std::size_t>(light)].source;
-    const ElementGeometry g = rad.geometry(c);
-    const Element& el = rad.hierarchy()[c];
-    const bool partial = rad.exposure(c) < 1.0;
-    RealMask& m = mask(c, -1 - light);
-    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed, rad.hierarchy().key(c)), 0x11ull + static_cast<std::uint64_t>(light));
-    mixed = false;
-    // One estimate over `n` samples: each sample a point of the leaf and a point of (or a
-    // direction to) the light, its weight, and whether real and virtual occluders block it.
-    const auto estimate = [&](int n, std::uint64_t sample_seed, bool full, double& open_real, double& open_all, bool& any_blocked,
-                              bool& any_open) {
-        std::uint64_t& bits = full ? m.full : m.pilot;
-        std::uint64_t& hidden_bits = full ? m.full_hidden : m.pilot_hidden;
-        const std::uint8_t flag = full ? 2 : 1;
-        const bool known = (m.have & flag) != 0;
-        std::uint64_t computed = 0, computed_hidden = 0;
-        // A pair starting on the leaf's hidden part is none of its light (kept with the real answers).
-        const auto hidden = [&](int k, const Eigen::Vector3d& x) {
-            if (!partial) return false;
-            if (known) return ((hidden_bits >> k) & 1u) != 0;
-            if (!rad.hidden(c, x)) return false;
-            computed_hidden |= std::uint64_t{1} << k;
-            return true;
-        };
-        open_real = open_all = 0.0;
-        any_blocked = any_open = false;
-        for (int k = 0; k < n && k < 64; ++k) {
-            Eigen::Vector3d x, y, w;
-            double f = 0.0;
-            bool to_point = true;
-            switch (s.kind) {
-                case DirectSource::Kind::kPolygon: {
-                    const SamplePair u = stratifiedPair(sample_seed, k, n);
-                    x = samplePolygon(g.corner, g.edge_s, g.edge_t, g.triangle, u.first.x(), u.first.y());
-                    if (hidden(k, x)) continue;
-                    y = sampleLight(*s.polygon, u.second);
-                    const Eigen::Vector3d dv = y - x;
-                    const double floor2 = std::pow(0.05 * std::sqrt(std::min(el.area, s.polygon->area)), 2);
-                    const double d2 = std::max(dv.squaredNorm(), floor2);
-                    f = std::max(0.0, g.normal.dot(dv)) * std::max(0.0, -s.polygon->normal.dot(dv)) / (d2 * d2);
-                    break;
-                }
-                case DirectSource::Kind::kPoint: {
-                    const Eigen::Vector2d u = stratified2d(sample_seed, k, n);
-                    x = samplePolygon(g.corner, g.edge_s, g.edge_t, g.triangle, u.x(), u.y());
-                    if (hidden(k, x)) continue;
-                    y = s.position;
-                    const Eigen::Vector3d dv = y - x;
-                    const double d2 = dv.squaredNorm();
-                    f = d2 > 1e-12 ? std::max(0.0, g.normal.dot(dv)) / (d2 * std::sqrt(d2)) : 0.0;
-                    break;
-                }
-                case DirectSource::Kind::kDirection:
-                case DirectSource::Kind::kCell: {
-                    const SamplePair u = stratifiedPair(sample_seed, k, n);
-                    x = samplePolygon(g.corner, g.edge_s, g.edge_t, g.triangle, u.first.x(), u.first.y());
-                    if (hidden(k, x)) continue;
-                    w = s.kind == DirectSource::Kind::kDirection ? Eigen::Vector3d(-s.direction.normalized()) : s.cellDirection(u.second);
-                    f = std::max(0.0, g.normal.dot(w));
-                    to_point = false;
-                    break;
-                }
-            }
-            if (!(f > 0.0)) continue;
-            bool real_blocked;
-            if (known) {
-                real_blocked = (bits >> k) & 1u;
-            } else {
-                real_blocked = to_point ? rays.occludedReal(x, g.normal, y, s.kind == DirectSource::Kind::kPolygon ? s.polygon->normal
-                                                                                                                     : Eigen::Vector3d::Zero())
-                                        : rays.occludedRealRay(x, g.normal, w);
-                if (real_blocked) computed |= std::uint64_t{1} << k;
-            }
-            if (real_blocked) continue;
-            open_real += f;
-            const bool blocked = to_point ? rays.occludedVirtual(x, g.normal, y,
-                                                                 s.kind == DirectSource::Kind::kPolygon ? s.polygon->normal : Eigen::Vector3d::Zero(),
-                                                                 mask_bits)
-                                          : rays.occludedVirtualRay(x, g.normal, w, mask_bits);
-            if (blocked) {
-                any_blocked = true;
-            } else {
-                any_open = true;
-                open_all += f;
-            }
-        }
-        if (!known) {
-            bits = computed;
-            hidden_bits = computed_hidden;
-            m.have = static_cast<std::uint8_t>(m.have | flag);
-        }
-    };
-    const int pilot = std::clamp(self.options_.pilot_pairs, 1, 64);
-    double open_real = 0.0, open_all = 0.0;
-    bool blocked = false, open = false;
-    estimate(pilot, hash64(seed), false, open_real, open_all, blocked, open);
-    if (blocked && open) {
-        mixed = true;
-        if (!full_estimate) return open_real > 0.0 ? open_all / open_real : 1.0;
-        estimate(std::clamp(self.options_.partial_pairs, 1, 64), seed, true, open_real, open_all, blocked, open);
-    }
-    return open_real > 0.0 ? open_all / open_real : 1.0;
-}
-
-// The same for a base link's shaft from leaf c to the link's source s (pairs of points of the two
-// elements, kernel-weighted as Radiosity::computeLink weighs them).
-double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, std::uint32_t mask_bits) {
-    const Radiosity& rad = self.radiosity_;
-    const RayScene& rays = self.rays_;
-    const ElementGeometry gr = rad.geometry(c), gs = rad.geometry(s);
-    const double floor2 = std::pow(0.05 * std::sqrt(std::min(rad.hierarchy()[c].area, rad.hierarchy()[s].area)), 2);
-    const bool partial = rad.exposure(c) < 1.0;
-    RealMask& m = mask(c, s);
-    const bool known = (m.have & 1u) != 0;
-    std::uint64_t computed = 0;
-    const int n = std::clamp(self.options_.link_pairs, 1, 64);
-    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0x5eedull, rad.hierarchy().key(c)), rad.hierarchy().key(s));
-    double open_real = 0.0, open_all = 0.0;
-    bool any_blocked = false, any_open = false;
-    std::uint64_t computed_hidden = 0;
-    for (int k = 0; k < n; ++k) {
-        const SamplePair pair = stratifiedPair(seed, k, n);
-        const Eigen::Vector3d xr = rad.surfacePoint(c, pair.first.x(), pair.first.y());
-        if (partial) {
-            // A pair starting on the leaf's hidden part (under a box) is none of its light.
-            if (known ? ((m.pilot_hidden >> k) & 1u) != 0 : rad.hidden(c, xr)) {
-                if (!known) computed_hidden |= std::uint64_t{1} << k;
-                continue;
-            }
-        }
-        const Eigen::Vector3d xs = rad.surfacePoint(s, pair.second.x(), pair.second.y());
-        const Eigen::Vector3d dv = xs - xr;
-        const double d2 = std::max(dv.squaredNorm(), floor2);
-        const double w = std::max(0.0, gr.normal.dot(dv)) * std::max(0.0, -gs.normal.dot(dv)) / (d2 * d2);
-        if (!(w > 0.0)) continue;
-        bool real_blocked;
-        if (known) {
-            real_blocked = (m.pilot >> k) & 1u;
-        } else {
-            real_blocked = rays.occludedReal(xr, gr.normal, xs, gs.normal);
-            if (real_blocked) computed |= std::uint64_t{1} << k;
-        }
-        if (real_blocked) continue;
-        open_real += w;
-        if (rays.occludedVirtual(xr, gr.normal, xs, gs.normal, mask_bits)) {
-            any_blocked = true;
-        } else {
-            any_open = true;
-            open_all += w;
-        }
-    }
-    if (!known) {
-        m.pilot = computed;
-        m.pilot_hidden = computed_hidden;
-        m.have = static_cast<std::uint8_t>(m.have | 1u);
-    }
-    mixed = any_blocked && any_open;
-    return open_real > 0.0 ? open_all / open_real : 1.0;
 }
 
 double VirtualInfluence::Impl::floorLuma(int element) const {
@@ -624,13 +510,14 @@ double VirtualInfluence::Impl::objectBlocks(int object, int element, double omeg
 
 // Object o's largest effect on B/B~ at base leaf b through light k (its share of b's light, times
 // the fraction of the light the object can hide) or through base link l.
-double VirtualInfluence::Impl::lightSignificance(int b, int light, int object) const {
+void VirtualInfluence::Impl::lightSignificanceParts(int b, int light, double& share, double& omega) const {
     const InfluenceLight& l = base.lights[static_cast<std::size_t>(light)];
     const auto i = static_cast<std::size_t>(b);
     const double col = i < l.column->real.size() ? l.column->real[i] : 0.0;
-    if (!(col > 0.0)) return 0.0;
+    share = omega = 0.0;
+    if (!(col > 0.0)) return;
     const DirectSource& s = *l.source;
-    double omega = 1e-12;  // a point or a direction: all of it can be hidden
+    omega = 1e-12;  // a point or a direction: all of it can be hidden
     if (s.kind == DirectSource::Kind::kPolygon) {
         const Eigen::Vector3d v = shape[i].centroid - s.polygon->centre;
         const double dist = v.norm();
@@ -639,21 +526,31 @@ double VirtualInfluence::Impl::lightSignificance(int b, int light, int object) c
     } else if (s.kind == DirectSource::Kind::kCell) {
         omega = s.solidAngle();
     }
-    const double share = lumaOf(base.rho[i].cwiseProduct(l.emission)) * col / kPi / denominator(b);
-    return share * objectBlocks(object, b, omega);
+    share = lumaOf(base.rho[i].cwiseProduct(l.emission)) * col / kPi / denominator(b);
 }
 
-double VirtualInfluence::Impl::linkSignificance(int b, int link, int object) const {
+void VirtualInfluence::Impl::linkSignificanceParts(int b, int link, double& share, double& omega) const {
     const Link& l = self.radiosity_.links()[static_cast<std::size_t>(link)];
     const auto i = static_cast<std::size_t>(b);
     const ElementShape& src = shape[static_cast<std::size_t>(l.source)];
     const Eigen::Vector3d v = shape[i].centroid - src.centroid;
     const double dist = v.norm();
     const Eigen::Vector3d ns = self.radiosity_.face(self.radiosity_.hierarchy()[l.source].face).normal;
-    const double omega = std::min(2.0 * kPi, self.radiosity_.hierarchy()[l.source].area * std::max(0.05, std::abs(ns.dot(v / std::max(dist, 1e-12)))) /
-                                                 std::max(dist * dist, 1e-12));
+    omega = std::min(2.0 * kPi, self.radiosity_.hierarchy()[l.source].area * std::max(0.05, std::abs(ns.dot(v / std::max(dist, 1e-12)))) /
+                                    std::max(dist * dist, 1e-12));
     const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
-    const double share = lumaOf(base.rho[i]) / kPi * w * lumaOf(base.radiance[static_cast<std::size_t>(l.source)]) / denominator(b);
+    share = lumaOf(base.rho[i]) / kPi * w * lumaOf(base.radiance[static_cast<std::size_t>(l.source)]) / denominator(b);
+}
+
+double VirtualInfluence::Impl::lightSignificance(int b, int light, int object) const {
+    double share = 0.0, omega = 0.0;
+    lightSignificanceParts(b, light, share, omega);
+    return share > 0.0 ? share * objectBlocks(object, b, omega) : 0.0;
+}
+
+double VirtualInfluence::Impl::linkSignificance(int b, int link, int object) const {
+    double share = 0.0, omega = 0.0;
+    linkSignificanceParts(b, link, share, omega);
     return share * objectBlocks(object, b, omega);
 }
 
@@ -721,96 +618,6 @@ void VirtualInfluence::Impl::select(int b) {
     }
 }
 
-double VirtualInfluence::Impl::linkSize(int b) const {
-    return std::max(self.options_.link_size, 2.0 * boundSize(bound_level[static_cast<std::size_t>(b)]));
-}
-
-// Element c under base leaf b: its terms (transmissions of the selected lights and links, cluster
-// light), and how much B/B~ may vary across it (the oracle).
-VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, int b) {
-    LeafTerms& t = terms[static_cast<std::size_t>(c)];
-    t.clear();
-    LeafResult out;
-    const Selection& sel = selection[static_cast<std::size_t>(b)];
-    const Eigen::Vector3d& rho = self.rho_[static_cast<std::size_t>(c)];
-    const double den = denominator(c);
-    // Only the objects significant at b block here (the same rays whichever object moved last:
-    // a fresh solve and the incremental one trace the same).
-    const std::uint32_t mask = objectMask(b);
-    const auto meets = [&](auto test) {
-        for (const auto& [object, link] : entries[static_cast<std::size_t>(b)]) {
-            if (link < 0 && test(objects[static_cast<std::size_t>(object)].ball)) return true;
-        }
-        return false;
-    };
-    // Step 1: direct light the objects block.
-    for (int k : sel.lights) {
-        const InfluenceLight& l = base.lights[static_cast<std::size_t>(k)];
-        const double col = l.column->real[static_cast<std::size_t>(c)];
-        if (!(col > 0.0) || !meets([&](const Ball& ball) { return lightMeetsBall(c, k, ball); })) continue;
-        bool mixed = false;
-        const double tr = transmissionToLight(c, k, mixed, mask, false);
-        t.direct += (tr - 1.0) * col * l.emission;
-        if (mixed) {
-            out.variation += lumaOf(rho.cwiseProduct(l.emission)) * col / kPi / den;
-            out.deferred.emplace_back(k, tr);
-        }
-    }
-    // Step 2: light from the objects that reach b at leaf level.
-    for (int o : sel.objects) {
-        double variation = 0.0;
-        t.cluster += clusterAt(o, c, &variation, mask & ~RayScene::virtualBit(o));
-        out.variation += variation;
-    }
-    return out;
-}
-
-// The full estimates computeTerms() left for later, now that c stays a leaf: the same estimate the
-// pilot would have been followed by at once (the split elements' were thrown away with their terms).
-void VirtualInfluence::Impl::finishDeferred(int c, int b, const LeafResult& r) {
-    if (r.deferred.empty()) return;
-    LeafTerms& t = terms[static_cast<std::size_t>(c)];
-    const std::uint32_t mask = objectMask(b);
-    for (const auto& [k, pilot] : r.deferred) {
-        const InfluenceLight& l = base.lights[static_cast<std::size_t>(k)];
-        const double col = l.column->real[static_cast<std::size_t>(c)];
-        bool mixed = false;
-        const double tr = transmissionToLight(c, k, mixed, mask, true);
-        t.direct += (tr - pilot) * col * l.emission;
-    }
-}
-
-// Element c's corrections of the base links the objects block (lighting/influence.h C), and how
-// much they may vary across it.
-double VirtualInfluence::Impl::computeLinks(int c, int b) {
-    const Radiosity& rad = self.radiosity_;
-    LeafTerms& t = terms[static_cast<std::size_t>(c)];
-    t.corrections.clear();
-    const Selection& sel = selection[static_cast<std::size_t>(b)];
-    const Eigen::Vector3d& rho = self.rho_[static_cast<std::size_t>(c)];
-    const double den = denominator(c);
-    const std::uint32_t mask = objectMask(b);
-    const std::vector<Link>& links = rad.links();
-    double variation = 0.0;
-    for (int li : sel.links) {
-        const Link& l = links[static_cast<std::size_t>(li)];
-        bool meets = false;
-        for (const auto& [object, link] : entries[static_cast<std::size_t>(b)]) {
-            if (link < 0 && linkMeetsBall(c, l.source, objects[static_cast<std::size_t>(object)].ball)) {
-                meets = true;
-                break;
-            }
-        }
-        if (!meets) continue;
-        bool mixed = false;
-        const double tr = transmissionToSource(c, l.source, mixed, mask);
-        const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
-        if (tr < 1.0) t.corrections.push_back(Correction{l.source, w * (tr - 1.0)});
-        if (mixed) variation += lumaOf(rho) / kPi * w * lumaOf(base.radiance[static_cast<std::size_t>(l.source)]) / den;
-    }
-    return variation;
-}
-
 // The (base leaf, link or light) pairs whose shaft meets the ball `query` and whose effect there
 // could reach a tenth of link_epsilon for an object anywhere inside it: the shaft index's
 // candidates (cones), links followed from their receivers down to the base leaves (pruned by a bound
@@ -832,51 +639,59 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
         index->query(query, ids);
     }
     const std::vector<Link>& links = rad.links();
-    std::vector<int> stack;
-    for (int id : ids) {
-        if (id >= link_shafts) {
-            const auto [b, k] = light_shafts[static_cast<std::size_t>(id - link_shafts)];
-            const DirectSource& ls = *base.lights[static_cast<std::size_t>(k)].source;
-            const Eigen::Vector3d& target = ls.kind == DirectSource::Kind::kPolygon ? ls.polygon->centre : ls.position;
-            if (segmentMeetsBall(shape[static_cast<std::size_t>(b)].centroid, target, query) ||
-                hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) {
-                pairs.emplace_back(b, -1 - k);
-            }
-            continue;
-        }
-        const int link = shaft_link[static_cast<std::size_t>(id)];
-        const Link& l = links[static_cast<std::size_t>(link)];
-        const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
-        const double source = lumaOf(base.radiance[static_cast<std::size_t>(l.source)]);
-        const ElementShape& src = shape[static_cast<std::size_t>(l.source)];
-        const double source_area = h[l.source].area;
-        stack.assign(1, l.receiver);
-        while (!stack.empty()) {
-            const int e = stack.back();
-            stack.pop_back();
-            const Element& el = h[e];
-            if (el.buried) continue;
-            const ElementShape& es = shape[static_cast<std::size_t>(e)];
-            // Above the base leaves every test uses twice the element's radius, which holds every
-            // element under it: a test passed by a base leaf is passed by its ancestors, so the pairs
-            // found do not depend on the ball the search started from (the cache's or the object's).
-            const bool leaf = base_leaf[static_cast<std::size_t>(e)];
-            const double radius = leaf ? es.radius : 2.0 * es.radius;
-            if (e != l.receiver && !shaftMeetsBall(Shaft{es.centroid, src.centroid, radius, src.radius}, query)) continue;
-            // Bound of the effect anywhere under e of anything inside the query ball: the most it
-            // can cover over the least the source can subtend (its cosine floored as in
-            // linkSignificance()).
-            const double near = std::max((query.centre - es.centroid).norm() - radius, query.radius);
-            const double far = (src.centroid - es.centroid).norm() + radius + src.radius;
-            const double beta = std::min(1.0, ballSolidAngle(query.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
-            if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
-            if (leaf) {
-                if (segmentMeetsBall(es.centroid, src.centroid, query) || hullMeetsBall(es.polygon(), src.polygon(), query)) pairs.emplace_back(e, link);
+    // In parallel over blocks of the shafts found, gathered in their order.
+    constexpr std::size_t kBlock = 64;
+    std::vector<std::vector<std::pair<int, int>>> found((ids.size() + kBlock - 1) / kBlock);
+    tbb::parallel_for(std::size_t{0}, found.size(), [&](std::size_t block) {
+        std::vector<std::pair<int, int>>& out = found[block];
+        std::vector<int> stack;
+        for (std::size_t j = block * kBlock; j < std::min(ids.size(), (block + 1) * kBlock); ++j) {
+            const int id = ids[j];
+            if (id >= link_shafts) {
+                const auto [b, k] = light_shafts[static_cast<std::size_t>(id - link_shafts)];
+                const DirectSource& ls = *base.lights[static_cast<std::size_t>(k)].source;
+                const Eigen::Vector3d& target = ls.kind == DirectSource::Kind::kPolygon ? ls.polygon->centre : ls.position;
+                if (segmentMeetsBall(shape[static_cast<std::size_t>(b)].centroid, target, query) ||
+                    hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) {
+                    out.emplace_back(b, -1 - k);
+                }
                 continue;
             }
-            for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);
+            const int link = shaft_link[static_cast<std::size_t>(id)];
+            const Link& l = links[static_cast<std::size_t>(link)];
+            const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
+            const double source = lumaOf(base.radiance[static_cast<std::size_t>(l.source)]);
+            const ElementShape& src = shape[static_cast<std::size_t>(l.source)];
+            const double source_area = h[l.source].area;
+            stack.assign(1, l.receiver);
+            while (!stack.empty()) {
+                const int e = stack.back();
+                stack.pop_back();
+                const Element& el = h[e];
+                if (el.buried) continue;
+                const ElementShape& es = shape[static_cast<std::size_t>(e)];
+                // Above the base leaves every test uses twice the element's radius, which holds every
+                // element under it: a test passed by a base leaf is passed by its ancestors, so the pairs
+                // found do not depend on the ball the search started from (the cache's or the object's).
+                const bool leaf = base_leaf[static_cast<std::size_t>(e)];
+                const double radius = leaf ? es.radius : 2.0 * es.radius;
+                if (e != l.receiver && !shaftMeetsBall(Shaft{es.centroid, src.centroid, radius, src.radius}, query)) continue;
+                // Bound of the effect anywhere under e of anything inside the query ball: the most it
+                // can cover over the least the source can subtend (its cosine floored as in
+                // linkSignificance()).
+                const double near = std::max((query.centre - es.centroid).norm() - radius, query.radius);
+                const double far = (src.centroid - es.centroid).norm() + radius + src.radius;
+                const double beta = std::min(1.0, ballSolidAngle(query.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
+                if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
+                if (leaf) {
+                    if (segmentMeetsBall(es.centroid, src.centroid, query) || hullMeetsBall(es.polygon(), src.polygon(), query)) out.emplace_back(e, link);
+                    continue;
+                }
+                for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);
+            }
         }
-    }
+    });
+    for (const auto& f : found) pairs.insert(pairs.end(), f.begin(), f.end());
     if (!far_lights.empty()) {
         for (int e : rad.leaves(Mode::kReal)) {
             if (!base_leaf[static_cast<std::size_t>(e)]) continue;
@@ -897,6 +712,15 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
 void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links) {
     const double item = 0.1 * self.options_.link_epsilon;
     ObjectState& obj = objects[static_cast<std::size_t>(object)];
+    bool refreshed = true;
+    std::vector<std::pair<int, int>> old_pairs;
+    std::vector<HullPlanes> old_hulls;
+    std::vector<char> old_known;
+    if (!scan) {
+        old_pairs.swap(obj.cache_pairs);
+        old_hulls.swap(obj.cache_hulls);
+        old_known.swap(obj.cache_hull_known);
+    }
     if (scan) {
         obj.cache_valid = false;
         collectPairs(object, ball, true, obj.cache_pairs);
@@ -904,8 +728,27 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         obj.cache_ball = Ball{ball.centre, ball.radius + self.options_.shaft_margin};
         collectPairs(object, obj.cache_ball, false, obj.cache_pairs);
         obj.cache_valid = true;
+    } else {
+        refreshed = false;
+        obj.cache_pairs.swap(old_pairs);
+        obj.cache_hulls.swap(old_hulls);
+        obj.cache_hull_known.swap(old_known);
     }
-    const std::vector<Link>& links = self.radiosity_.links();
+    if (refreshed) {
+        // Sorted; the hull planes of the pairs the last cache had, kept (both lists sorted).
+        std::sort(obj.cache_pairs.begin(), obj.cache_pairs.end());
+        obj.cache_hulls.resize(obj.cache_pairs.size());
+        obj.cache_hull_known.assign(obj.cache_pairs.size(), 0);
+        obj.cache_sig.assign(obj.cache_pairs.size(), {0.0, -1.0});
+        std::size_t j = 0;
+        for (std::size_t i = 0; i < obj.cache_pairs.size() && j < old_pairs.size(); ++i) {
+            while (j < old_pairs.size() && old_pairs[j] < obj.cache_pairs[i]) ++j;
+            if (j < old_pairs.size() && old_pairs[j] == obj.cache_pairs[i] && old_known[j]) {
+                obj.cache_hulls[i] = old_hulls[j];
+                obj.cache_hull_known[i] = 1;
+            }
+        }
+    }
     std::vector<std::pair<int, double>> sums;       // base leaf, significance
     std::vector<std::pair<int, int>> link_entries;  // base leaf, link
     // (The significance first: it is cheaper than the shaft tests.) In parallel over the pairs
@@ -914,14 +757,17 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, obj.cache_pairs.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             const auto [b, what] = obj.cache_pairs[i];
-            if (what < 0) {
-                const int k = -1 - what;
-                const double sig = lightSignificance(b, k, object);
-                if (sig >= item && lightMeetsBall(b, k, ball)) kept[i] = sig;
-                continue;
+            // (What does not depend on where the object is, found once per pair.)
+            auto& parts = obj.cache_sig[i];
+            if (!(parts[1] >= 0.0)) {
+                if (what < 0) {
+                    lightSignificanceParts(b, -1 - what, parts[0], parts[1]);
+                } else {
+                    linkSignificanceParts(b, what, parts[0], parts[1]);
+                }
             }
-            const double sig = linkSignificance(b, what, object);
-            if (sig >= item && linkMeetsBall(b, links[static_cast<std::size_t>(what)].source, ball)) kept[i] = sig;
+            const double sig = parts[0] > 0.0 ? parts[0] * objectBlocks(object, b, parts[1]) : 0.0;
+            if (sig >= item && cachedPairMeets(obj, i, ball)) kept[i] = sig;
         }
     });
     for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
@@ -950,164 +796,6 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     }
 }
 
-// Recomputes the touched base leaves: collapse, then level by level (parallel over the leaves of
-// a level, splits in between on this thread): terms, oracle, split.
-void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
-    Radiosity& rad = self.radiosity_;
-    Hierarchy& h = rad.hierarchy();
-    const InfluenceOptions& opt = self.options_;
-    // Step 1: collapse and select.
-    std::vector<Eigen::Vector3d> old_d(touched.size());
-    for (std::size_t i = 0; i < touched.size(); ++i) {
-        const int b = touched[i];
-        old_d[i] = self.d_[static_cast<std::size_t>(b)];
-        if (h[b].child_count > 0) h.collapse(b);
-        face_dirty[static_cast<std::size_t>(h[b].face)] = 1;
-        bound_level[static_cast<std::size_t>(b)] = boundLevel(b);
-    }
-    tbb::parallel_for(std::size_t{0}, touched.size(), [&](std::size_t i) { select(touched[i]); });
-    // Step 2: level by level. `links_open`: no element above has the corrections yet; they go to
-    // the first element no larger than the link size, or to a leaf larger than that.
-    std::vector<int> frontier = touched;
-    std::vector<int> base_of(frontier.begin(), frontier.end());
-    std::vector<char> links_open(frontier.size(), 1);
-    std::vector<int> done;  // elements whose terms stand (leaves and link-level elements)
-    evaluated = link_evaluated = 0;
-    while (!frontier.empty()) {
-        evaluated += static_cast<int>(frontier.size());
-        std::vector<LeafResult> results(frontier.size());
-        tbb::parallel_for(std::size_t{0}, frontier.size(), [&](std::size_t i) {
-            const int c = frontier[i];
-            if (h[c].buried) {
-                terms[static_cast<std::size_t>(c)].clear();
-                return;
-            }
-            const int b = base_of[i];
-            results[i] = computeTerms(c, b);
-            // The corrections where they stay: at the link level, or on an element larger than
-            // that which its direct light and the objects' light do not split (where the blocked
-            // links' own variation may still split it).
-            const Element& el = h[c];
-            const double size = std::max(el.size_s, el.size_t_);
-            const bool split_anyway = results[i].variation > opt.refine_epsilon && size > boundSize(bound_level[static_cast<std::size_t>(b)]);
-            if (links_open[i] && (size <= linkSize(b) || !split_anyway)) {
-                results[i].link_variation = computeLinks(c, b);
-                results[i].links = true;
-            }
-        });
-        for (const LeafResult& r : results) link_evaluated += r.links ? 1 : 0;
-        std::vector<int> next, next_base, fresh;
-        std::vector<char> next_open;
-        std::vector<std::size_t> stays;  // elements that stay leaves with full estimates to finish
-        for (std::size_t i = 0; i < frontier.size(); ++i) {
-            const int c = frontier[i];
-            const Element& el = h[c];
-            const int b = base_of[i];
-            const double size = std::max(el.size_s, el.size_t_);
-            const bool link_level = links_open[i] && size <= linkSize(b);
-            // Split while the light may vary across the element by more than refine_epsilon (the
-            // blocked links only down to the link size), to the camera's resolution.
-            const double variation = results[i].variation + (links_open[i] && !link_level ? results[i].link_variation : 0.0);
-            const bool wants = !el.buried && variation > opt.refine_epsilon && size > boundSize(bound_level[static_cast<std::size_t>(b)]) &&
-                               h.leafCount() + 4 <= opt.max_leaves;
-            if (wants && h.subdivide(c, opt.min_size)) {
-                LeafTerms& t = terms[static_cast<std::size_t>(c)];
-                t.direct.setZero();
-                t.cluster.setZero();
-                if (!link_level) t.corrections.clear();
-                if (link_level) done.push_back(c);
-                const Element& parent = h[c];
-                for (int k = 0; k < parent.child_count; ++k) {
-                    next.push_back(parent.first_child + k);
-                    next_base.push_back(b);
-                    next_open.push_back(links_open[i] && !link_level ? 1 : 0);
-                }
-                continue;
-            }
-            done.push_back(c);
-            if (!results[i].deferred.empty()) stays.push_back(i);
-        }
-        tbb::parallel_for(std::size_t{0}, stays.size(), [&](std::size_t j) {
-            const std::size_t i = stays[j];
-            finishDeferred(frontier[i], base_of[i], results[i]);
-        });
-        if (next.empty()) break;
-        // The new children: state, exposure, pull weights, real columns, B~.
-        grow();
-        for (int c : next) {
-            rad.measureExposure(c);
-            if (!column_known[static_cast<std::size_t>(c)]) fresh.push_back(c);
-        }
-        for (int c : next) {
-            const int p = h[c].parent;
-            double total = 0.0;
-            for (int k = 0; k < h[p].child_count; ++k) {
-                const Element& ch = h[h[p].first_child + k];
-                if (!ch.buried) total += ch.area * rad.exposure(h[p].first_child + k);
-            }
-            up[static_cast<std::size_t>(c)] = total > 0.0 && !h[c].buried ? h[c].area * rad.exposure(c) / total : 0.0;
-        }
-        if (!fresh.empty()) {
-            for (const InfluenceLight& l : base.lights) computeDirect(rad, *l.source, fresh, base.direct, *l.column);
-            for (int c : fresh) column_known[static_cast<std::size_t>(c)] = 1;
-        }
-        for (std::size_t i = 0; i < next.size(); ++i) {
-            const int c = next[i];
-            const int b = next_base[i];
-            self.rho_[static_cast<std::size_t>(c)] = base.rho[static_cast<std::size_t>(b)];
-            probe_radiance[static_cast<std::size_t>(c)] = base.radiance[static_cast<std::size_t>(b)];
-            Eigen::Vector3d direct = Eigen::Vector3d::Zero();
-            for (const InfluenceLight& l : base.lights) direct += static_cast<double>(l.column->real[static_cast<std::size_t>(c)]) * l.emission;
-            self.tilde_[static_cast<std::size_t>(c)] =
-                h[c].buried ? Eigen::Vector3d(Eigen::Vector3d::Zero())
-                            : Eigen::Vector3d(base.emission[static_cast<std::size_t>(b)] +
-                                              base.rho[static_cast<std::size_t>(b)].cwiseProduct(direct + base.indirect[static_cast<std::size_t>(b)]) / kPi);
-        }
-        frontier = std::move(next);
-        base_of = std::move(next_base);
-        links_open = std::move(next_open);
-    }
-    // Step 3: the corrections' current sums, the leaves' values, pulled up to each base leaf.
-    for (int c : done) {
-        LeafTerms& t = terms[static_cast<std::size_t>(c)];
-        t.cl.setZero();
-        for (const Correction& k : t.corrections) {
-            const auto s = static_cast<std::size_t>(k.source);
-            t.cl += k.coef * (base.radiance[s] + self.d_[s] - U[s]);
-        }
-        has_terms[static_cast<std::size_t>(c)] = !t.corrections.empty() || !t.direct.isZero() || !t.cluster.isZero();
-    }
-    for (int c : done) {
-        if (h[c].child_count == 0) self.d_[static_cast<std::size_t>(c)] = h[c].buried ? Eigen::Vector3d::Zero() : value(c);
-    }
-    for (std::size_t i = 0; i < touched.size(); ++i) {
-        const int b = touched[i];
-        pullSubtree(b);
-        const Eigen::Vector3d delta = self.d_[static_cast<std::size_t>(b)] - old_d[i];
-        addUnshot(b, delta);
-        propagateUp(b, delta);
-    }
-    rebuildCorrectionIndex();
-}
-
-void VirtualInfluence::Impl::rebuildCorrectionIndex() {
-    const Hierarchy& h = self.radiosity_.hierarchy();
-    const std::size_t n = h.elements().size();
-    corr_offsets.assign(n + 1, 0);
-    corr_by_source.clear();
-    std::vector<std::pair<int, std::pair<int, int>>> all;  // source, (receiver, index)
-    for (std::size_t c = 0; c < n && c < has_terms.size(); ++c) {
-        if (!has_terms[c] || h[static_cast<int>(c)].retired) continue;
-        const auto& corr = terms[c].corrections;
-        for (std::size_t k = 0; k < corr.size(); ++k) all.push_back({corr[k].source, {static_cast<int>(c), static_cast<int>(k)}});
-    }
-    std::sort(all.begin(), all.end());
-    for (const auto& a : all) ++corr_offsets[static_cast<std::size_t>(a.first) + 1];
-    for (std::size_t i = 1; i <= n; ++i) corr_offsets[i] += corr_offsets[i - 1];
-    corr_by_source.reserve(all.size());
-    for (const auto& a : all) corr_by_source.push_back(a.second);
-}
-
 Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObject>& objects,
                                                 const std::optional<InfluenceViewer>& viewer) {
     Impl& d = *impl_;
@@ -1123,17 +811,33 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
                                             viewer->cam_from_world.rotation.angularDistance(d.viewer->cam_from_world.rotation) > 1e-6));
     d.viewer = viewer;
     std::vector<int> moved;
+    d.moved_balls.clear();
+    d.object_changed.assign(d.objects.size(), 0);
     for (std::size_t o = 0; o < d.objects.size() && o < objects.size(); ++o) {
         const ObjectState& s = d.objects[o];
         const InfluenceObject& in = objects[o];
         const bool present = in.present && in.world_from_object.isValid();
         Eigen::Vector3d emission = Eigen::Vector3d::Zero();
         if (in.emission) emission = *in.emission * d.base.radiance_scale;
-        const bool changed = !s.known || present != s.present ||
-                             (present && ((in.world_from_object.translation - s.pose.translation).norm() > 1e-9 ||
-                                          in.world_from_object.rotation.angularDistance(s.pose.rotation) > 1e-9)) ||
-                             in.emission.has_value() != s.emission_given || (in.emission && (emission - s.emission).norm() > 1e-12);
-        if (changed) moved.push_back(static_cast<int>(o));
+        const bool placed = !s.known || present != s.present ||
+                            (present && ((in.world_from_object.translation - s.pose.translation).norm() > 1e-9 ||
+                                         in.world_from_object.rotation.angularDistance(s.pose.rotation) > 1e-9));
+        const bool changed = placed || in.emission.has_value() != s.emission_given || (in.emission && (emission - s.emission).norm() > 1e-12);
+        if (!changed) continue;
+        moved.push_back(static_cast<int>(o));
+        d.object_changed[o] = 1;
+        // Where it blocked and where it will block: the shafts these meet are answered again (a
+        // short move: one ball holding both, one test per shaft instead of two).
+        if (!placed) continue;
+        const bool was = s.known && s.present;
+        const Ball now{in.world_from_object * s.centre_local, s.radius};
+        const double step = was && present ? (now.centre - s.ball.centre).norm() : 1e300;
+        if (step <= s.radius) {
+            d.moved_balls.push_back(Ball{0.5 * (now.centre + s.ball.centre), s.radius + 0.5 * step});
+            continue;
+        }
+        if (was) d.moved_balls.push_back(s.ball);
+        if (present) d.moved_balls.push_back(now);
     }
     stats_.moved = static_cast<int>(moved.size());
     // Step 2: the objects' old effects out, new positions in, candidates from the shaft index.
@@ -1181,6 +885,8 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
     stats_.touched = static_cast<int>(touched.size());
     stats_.evaluated = d.evaluated;
     stats_.link_evaluated = d.link_evaluated;
+    stats_.answers_computed = d.items_computed;
+    stats_.answers_kept = d.items_reused;
     const auto ts = std::chrono::steady_clock::now();
     d.propagate(stats_);
     stats_.ms_solve = msSince(ts);
@@ -1205,6 +911,9 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
     std::fill(d.V.begin(), d.V.end(), Eigen::Vector3d::Zero());
     std::fill(d.U.begin(), d.U.end(), Eigen::Vector3d::Zero());
     std::fill(d.has_terms.begin(), d.has_terms.end(), 0);
+    std::fill(d.answers.begin(), d.answers.end(), Answers{});
+    d.moved_balls.clear();
+    d.object_changed.assign(d.objects.size(), 1);
     for (auto& e : d.entries) e.clear();
     d.worklist.clear();
     std::fill(d.queued.begin(), d.queued.end(), 0);

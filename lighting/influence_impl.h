@@ -42,6 +42,43 @@ struct LeafTerms {
     }
 };
 
+// An element's answers of its last evaluation, item by item: what the virtual objects do to its
+// light from each selected light, each selected base link and each object's own light. An answer
+// depends on the objects only through the rays in its shaft (the segments between the element and
+// the light, the link's source or the object), so it stands while no object that moved had its old
+// or new bounds in that shaft: a move recomputes what it reaches, not every element it touches.
+struct LightAnswer {
+    int light = 0;
+    bool blocked = false;  // a significant object's bounds meet the shaft (the rays were traced)
+    bool mixed = false;    // the pilot found a penumbra
+    double pilot = 1.0;    // transmission, pilot estimate
+    double full = -1.0;    // the full estimate of a penumbra (once the element stays a leaf); < 0: not made
+};
+struct LinkAnswer {
+    int link = 0;
+    bool blocked = false;
+    bool mixed = false;
+    double transmission = 1.0;
+};
+struct ClusterAnswer {
+    int object = 0;
+    Eigen::Vector3d irradiance = Eigen::Vector3d::Zero();
+    double variation = 0.0;
+};
+// Sorted by their key (light, link, object): the selection's order.
+struct Answers {
+    bool valid = false;        // lights and clusters answered
+    bool links_valid = false;  // links answered (only elements that carry corrections)
+    std::vector<LightAnswer> lights;
+    std::vector<LinkAnswer> links;
+    std::vector<ClusterAnswer> clusters;
+};
+// The selected items (sorted) whose shaft at an element met a moved object's old or new bounds:
+// the only ones its children test again (a child's shaft lies in its parent's).
+struct Reach {
+    std::vector<int> lights, links, objects;
+};
+
 // Which visibility pairs the real scene blocks, kept per leaf and light (key -1 - k) or per leaf
 // and link source (key s): the real scene never changes, so a move costs virtual rays only.
 struct RealMask {
@@ -81,7 +118,8 @@ struct ObjectState {
     Ball ball;                      // world
     Eigen::Vector3d centre_local = Eigen::Vector3d::Zero();
     double radius = 0.0;            // of the bounding ball
-    bool sphere = false;            // an exact sphere (its cluster form factor is exact above the horizon)
+    bool sphere = false;            // an exact sphere (its form factor in closed form: pointToSphere())
+    double sphere_radius = 0.0;
     std::vector<int> faces;         // global face indices
     std::vector<int> touched;       // base leaves it affected last time (sorted)
     std::vector<int> cluster_leaves;  // base leaves whose own leaves link to it (sorted)
@@ -89,6 +127,7 @@ struct ObjectState {
     std::vector<Eigen::Vector3d> face_radiance;  // per face in `faces`
     std::vector<ElementShape> face_shape;         // per face, posed (world)
     std::vector<Eigen::Vector3d> face_normal;
+    std::vector<double> face_area;
     std::vector<Eigen::Vector3d> exitance;       // per table direction: radiance towards it
     std::vector<double> projected;               // per table direction: projected area, m^2
     double projected_max = 0.0;
@@ -99,6 +138,12 @@ struct ObjectState {
     bool cache_valid = false;
     Ball cache_ball;
     std::vector<std::pair<int, int>> cache_pairs;
+    // Per cache pair, its hull's face planes once found (at the first move that needs them).
+    std::vector<HullPlanes> cache_hulls;
+    std::vector<char> cache_hull_known;
+    // Per cache pair, the parts of its significance that do not depend on where the object is
+    // (share, solid angle; < 0: not found yet).
+    std::vector<std::array<double, 2>> cache_sig;
 };
 
 struct VirtualInfluence::Impl {
@@ -117,6 +162,7 @@ struct VirtualInfluence::Impl {
     std::vector<Eigen::Vector3d> G, V, U, pending;
     std::vector<char> queued, pending_flag, column_known;
     std::vector<LeafTerms> terms;
+    std::vector<Answers> answers;
     std::vector<char> has_terms;  // any element (active): direct or cluster (leaves), corrections (link level)
     std::vector<std::vector<RealMask>> masks;
     std::vector<Selection> selection;                      // base leaves
@@ -142,7 +188,23 @@ struct VirtualInfluence::Impl {
     std::vector<int> far_lights;  // directional lights and distant cells (not in the index)
 
     std::vector<ObjectState> objects;
+    // This update's moves: the old and new bounds of the objects whose pose or presence changed,
+    // and by object whether it changed at all (pose, presence or emission: its own light again).
+    std::vector<Ball> moved_balls;
+    std::vector<char> object_changed;
+    template <typename F>
+    bool reachedByMove(F meets) const {
+        for (const Ball& ball : moved_balls) {
+            if (meets(ball)) return true;
+        }
+        return false;
+    }
     std::vector<Eigen::Vector3d> table;  // directions of the objects' exitance tables
+    // The table direction nearest to each cell of a cube map (kLookup x kLookup per face): the
+    // exitance of a direction in O(1) instead of a scan of the table.
+    static constexpr int kLookup = 24;
+    std::vector<std::uint8_t> table_lookup;
+    int tableIndex(const Eigen::Vector3d& direction) const;
     std::optional<InfluenceViewer> viewer;
 
     std::vector<int> worklist, pending_list;
@@ -168,6 +230,8 @@ struct VirtualInfluence::Impl {
     bool linkMeetsBall(int element, int source, const Ball& ball) const;
     bool lightMeetsBall(int element, int light, const Ball& ball) const;
     bool farLightMeetsBall(int element, int light, const Ball& ball) const;
+    // lightMeetsBall() / linkMeetsBall() for pair i of an object's cache, the hull's planes found once.
+    bool cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball) const;
     double radiusOf(int element) const { return shape[static_cast<std::size_t>(element)].radius; }
     void candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links);
     void collectPairs(int object, const Ball& query, bool scan, std::vector<std::pair<int, int>>& pairs);
@@ -175,6 +239,9 @@ struct VirtualInfluence::Impl {
     double objectBlocks(int object, int element, double omega) const;  // fraction of a solid angle it can cover
     double lightSignificance(int b, int light, int object) const;
     double linkSignificance(int b, int link, int object) const;
+    // Their parts that do not depend on the object: significance = share x objectBlocks(omega).
+    void lightSignificanceParts(int b, int light, double& share, double& omega) const;
+    void linkSignificanceParts(int b, int link, double& share, double& omega) const;
     std::uint32_t objectMask(int b) const;  // objects significant at base leaf b (ray mask bits)
     void select(int b);
     struct LeafResult {
@@ -184,10 +251,15 @@ struct VirtualInfluence::Impl {
         // Lights whose pilot found a penumbra: their full estimate waits until the element is
         // known to stay a leaf (a split element's own terms are dropped). (light, pilot transmission)
         std::vector<std::pair<int, double>> deferred;
+        long computed = 0, reused = 0;  // answers
     };
     int evaluated = 0, link_evaluated = 0;  // in the last refine()
-    LeafResult computeTerms(int c, int b);  // direct light and the objects' light (clears every term)
-    double computeLinks(int c, int b);     // corrections; returns their variation
+    long items_computed = 0, items_reused = 0;
+    // Direct light and the objects' light (clears every term); `reach` in, `met` out (Reach).
+    // `links_open`: c may carry corrections (no element above it does).
+    LeafResult computeTerms(int c, int b, bool links_open, const Reach& reach, Reach& met);
+    // Corrections; returns their variation.
+    double computeLinks(int c, int b, const Reach& met, LeafResult& out);
     double linkSize(int b) const;  // elements of about this size carry the corrections
     // `full`: the full estimate where the pilot finds a penumbra; else the pilot's answer alone.
     double transmissionToLight(int c, int light, bool& mixed, std::uint32_t mask, bool full = true);

@@ -1,6 +1,7 @@
 #include "lighting/shaft_index.h"
 
 #include <embree3/rtcore.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
 #include <cmath>
@@ -74,6 +75,49 @@ bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Ve
     return true;
 }
 
+HullPlanes HullPlanes::of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b) {
+    HullPlanes out;
+    // The candidates hullMeetsBall() tries (each end's plane, every plane through an edge of one end
+    // and a vertex of the other); the face planes among them (every vertex on one side) are kept.
+    const auto consider = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
+        const double length2 = n.squaredNorm();
+        if (!(length2 > 1e-30) || out.count >= kMax) return;
+        n /= std::sqrt(length2);
+        double lo = 0.0, hi = 0.0;
+        for (const Eigen::Vector3d& x : a) {
+            const double s = (x - origin).dot(n);
+            lo = std::min(lo, s);
+            hi = std::max(hi, s);
+        }
+        for (const Eigen::Vector3d& x : b) {
+            const double s = (x - origin).dot(n);
+            lo = std::min(lo, s);
+            hi = std::max(hi, s);
+        }
+        const double tol = 1e-9 * std::max(1.0, hi - lo);
+        if (hi > tol && lo < -tol) return;  // not a face plane
+        if (hi > tol) n = -n;               // every vertex above: outward is -n
+        const double offset = n.dot(origin);
+        for (int i = 0; i < out.count; ++i) {
+            const auto& p = out.planes[static_cast<std::size_t>(i)];
+            if (std::abs(p[0] - n.x()) + std::abs(p[1] - n.y()) + std::abs(p[2] - n.z()) < 1e-6 && std::abs(p[3] - offset) < 1e-6) return;
+        }
+        out.planes[out.count++] = {static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z()), static_cast<float>(offset)};
+    };
+    for (int pass = 0; pass < 2; ++pass) {
+        const std::span<const Eigen::Vector3d> p = pass == 0 ? a : b, q = pass == 0 ? b : a;
+        const std::size_t n = p.size();
+        if (n >= 3) consider(p[0], (p[1] - p[0]).cross(p[2] - p[0]));
+        if (n < 2) continue;
+        for (std::size_t i = 0; i < (n == 2 ? 1 : n); ++i) {
+            const Eigen::Vector3d& e0 = p[i];
+            const Eigen::Vector3d& e1 = p[(i + 1) % n];
+            for (const Eigen::Vector3d& r : q) consider(e0, (e1 - e0).cross(r - e0));
+        }
+    }
+    return out;
+}
+
 namespace {
 
 // One node of the hierarchy, in memory of the BVH's allocator (freed with it). Inner nodes have
@@ -134,6 +178,7 @@ struct Errors {
 }  // namespace
 
 struct ShaftIndex::Impl {
+    std::vector<std::array<float, 6>> boxes;  // each shaft's box (lo, hi), rounded outwards
     Errors errors;
     RTCDevice device = nullptr;
     RTCBVH bvh = nullptr;
@@ -169,6 +214,7 @@ Result<std::unique_ptr<ShaftIndex>> ShaftIndex::build(std::vector<Shaft> shafts)
             p.upper_z = std::nextafter(static_cast<float>(hi.z()), std::numeric_limits<float>::infinity());
             p.geomID = 0;
             p.primID = static_cast<unsigned>(i);
+            impl->boxes.push_back({p.lower_x, p.lower_y, p.lower_z, p.upper_x, p.upper_y, p.upper_z});
         }
         // Step 2: Embree's SAH builder with our node layout (binary, up to 8 shafts per leaf).
         impl->bvh = rtcNewBVH(impl->device);
@@ -195,6 +241,41 @@ Result<std::unique_ptr<ShaftIndex>> ShaftIndex::build(std::vector<Shaft> shafts)
     return std::unique_ptr<ShaftIndex>(new ShaftIndex(std::move(impl), std::move(shafts)));
 }
 
+namespace {
+
+// The shafts under a node whose cone of balls meets the ball, in the hierarchy's order; the two
+// children of the top levels in parallel.
+void queryNode(const Node* n, const std::vector<Shaft>& shafts, const std::vector<std::array<float, 6>>& boxes, const Ball& ball,
+               const float (&lo)[3], const float (&hi)[3], std::vector<int>& out, int depth) {
+    if (n->leaf) {
+        for (std::uint32_t i = 0; i < n->count; ++i) {
+            const int id = static_cast<int>(n->ids[i]);
+            // The shaft's own box first (a leaf's box holds up to 8 of them).
+            const auto& b = boxes[static_cast<std::size_t>(id)];
+            if (b[0] > hi[0] || b[3] < lo[0] || b[1] > hi[1] || b[4] < lo[1] || b[2] > hi[2] || b[5] < lo[2]) continue;
+            if (shaftMeetsBall(shafts[static_cast<std::size_t>(id)], ball)) out.push_back(id);
+        }
+        return;
+    }
+    bool overlap[2] = {false, false};
+    for (int c = 0; c < 2; ++c) {
+        overlap[c] = n->child[c] && n->lo[c][0] <= hi[0] && n->hi[c][0] >= lo[0] && n->lo[c][1] <= hi[1] && n->hi[c][1] >= lo[1] &&
+                     n->lo[c][2] <= hi[2] && n->hi[c][2] >= lo[2];
+    }
+    if (overlap[0] && overlap[1] && depth < 6) {
+        std::vector<int> second;
+        tbb::parallel_invoke([&] { queryNode(n->child[0], shafts, boxes, ball, lo, hi, out, depth + 1); },
+                             [&] { queryNode(n->child[1], shafts, boxes, ball, lo, hi, second, depth + 1); });
+        out.insert(out.end(), second.begin(), second.end());
+        return;
+    }
+    for (int c = 0; c < 2; ++c) {
+        if (overlap[c]) queryNode(n->child[c], shafts, boxes, ball, lo, hi, out, depth + 1);
+    }
+}
+
+}  // namespace
+
 void ShaftIndex::query(const Ball& ball, std::vector<int>& out) const {
     const Node* root = impl_->root;
     if (!root) return;
@@ -202,25 +283,8 @@ void ShaftIndex::query(const Ball& ball, std::vector<int>& out) const {
                          static_cast<float>(ball.centre.z() - ball.radius)};
     const float hi[3] = {static_cast<float>(ball.centre.x() + ball.radius), static_cast<float>(ball.centre.y() + ball.radius),
                          static_cast<float>(ball.centre.z() + ball.radius)};
-    // Depth-first with an explicit stack; a child is visited when its box meets the ball's box.
-    std::vector<const Node*> stack{root};
-    while (!stack.empty()) {
-        const Node* n = stack.back();
-        stack.pop_back();
-        if (n->leaf) {
-            for (std::uint32_t i = 0; i < n->count; ++i) {
-                const int id = static_cast<int>(n->ids[i]);
-                if (shaftMeetsBall(shafts_[static_cast<std::size_t>(id)], ball)) out.push_back(id);
-            }
-            continue;
-        }
-        for (int c = 0; c < 2; ++c) {
-            if (!n->child[c]) continue;
-            const bool overlap = n->lo[c][0] <= hi[0] && n->hi[c][0] >= lo[0] && n->lo[c][1] <= hi[1] && n->hi[c][1] >= lo[1] &&
-                                 n->lo[c][2] <= hi[2] && n->hi[c][2] >= lo[2];
-            if (overlap) stack.push_back(n->child[c]);
-        }
-    }
+    // Depth first: a child is visited when its box meets the ball's box.
+    queryNode(root, shafts_, impl_->boxes, ball, lo, hi, out, 0);
 }
 
 }  // namespace commonlight::lighting

@@ -14,6 +14,7 @@
 // milliseconds for 300 000 shafts), queried on every move (microseconds per hit).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -51,6 +52,27 @@ bool shaftMeetsBall(const Shaft& shaft, const Ball& ball);
 // The index's cones are far looser for a large end (a ceiling panel seen from the floor): this is
 // the test that decides.
 bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b, const Ball& ball);
+
+// The face planes of the hull hullMeetsBall() tests, found once (a shaft tested against many
+// balls: an object's cached shafts, at every move). A ball misses the hull when it lies wholly
+// outside one of them: the same answer as hullMeetsBall() but for round-off (the planes are kept in
+// single precision and every ball is taken `kPlaneSlack` larger, so it stays conservative).
+struct HullPlanes {
+    static constexpr int kMax = 24;           // more face planes than this: the first kMax (a looser, still conservative test)
+    static constexpr double kPlaneSlack = 1e-5;  // metres
+    std::array<std::array<float, 4>, kMax> planes{};  // unit outward normal, offset: inside is n.x <= offset
+    std::uint8_t count = 0;
+    static HullPlanes of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b);
+    bool meets(const Ball& ball) const {
+        const float cx = static_cast<float>(ball.centre.x()), cy = static_cast<float>(ball.centre.y()), cz = static_cast<float>(ball.centre.z());
+        const float r = static_cast<float>(ball.radius + kPlaneSlack);
+        for (int i = 0; i < count; ++i) {
+            const auto& p = planes[static_cast<std::size_t>(i)];
+            if (p[0] * cx + p[1] * cy + p[2] * cz - p[3] > r) return false;
+        }
+        return true;
+    }
+};
 
 class ShaftIndex {
 public:

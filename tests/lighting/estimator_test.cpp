@@ -188,11 +188,12 @@ TEST(Estimator, NothingKnownEverySurfaceEmitsAndVirtualObjectsStillShadow) {
     ASSERT_NE(floor, nullptr);
     // The ball blocks only what the other surfaces send (their emission and interreflection):
     // the floor's own emission (its direct light from the real lamps, baked in) is not blocked,
-    // so the shadow is shallow (1.9% at its darkest here, visibility weighted by the kernel), but
-    // it is there: without the ball the ratio is 1 everywhere.
+    // so the shadow is shallow (1.0% at its darkest here, visibility weighted by the kernel; the
+    // ball's own light, by its exact form factor, fills part of it), but it is there: without the
+    // ball the ratio is 1 everywhere (within 1e-4).
     float darkest = 1.0f;
     for (const Rgb& r : floor->ratio) darkest = std::min(darkest, r.y());
-    EXPECT_LT(darkest, 0.99f);
+    EXPECT_LT(darkest, 0.995f);
     EXPECT_TRUE(std::any_of(run.snapshot.warnings.begin(), run.snapshot.warnings.end(),
                             [](const std::string& w) { return w.find("names no light") != std::string::npos; }));
 }

@@ -60,6 +60,38 @@ TEST(FormFactor, PointUnderDiscMatchesClosedForm) {
     }
 }
 
+// A point to a sphere, against the integral of cos(theta) / pi over the directions of the sphere's
+// cone above the point's horizon (a 400 x 400 midpoint rule in cos and azimuth): wholly above,
+// crossing the horizon at several heights and distances (touching included), wholly below.
+TEST(FormFactor, PointToSphereMatchesTheIntegralOverItsVisiblePart) {
+    const auto integral = [](double h, double phi) {
+        const double alpha = std::asin(1.0 / h);
+        const Vector3d axis(std::sin(phi), 0.0, std::cos(phi)), u(std::cos(phi), 0.0, -std::sin(phi)), v(0.0, 1.0, 0.0);
+        const int n = 400;
+        double sum = 0.0;
+        for (int i = 0; i < n; ++i) {
+            const double ca = 1.0 - (1.0 - std::cos(alpha)) * (i + 0.5) / n, sa = std::sqrt(1.0 - ca * ca);
+            for (int j = 0; j < n; ++j) {
+                const double p = 2.0 * std::numbers::pi * (j + 0.5) / n;
+                sum += std::max(0.0, (ca * axis + sa * (std::cos(p) * u + std::sin(p) * v)).z());
+            }
+        }
+        return sum * 2.0 * std::numbers::pi * (1.0 - std::cos(alpha)) / (n * n) / std::numbers::pi;
+    };
+    int crossing = 0;
+    for (double h : {1.0001, 1.05, 1.5, 3.0, 10.0}) {
+        for (double phi : {0.0, 0.3, 1.0, 1.4, 1.5707, 1.8, 2.2, 3.0}) {
+            const double f = pointToSphere(0.2 * h, 0.2, std::cos(phi));
+            EXPECT_NEAR(f, integral(h, phi), 2e-5 + 1e-4 * f) << "H " << h << " phi " << phi;
+            if (phi > std::acos(1.0 / h) && phi < std::numbers::pi / 2 + std::asin(1.0 / h)) ++crossing;
+        }
+    }
+    EXPECT_GT(crossing, 10);
+    EXPECT_DOUBLE_EQ(pointToSphere(1.0, 0.1, 1.0), 0.01);  // straight above: R^2 / d^2
+    EXPECT_EQ(pointToSphere(1.0, 0.1, -1.0), 0.0);
+    EXPECT_TRUE(std::isfinite(pointToSphere(0.05, 0.1, 0.0)));  // inside: on its surface
+}
+
 // Differential area parallel to a rectangle, under its corner (Howell's catalogue B-3):
 // F = 1/(2 pi) [ X/sqrt(1+X^2) atan(Y/sqrt(1+X^2)) + Y/sqrt(1+Y^2) atan(X/sqrt(1+Y^2)) ].
 TEST(FormFactor, PointUnderRectangleCornerMatchesHowell) {

@@ -424,5 +424,43 @@ TEST(Influence, ManyRandomMovesKeepTheElementCountBounded) {
     EXPECT_LE(inc->stats().influence.stored, stored_half * 5 / 4) << "retired elements are reused";
 }
 
+// The ball rolling across the table in 5 mm steps (the cube still): each move answers again only
+// what its old and new bounds reach (the elements' other answers stand), and the state equals a
+// fresh solve: rebuilt from nothing, and a full update of a second estimator (B~, the index and the
+// influence made again).
+TEST(Influence, SmallMovesKeepTheAnswersTheyDoNotReach) {
+    const Scene scene = parse(kScene);
+    auto inc = make(scene);
+    auto fresh = make(scene);
+    auto full = make(scene);
+    Config config = sceneConfig(scene);
+    config.poses[0].translation = Eigen::Vector3d(-0.25, -0.15, 0.56);
+    ASSERT_TRUE(apply(*inc, config));
+    long computed = 0, kept = 0;
+    for (int step = 1; step <= 8; ++step) {
+        config.poses[0].translation += Eigen::Vector3d(0.005, 0.002, 0.0);
+        ASSERT_TRUE(apply(*inc, config));
+        computed += inc->stats().influence.answers_computed;
+        kept += inc->stats().influence.answers_kept;
+        if (step % 4 != 0) continue;
+        expectEqualsFresh(*inc, *fresh, config, "step " + std::to_string(step));
+        full->requestFullUpdate();
+        ASSERT_TRUE(apply(*full, config));
+        ASSERT_TRUE(full->stats().full);
+        const std::map<Place, Eigen::Vector3d> a = differenceByPlace(*inc), b = differenceByPlace(*full);
+        ASSERT_EQ(a.size(), b.size()) << "step " << step << ": a full update has the same elements";
+        double worst = 0.0;
+        for (const auto& [place, d] : a) {
+            const auto it = b.find(place);
+            ASSERT_NE(it, b.end());
+            worst = std::max(worst, (d - it->second).cwiseAbs().maxCoeff());
+        }
+        EXPECT_LE(worst, 20.0 * inc->influence().options().residual * scaleOf(*inc)) << "step " << step << ": against a full update";
+    }
+    // Much of what a 5 mm move touches, it does not reach (the ball's own light at the elements
+    // near it is answered again at every move: it moved).
+    EXPECT_GT(2 * kept, computed) << computed << " answers computed, " << kept << " kept";
+}
+
 }  // namespace
 }  // namespace commonlight::lighting

@@ -84,6 +84,42 @@ TEST(ShaftIndex, ConeOfBallsHoldsTheHullOfTheTwoEnds) {
     }
 }
 
+// The hull's face planes found once answer as hullMeetsBall() does: on random pairs of squares
+// (and a square and a point) against random balls, the same answer wherever the ball is not within
+// the planes' slack of touching the hull; and never "misses" where hullMeetsBall() "meets".
+TEST(ShaftIndex, HullPlanesAnswerAsTheHullTest) {
+    std::mt19937 rng(31);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    int meets = 0, misses = 0;
+    for (int trial = 0; trial < 200; ++trial) {
+        const Eigen::Vector3d ca(u(rng), u(rng), u(rng)), cb(1.5 + u(rng), u(rng), 2 * u(rng));
+        const double ha = 0.05 + 0.3 * u(rng), hb = 0.01 + 0.3 * u(rng);
+        const Eigen::Vector3d ea = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fa = ea.unitOrthogonal();
+        const Eigen::Vector3d eb = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fb = eb.unitOrthogonal();
+        const std::vector<Eigen::Vector3d> pa{ca - ha * ea - ha * fa, ca + ha * ea - ha * fa, ca + ha * ea + ha * fa, ca - ha * ea + ha * fa};
+        const std::vector<Eigen::Vector3d> pb{cb - hb * eb - hb * fb, cb + hb * eb - hb * fb, cb + hb * eb + hb * fb, cb - hb * eb + hb * fb};
+        const std::vector<Eigen::Vector3d> apex{cb};
+        for (const auto& other : {pb, apex}) {
+            const HullPlanes planes = HullPlanes::of(pa, other);
+            ASSERT_GT(planes.count, 0);
+            for (int k = 0; k < 100; ++k) {
+                const Ball ball{Eigen::Vector3d(-0.5 + 3.5 * u(rng), -1.0 + 3.0 * u(rng), -1.0 + 4.0 * u(rng)), 0.2 * u(rng)};
+                const bool exact = hullMeetsBall(pa, other, ball);
+                EXPECT_TRUE(!exact || planes.meets(ball)) << trial << " " << k;  // conservative
+                // Away from the boundary (the ball grown or shrunk by 1 mm gives the same answer): equal.
+                const bool grown = hullMeetsBall(pa, other, Ball{ball.centre, ball.radius + 1e-3});
+                const bool shrunk = ball.radius > 1e-3 && hullMeetsBall(pa, other, Ball{ball.centre, ball.radius - 1e-3});
+                if (grown == exact && (ball.radius <= 1e-3 || shrunk == exact)) {
+                    EXPECT_EQ(planes.meets(ball), exact) << trial << " " << k;
+                }
+                (exact ? meets : misses) += 1;
+            }
+        }
+    }
+    EXPECT_GT(meets, 500);
+    EXPECT_GT(misses, 500);
+}
+
 TEST(Hierarchy, CollapseRetiresAndSubdivideBringsTheSameChildrenBack) {
     Face f;
     f.edge_s = Eigen::Vector3d(1, 0, 0);
