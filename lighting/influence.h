@@ -183,6 +183,8 @@ public:
     LeafInfo leafInfo(int leaf) const;
     // Each present virtual object's bounding ball, world.
     std::vector<Ball> objectBalls() const;
+    // The last update's moves: the old and new bounds of the objects whose pose or presence changed.
+    const std::vector<Ball>& movedBalls() const;
 
     struct Impl;
 
