@@ -51,6 +51,7 @@ struct BenchLightingOptions {
     int full_every = 20;        // a full re-solve beside the incremental update at every n-th step (0: none, not
                                 // even at the truth's steps: for profiling the incremental update alone)
     std::vector<std::string> incremental_scenes;  // of "desk", "room"; empty: both
+    bool direct_analysis = false;  // at the truth's steps: where the ratio's error is, and per-texel shadow rays for the direct term
     int stress_moves = 10000;   // random moves of the long check (desk); 0: none
     bool sweep = true;          // the refinement thresholds swept
 };

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstdio>
 #include <ctime>
+#include <array>
 #include <map>
 #include <numbers>
 #include <random>
@@ -181,6 +182,120 @@ RatioFigures ratioAgainst(const Estimator& est, const LightingSnapshot& snapshot
     return out;
 }
 
+// Where the ratio's error is (by face, by depth of shadow) and what per-texel shadow rays for the
+// direct light of the area lights would give instead of the elements' (Estimator::texelDirectRatio()),
+// accumulated over the truth's steps.
+struct DirectAnalysis {
+    struct Sum {
+        double sq = 0.0, sum = 0.0;
+        std::size_t n = 0;
+        void add(double e) {
+            sq += e * e;
+            sum += e;
+            ++n;
+        }
+        double rms() const { return n ? std::sqrt(sq / static_cast<double>(n)) : 0.0; }
+        double mean() const { return n ? sum / static_cast<double>(n) : 0.0; }
+    };
+    static constexpr int kPairs[] = {4, 16, 64, 256};
+    Sum element, leaf, texel[4];
+    double ms[4] = {0, 0, 0, 0};
+    long rays[4] = {0, 0, 0, 0};
+    std::map<std::string, std::array<Sum, 3>> by_face;  // element, leaf, texel at 256
+    std::array<std::array<Sum, 3>, 3> by_depth;          // reference ratio < 0.6, 0.6-0.95, >= 0.95; element, leaf, texel 256
+};
+
+Result<void> analyseDirect(const Estimator& est, const LightingSnapshot& snapshot, const Truth& t, const Setup& s, DirectAnalysis& a) {
+    CL_TRY(Image predicted, est.ratioImage(snapshot, s.world_from_cam.inverse()));
+    const int w = t.reference.cols, h = t.reference.rows;
+    std::vector<std::uint8_t> mask(static_cast<std::size_t>(w) * static_cast<std::size_t>(h), 0);
+    for (int y = 0; y < h; ++y) {
+        for (int x = 0; x < w; ++x) {
+            if (t.seq.changed[0].at<std::uint8_t>(y, x) < 128) continue;
+            if (!t.seq.virtual_coverage[0].empty() && t.seq.virtual_coverage[0].at<std::uint8_t>(y, x) > 0) continue;
+            if (!std::isfinite(t.reference.at<double>(y, x))) continue;
+            mask[static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x)] = 1;
+        }
+    }
+    std::vector<Estimator::TexelRatio> texel;
+    for (int k = 0; k < 4; ++k) {
+        CL_TRY(Estimator::TexelRatio r, est.texelDirectRatio(s.world_from_cam.inverse(), DirectAnalysis::kPairs[k], mask));
+        a.ms[k] += r.ms;
+        a.rays[k] += r.rays;
+        texel.push_back(std::move(r));
+    }
+    for (int y = 0; y < h; ++y) {
+        const auto* p = reinterpret_cast<const float*>(predicted.view().row(y));
+        for (int x = 0; x < w; ++x) {
+            const std::size_t i = static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x);
+            if (!mask[i] || !std::isfinite(p[3 * x + 1])) continue;
+            const float leaf = texel[0].leaf[i];
+            bool all = std::isfinite(leaf);
+            for (const auto& r : texel) all = all && std::isfinite(r.texel[i]);
+            if (!all) continue;
+            const double ref = t.reference.at<double>(y, x);
+            const double e_el = luma(Eigen::Vector3d(p[3 * x], p[3 * x + 1], p[3 * x + 2])) - ref, e_leaf = leaf - ref;
+            const double e_tex = texel[3].texel[i] - ref;
+            a.element.add(e_el);
+            a.leaf.add(e_leaf);
+            for (int k = 0; k < 4; ++k) a.texel[k].add(texel[static_cast<std::size_t>(k)].texel[i] - ref);
+            const int fi = texel[0].face[i];
+            std::string name = "?";
+            if (fi >= 0) {
+                const lighting::Face& f = est.radiosity().face(fi);
+                name = (f.object_index >= 0 && static_cast<std::size_t>(f.object_index) < s.truth.real_objects.size()
+                            ? s.truth.real_objects[static_cast<std::size_t>(f.object_index)].name
+                            : std::string("object ") + std::to_string(f.object_index)) +
+                       " face " + std::to_string(f.face_index);
+            }
+            auto& face = a.by_face[name];
+            face[0].add(e_el);
+            face[1].add(e_leaf);
+            face[2].add(e_tex);
+            const int depth = ref < 0.6 ? 0 : ref < 0.95 ? 1 : 2;
+            a.by_depth[static_cast<std::size_t>(depth)][0].add(e_el);
+            a.by_depth[static_cast<std::size_t>(depth)][1].add(e_leaf);
+            a.by_depth[static_cast<std::size_t>(depth)][2].add(e_tex);
+        }
+    }
+    return {};
+}
+
+nlohmann::json reportDirect(const DirectAnalysis& a) {
+    std::printf("        where the ratio's error is (the same pixels for every column: RMS / mean signed, pixels):\n");
+    std::printf("          element textures %.4f / %+.4f; the leaves' values unfiltered %.4f / %+.4f (%zu pixels)\n", a.element.rms(), a.element.mean(),
+                a.leaf.rms(), a.leaf.mean(), a.element.n);
+    nlohmann::json texel = nlohmann::json::array();
+    for (int k = 0; k < 4; ++k) {
+        std::printf("          direct light by per-texel shadow rays, %3d pairs per light: %.4f / %+.4f (%.1f ms, %.2f M rays over the steps)\n",
+                    DirectAnalysis::kPairs[k], a.texel[k].rms(), a.texel[k].mean(), a.ms[k], static_cast<double>(a.rays[k]) * 1e-6);
+        texel.push_back({{"pairs", DirectAnalysis::kPairs[k]}, {"rms", a.texel[k].rms()}, {"mean", a.texel[k].mean()}, {"ms", a.ms[k]}, {"rays", a.rays[k]}});
+    }
+    const char* depth[] = {"reference ratio < 0.6", "0.6 - 0.95", ">= 0.95"};
+    nlohmann::json depths = nlohmann::json::array();
+    for (int d = 0; d < 3; ++d) {
+        const auto& x = a.by_depth[static_cast<std::size_t>(d)];
+        std::printf("          %-22s %6zu px: element %.4f / %+.4f, leaves %.4f, texel (256) %.4f / %+.4f\n", depth[d], x[0].n, x[0].rms(), x[0].mean(),
+                    x[1].rms(), x[2].rms(), x[2].mean());
+        depths.push_back({{"range", depth[d]}, {"pixels", x[0].n}, {"element_rms", x[0].rms()}, {"element_mean", x[0].mean()}, {"leaf_rms", x[1].rms()},
+                          {"texel256_rms", x[2].rms()}, {"texel256_mean", x[2].mean()}});
+    }
+    // Faces by their share of the squared error.
+    std::vector<std::pair<double, std::string>> faces;
+    for (const auto& [name, x] : a.by_face) faces.emplace_back(x[0].sq, name);
+    std::sort(faces.rbegin(), faces.rend());
+    nlohmann::json by_face = nlohmann::json::array();
+    for (std::size_t k = 0; k < faces.size() && k < 8; ++k) {
+        const auto& x = a.by_face.at(faces[k].second);
+        std::printf("          %-24s %6zu px, %4.1f%% of the squared error: element %.4f / %+.4f, leaves %.4f, texel (256) %.4f / %+.4f\n",
+                    faces[k].second.c_str(), x[0].n, 100.0 * x[0].sq / std::max(1e-300, a.element.sq), x[0].rms(), x[0].mean(), x[1].rms(), x[2].rms(),
+                    x[2].mean());
+        by_face.push_back({{"face", faces[k].second}, {"pixels", x[0].n}, {"element_rms", x[0].rms()}, {"element_mean", x[0].mean()},
+                           {"leaf_rms", x[1].rms()}, {"texel256_rms", x[2].rms()}});
+    }
+    return {{"element_rms", a.element.rms()}, {"leaf_rms", a.leaf.rms()}, {"texel", texel}, {"by_depth", depths}, {"by_face", by_face}};
+}
+
 // Largest |D_a - D_b| between two estimators' leaves at the same places (their elements may have
 // been made in different orders), over the largest B~.
 double differenceBetween(const Estimator& a, const Estimator& b) {
@@ -245,6 +360,7 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
     Series ser;
     ser.scene = ps.name;
     std::vector<RatioFigures> inc_ratio, full_ratio;
+    DirectAnalysis direct;
     int most_leaves = 0;
     for (int k = 1; k <= n; ++k) {
         const int step = k % n;  // back to the start: the loop closes
@@ -270,6 +386,7 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
         most_leaves = std::max(most_leaves, is.leaves);
         const bool checkpoint = std::find(truth_steps.begin(), truth_steps.end(), step) != truth_steps.end();
         if (checkpoint) inc_ratio.push_back(ratioAgainst(*inc, snapshot, truth.at(step), s.world_from_cam));
+        if (checkpoint && o.direct_analysis) CL_TRY_VOID(analyseDirect(*inc, snapshot, truth.at(step), s, direct));
         if (o.full_every > 0 && (checkpoint || k % o.full_every == 0)) {
             // The full re-solve: B~, the index and the influence from nothing, every texture.
             full->requestFullUpdate();
@@ -327,6 +444,8 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
                 agreement.empty() ? 0.0 : *std::max_element(agreement.begin(), agreement.end()));
     std::printf("        ratio B/B~ over masks/changed, %zu steps: incremental RMS %.4f mean %+.4f (against the frames %.4f); full re-solve RMS %.4f\n",
                 inc_ratio.size(), inc_rms, mean_signed(inc_ratio), inc_frame_rms, full_rms);
+    nlohmann::json direct_json;
+    if (o.direct_analysis) direct_json = reportDirect(direct);
     sweep.push_back({ps.name, inc->influence().options().refine_epsilon, inc->influence().options().footprint_pixels,
                      inc->influence().options().link_size, percentile(update_ms, 50), percentile(update_ms, 95), inc_rms, most_leaves, false});
     sweep.push_back({ps.name, 0.0, 0.0, 0.0, percentile(full_ms, 50), percentile(full_ms, 95), full_rms, most_leaves, true});
@@ -356,6 +475,7 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
                        {"ratio_rms_against_frames", inc_frame_rms},
                        {"full_ratio_rms", full_rms},
                        {"truth_steps", truth_steps}};
+    if (o.direct_analysis) out["direct_analysis"] = direct_json;
     // Step 3: the thresholds swept (a fifth of the path's steps, the checkpoints among them).
     if (o.sweep) {
         nlohmann::json rows = nlohmann::json::array();

@@ -77,6 +77,9 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
                          "Incremental case: a full re-solve beside the update every N steps and at the truth's steps (0: none, for profiling)")
         ->check(CLI::Range(0, 100000))
         ->capture_default_str();
+    lighting->add_flag("--direct-analysis", lighting_options->direct_analysis,
+                       "Incremental case: at the truth's steps, the ratio's error by face and by depth of shadow, and the direct "
+                       "light by per-texel shadow rays against the elements'");
     lighting->add_option("--scenes", lighting_options->incremental_scenes, "Incremental case: the scenes (default: desk and room)")
         ->check(CLI::IsMember({"desk", "room"}))
         ->delimiter(',');

@@ -6,6 +6,7 @@
 #endif
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -21,6 +22,7 @@
 #include "lighting/influence.h"
 #include "lighting/sampling.h"
 #include "lighting/snapshot_builder.h"
+#include "lighting/texel_direct.h"
 
 namespace commonlight::lighting {
 
@@ -111,6 +113,7 @@ struct Estimator::Impl {
     bool direction_fitted = false;                        // a distant light's direction was (re)fitted this full update
     LightingSnapshot last;                                // the last full update's snapshot (lights, warnings)
     std::vector<std::optional<FaceModulation>> face_cache;  // by real face
+    std::unique_ptr<TexelDirectCache> texels;             // the area lights' direct light per texel (null: off)
     std::vector<ProbeLight> probe_lights;
     std::vector<Eigen::Vector3d> solve_emission;          // Le per element of the last full update
 };
@@ -263,6 +266,102 @@ Result<void> Estimator::observe(const ImageView& rgb8, const Rigid3d& cam_from_w
     (void)frame;
     last_observe_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     return {};
+}
+
+Result<Estimator::TexelRatio> Estimator::texelDirectRatio(const Rigid3d& cam_from_world, int pairs, const std::vector<std::uint8_t>& mask) const {
+    const Impl& d = *impl_;
+    if (!cam_from_world.isValid()) return fail(ErrorCode::kBadInput, "lighting: the camera pose is not finite");
+    const CameraModel& cam = d.camera;
+    const std::size_t pixels = static_cast<std::size_t>(cam.width) * static_cast<std::size_t>(cam.height);
+    if (!mask.empty() && mask.size() != pixels) return fail(ErrorCode::kUsage, "texelDirectRatio: the mask is not width x height");
+    pairs = std::clamp(pairs, 1, 4096);
+    TexelRatio out;
+    out.texel.assign(pixels, std::nanf(""));
+    out.leaf.assign(pixels, std::nanf(""));
+    out.face.assign(pixels, -1);
+    const Radiosity& rad = *radiosity_;
+    const Hierarchy& h = rad.hierarchy();
+    const VirtualInfluence& inf = *d.influence;
+    const Rigid3d world_from_cam = cam_from_world.inverse();
+    const Eigen::Matrix3d rotation = world_from_cam.rotationMatrix();
+    constexpr double kPi = std::numbers::pi;
+    const auto luma = [](const Eigen::Vector3d& v) { return 0.2126 * v.x() + 0.7152 * v.y() + 0.0722 * v.z(); };
+    std::atomic<long> rays{0};
+    const auto t0 = std::chrono::steady_clock::now();
+    tbb::parallel_for(0, cam.height, [&](int y) {
+        for (int x = 0; x < cam.width; ++x) {
+            const std::size_t i = static_cast<std::size_t>(y) * static_cast<std::size_t>(cam.width) + static_cast<std::size_t>(x);
+            if (!mask.empty() && !mask[i]) continue;
+            const auto ray = cam.unproject(Eigen::Vector2d(x, y));
+            if (!ray) continue;
+            const Eigen::Vector3d dir = rotation * ray->normalized();
+            const RayHit hit = rays_->intersectAll(world_from_cam.translation, dir);
+            if (hit.kind != HitKind::kRealFace) continue;
+            const Face& f = d.real_faces[static_cast<std::size_t>(hit.index)];
+            const Eigen::Vector3d p = world_from_cam.translation + hit.distance * dir;
+            Eigen::Matrix<double, 3, 2> b;
+            b.col(0) = f.edge_s;
+            b.col(1) = f.edge_t;
+            const Eigen::Vector2d st = (b.transpose() * b).inverse() * (b.transpose() * (p - f.origin));
+            const int leaf = h.leafAt(hit.index, st);
+            if (leaf < 0 || h[leaf].buried) continue;
+            int base = leaf;
+            while (inf.refinedElement(base)) base = h[base].parent;
+            const auto li = static_cast<std::size_t>(leaf);
+            const Eigen::Vector3d rho = inf.reflectance()[li];
+            const Eigen::Vector3d ind0 = static_cast<std::size_t>(base) < without_.indirect.size() ? without_.indirect[static_cast<std::size_t>(base)]
+                                                                                                   : Eigen::Vector3d::Zero();
+            const VirtualInfluence::LeafInfo info = inf.leafInfo(leaf);
+            Eigen::Vector3d d_ind = Eigen::Vector3d::Zero();  // the change of the indirect light (and the objects' own light)
+            for (int c = 0; c < 3; ++c) {
+                if (rho[c] > 1e-6) d_ind[c] = kPi * inf.difference()[li][c] / rho[c] - info.direct[c];
+            }
+            // Direct light: at the pixel for area lights, the leaf's column for the others.
+            Eigen::Vector3d d0 = Eigen::Vector3d::Zero(), dw = Eigen::Vector3d::Zero(), leaf_direct = Eigen::Vector3d::Zero();
+            long local_rays = 0;
+            for (std::size_t k = 0; k < d.sources.size() && k < d.probe_lights.size(); ++k) {
+                const DirectSource& s = d.sources[k].direct;
+                const Eigen::Vector3d& e = d.probe_lights[k].emission;
+                const double col = li < d.sources[k].column.real.size() ? d.sources[k].column.real[li] : 0.0;
+                leaf_direct += col * e;
+                if (s.kind != DirectSource::Kind::kPolygon) {
+                    d0 += col * e;
+                    dw += col * e;
+                    continue;
+                }
+                const LightGeometry& light = *s.polygon;
+                const double form = pointToPolygon(p, f.normal, light.polygon, light.normal);
+                if (!(form > 0.0)) continue;
+                double all = 0.0, open_real = 0.0, open_both = 0.0;
+                const std::uint64_t seed = hashCombine(hashCombine(0x7e8e1ull, i), k);
+                for (int j = 0; j < pairs; ++j) {
+                    const Eigen::Vector3d q = sampleLight(light, stratified2d(seed, j, pairs));
+                    const Eigen::Vector3d dv = q - p;
+                    const double d2 = dv.squaredNorm();
+                    const double w = std::max(0.0, f.normal.dot(dv)) * std::max(0.0, -light.normal.dot(dv)) / (d2 * d2);
+                    if (!(w > 0.0)) continue;
+                    all += w;
+                    ++local_rays;
+                    if (rays_->occludedReal(p, f.normal, q, light.normal)) continue;
+                    open_real += w;
+                    ++local_rays;
+                    if (!rays_->occludedVirtual(p, f.normal, q, light.normal)) open_both += w;
+                }
+                if (!(all > 0.0)) continue;
+                d0 += kPi * form * (open_real / all) * e;
+                dw += kPi * form * (open_both / all) * e;
+            }
+            rays += local_rays;
+            const Eigen::Vector3d b0 = rho.cwiseProduct(d0 + ind0) / kPi, bw = rho.cwiseProduct(dw + ind0 + d_ind) / kPi;
+            const Eigen::Vector3d l0 = rho.cwiseProduct(leaf_direct + ind0) / kPi, lw = rho.cwiseProduct(leaf_direct + info.direct + ind0 + d_ind) / kPi;
+            out.face[i] = hit.index;
+            if (luma(b0) > 0.0) out.texel[i] = static_cast<float>(luma(bw) / luma(b0));
+            if (luma(l0) > 0.0) out.leaf[i] = static_cast<float>(luma(lw) / luma(l0));
+        }
+    });
+    out.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    out.rays = rays.load();
+    return out;
 }
 
 Result<Image> Estimator::ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride) const {
@@ -1081,13 +1180,56 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     // Textures: every face after a full update, then the faces the influence changed.
     const std::size_t faces = rad.realFaceCount();
     std::vector<int> todo;
-    if (d.face_cache.size() != faces) {
+    const bool all_faces = d.face_cache.size() != faces;
+    if (all_faces) {
         d.face_cache.assign(faces, std::nullopt);
         for (std::size_t f = 0; f < faces; ++f) todo.push_back(static_cast<int>(f));
     } else {
         todo = inf.changedFaces();
     }
-    std::vector<std::optional<FaceModulation>> built = buildFaceModulations(rad, d.scene, inf.original(), inf.radiance(), inf.reflectance(), todo);
+    // The area lights' direct light per texel where the objects change it (lighting/texel_direct.h;
+    // only when every light is an area light: the others' direct light stays the elements').
+    std::optional<TexelDirect> texel_direct;
+    std::vector<Eigen::Vector3d> area_without, area_with;
+    const bool area_only = !d.sources.empty() && std::all_of(d.sources.begin(), d.sources.end(), [](const Source& s) {
+        return s.direct.kind == DirectSource::Kind::kPolygon && s.direct.polygon != nullptr;
+    });
+    if (options_.texel_direct_pairs > 0 && area_only && d.probe_lights.size() == d.sources.size()) {
+        if (all_faces || !d.texels) {
+            std::vector<TexelDirectCache::Light> lights;
+            for (std::size_t k = 0; k < d.sources.size(); ++k) lights.push_back({d.sources[k].direct.polygon, d.probe_lights[k].emission});
+            d.texels = std::make_unique<TexelDirectCache>(*rays_, options_.texel_direct_pairs);
+            d.texels->reset(std::move(lights), faces);
+        } else {
+            d.texels->forget(inf.movedBalls());
+        }
+        const std::size_t n = rad.hierarchy().elements().size();
+        area_without.assign(n, Eigen::Vector3d::Zero());
+        area_with.assign(n, Eigen::Vector3d::Zero());
+        double largest = 0.0;
+        for (std::size_t e = 0; e < n; ++e) {
+            for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                const auto& col = d.sources[k].column.real;
+                if (e < col.size()) area_without[e] += static_cast<double>(col[e]) * d.probe_lights[k].emission;
+            }
+            area_with[e] = area_without[e] + inf.leafInfo(static_cast<int>(e)).direct;
+            largest = std::max(largest, area_without[e].maxCoeff());
+        }
+        TexelDirect td;
+        td.without = &area_without;
+        td.with = &area_with;
+        td.threshold = 1e-3 * largest;
+        td.oversample = options_.texel_direct_oversample;
+        TexelDirectCache* cache = d.texels.get();
+        td.at = [cache, &rad](int face, std::size_t texel, int w, int h, const Eigen::Vector3d& x, Eigen::Vector3d& d0, Eigen::Vector3d& d1) {
+            cache->at(face, texel, w, h, x, rad.face(face).normal, d0, d1);
+        };
+        texel_direct = std::move(td);
+    } else {
+        d.texels.reset();
+    }
+    std::vector<std::optional<FaceModulation>> built = buildFaceModulations(rad, d.scene, inf.original(), inf.radiance(), inf.reflectance(), todo,
+                                                                            256, texel_direct ? &*texel_direct : nullptr);
     for (std::size_t i = 0; i < todo.size(); ++i) d.face_cache[static_cast<std::size_t>(todo[i])] = std::move(built[i]);
     snapshot.faces.reserve(faces);
     for (const auto& f : d.face_cache) {

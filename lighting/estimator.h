@@ -45,6 +45,11 @@ struct EstimatorOptions {
     bool refine_unobserved = false;     // ... also where no frame has looked (benchmarks of the solver)
     bool refine_by_observation = true;  // split observed leaves whose radiance varies
     double mean_albedo_prior = 0.5;     // scale of reflectances when nothing of known albedo is seen
+    // The area lights' direct light per texel where the virtual objects change it, from this many
+    // visibility pairs per texel and light (lighting/texel_direct.h); 0: the elements' (box-filtered).
+    int texel_direct_pairs = 16;
+    int texel_direct_oversample = 1;  // texels per finest leaf along a side on those faces (2: the desk's ratio
+                                      // RMS 0.0328 -> 0.0300, twice the update's CPU time)
 };
 
 // One light's estimate, in relative units (multiply by 1 / radiance_scale for scene units).
@@ -130,6 +135,23 @@ public:
     // it sees, sampled bilinearly from the snapshot's face textures (kRgbF32; NaN where the pixel
     // sees no real proxy or sees a virtual object). Every `stride`-th pixel (the others NaN).
     Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const override;
+
+    // Analysis for the benchmark (issue 12: per-texel shadow rays against element links for the
+    // direct term). For the pixels of a camera view with `mask` set (width x height, row-major;
+    // empty: all) that see a real surface: the ratio B/B~ (luminance) with the direct light of area
+    // lights computed at the pixel's own surface point (`pairs` visibility pairs per light, kernel-
+    // weighted as the elements' are: real and virtual occluders) and the indirect light and the
+    // other lights' direct light from the pixel's leaf (B~'s gathered irradiance, the influence's
+    // change of it); beside it the same formula with the leaf's own direct light (what the
+    // elements predict before the textures' filtering), the real face index (-1: none), and the
+    // time and the visibility rays the per-texel direct light took.
+    struct TexelRatio {
+        std::vector<float> texel, leaf;  // NaN where not computed
+        std::vector<int> face;
+        double ms = 0.0;
+        long rays = 0;
+    };
+    Result<TexelRatio> texelDirectRatio(const Rigid3d& cam_from_world, int pairs, const std::vector<std::uint8_t>& mask) const;
 
     // The unit-emission direct column of a scene light (area, disc, point, directional), for tests.
     const DirectColumn* column(int light) const;

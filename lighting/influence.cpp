@@ -64,6 +64,8 @@ std::vector<Ball> VirtualInfluence::objectBalls() const {
     return out;
 }
 
+const std::vector<Ball>& VirtualInfluence::movedBalls() const { return impl_->moved_balls; }
+
 void VirtualInfluence::collapseAll() {
     Impl& d = *impl_;
     Hierarchy& h = radiosity_.hierarchy();

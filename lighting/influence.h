@@ -21,8 +21,10 @@
 //
 // Incremental update (seed 000 sec. 4.4): a moved object's old and new bounding balls are looked
 // up in a shaft index (lighting/shaft_index.h) over the base links and the light shafts of the base
-// leaves; only the base leaves whose shafts meet them are recomputed (their transmissions, their
-// corrections, their refinement), the object's cluster links are rebuilt, and the change is
+// leaves; only the base leaves whose shafts meet them are walked again, and in them only the answers
+// (a light's transmission, a blocked link's, an object's own light, at an element) whose shaft met
+// the moved objects' old or new bounds are computed again (the others give what they gave); the
+// refinement follows from the answers, the object's cluster links are rebuilt, and the change is
 // propagated from there by shooting (Southwell): unshot differences above the residual bound go
 // through the links that leave their element, to the receivers and down to their leaves, until
 // none is left. A fresh solve is the same computation with every object new and D = 0, and
@@ -183,6 +185,8 @@ public:
     LeafInfo leafInfo(int leaf) const;
     // Each present virtual object's bounding ball, world.
     std::vector<Ball> objectBalls() const;
+    // The last update's moves: the old and new bounds of the objects whose pose or presence changed.
+    const std::vector<Ball>& movedBalls() const;
 
     struct Impl;
 

@@ -55,7 +55,7 @@ Eigen::Vector2d faceCoordinates(const Face& f, const Eigen::Vector3d& p) {
 
 std::optional<FaceModulation> buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f,
                                                   const std::vector<Eigen::Vector3d>& without, const std::vector<Eigen::Vector3d>& with,
-                                                  const std::vector<Eigen::Vector3d>& rho, int max_texels) {
+                                                  const std::vector<Eigen::Vector3d>& rho, int max_texels, const TexelDirect* texel_direct) {
     const Hierarchy& h = radiosity.hierarchy();
     const Face& face = radiosity.face(f);
     std::vector<int> leaves;
@@ -77,8 +77,10 @@ std::optional<FaceModulation> buildFaceModulation(const Radiosity& radiosity, co
     m.face = face.face_index;
     m.corners = face.corners();
     m.normal = face.normal;
-    m.width = std::clamp(static_cast<int>(std::ceil(face.lengthS() / finest)), 2, max_texels);
-    m.height = std::clamp(static_cast<int>(std::ceil(face.lengthT() / finest)), 2, max_texels);
+    // (Texels of per-texel direct light: `oversample` per finest leaf along each side.)
+    const double texel_size = finest / (texel_direct && !face.triangle ? std::max(1, texel_direct->oversample) : 1);
+    m.width = std::clamp(static_cast<int>(std::ceil(face.lengthS() / texel_size)), 2, max_texels);
+    m.height = std::clamp(static_cast<int>(std::ceil(face.lengthT() / texel_size)), 2, max_texels);
     m.mean_original = area > 0.0 ? static_cast<float>(lum / area) : 0.0f;
     const std::size_t texels = static_cast<std::size_t>(m.width) * static_cast<std::size_t>(m.height);
     m.ratio.resize(texels);
@@ -135,9 +137,21 @@ std::optional<FaceModulation> buildFaceModulation(const Radiosity& radiosity, co
         for (int i = 0; i < m.width; ++i) {
             const double s = (i + 0.5) / m.width, t = (j + 0.5) / m.height;
             const std::size_t k = m.texel(i, j);
-            const Eigen::Vector3d b0 = filtered(s, t, [&](int l) { return without[static_cast<std::size_t>(l)]; });
-            const Eigen::Vector3d b1 = filtered(s, t, [&](int l) { return with[static_cast<std::size_t>(l)]; });
+            Eigen::Vector3d b0 = filtered(s, t, [&](int l) { return without[static_cast<std::size_t>(l)]; });
+            Eigen::Vector3d b1 = filtered(s, t, [&](int l) { return with[static_cast<std::size_t>(l)]; });
             const Eigen::Vector3d r = filtered(s, t, [&](int l) { return rho[static_cast<std::size_t>(l)]; });
+            if (texel_direct && !face.triangle) {
+                // The area lights' direct light at the texel's point instead of the elements' where
+                // the objects change it.
+                const Eigen::Vector3d e0 = filtered(s, t, [&](int l) { return (*texel_direct->without)[static_cast<std::size_t>(l)]; });
+                const Eigen::Vector3d e1 = filtered(s, t, [&](int l) { return (*texel_direct->with)[static_cast<std::size_t>(l)]; });
+                if ((e1 - e0).cwiseAbs().maxCoeff() > texel_direct->threshold) {
+                    Eigen::Vector3d d0 = Eigen::Vector3d::Zero(), d1 = Eigen::Vector3d::Zero();
+                    texel_direct->at(f, k, m.width, m.height, face.origin + s * face.edge_s + t * face.edge_t, d0, d1);
+                    b0 += r.cwiseProduct(d0 - e0) / kPi;
+                    b1 += r.cwiseProduct(d1 - e1) / kPi;
+                }
+            }
             Rgb ratio;
             for (int c = 0; c < 3; ++c) {
                 // Hard case: B~ near zero (an unlit corner): the ratio is capped and the
@@ -166,9 +180,9 @@ std::vector<std::optional<FaceModulation>> buildFaceModulations(const Radiosity&
                                                                 const std::vector<Eigen::Vector3d>& without,
                                                                 const std::vector<Eigen::Vector3d>& with,
                                                                 const std::vector<Eigen::Vector3d>& rho, const std::vector<int>& faces,
-                                                                int max_texels) {
+                                                                int max_texels, const TexelDirect* texel_direct) {
     std::vector<std::optional<FaceModulation>> out(faces.size());
-    for (std::size_t i = 0; i < faces.size(); ++i) out[i] = buildFaceModulation(radiosity, scene, faces[i], without, with, rho, max_texels);
+    for (std::size_t i = 0; i < faces.size(); ++i) out[i] = buildFaceModulation(radiosity, scene, faces[i], without, with, rho, max_texels, texel_direct);
     return out;
 }
 

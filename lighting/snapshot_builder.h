@@ -2,6 +2,7 @@
 // modulation textures, per virtual object the irradiance probes.
 #pragma once
 
+#include <functional>
 #include <optional>
 #include <vector>
 
@@ -18,11 +19,25 @@ namespace commonlight::lighting {
 // `with` is B, `rho` the reflectance, all by element. Texels are as fine as the face's finest leaf
 // (at most `max_texels` per side); values are box-filtered over the local leaf size, which
 // interpolates linearly between element centres (smooth across element borders).
+//
+// `texel_direct` (optional): the direct light of the area lights per texel where the virtual
+// objects change it (issue 12: per-texel shadow rays measured better than the elements' for the
+// direct term, docs/lighting.md). By element, that direct light without and with the objects
+// (irradiance); at a texel where they differ (box-filtered), the filtered one is swapped for what
+// `at` gives at the texel's point: its direct light without and with the objects.
+struct TexelDirect {
+    const std::vector<Eigen::Vector3d>* without = nullptr;
+    const std::vector<Eigen::Vector3d>* with = nullptr;
+    // (face, texel, layout width x height, point) -> direct without, direct with. Called in parallel.
+    std::function<void(int, std::size_t, int, int, const Eigen::Vector3d&, Eigen::Vector3d&, Eigen::Vector3d&)> at;
+    double threshold = 0.0;  // |with - without| (irradiance, largest channel) below this: no change
+    int oversample = 1;      // texels per finest leaf along each side (the faces of a parallelogram)
+};
 std::vector<std::optional<FaceModulation>> buildFaceModulations(const Radiosity& radiosity, const Scene& scene,
                                                                 const std::vector<Eigen::Vector3d>& without,
                                                                 const std::vector<Eigen::Vector3d>& with,
                                                                 const std::vector<Eigen::Vector3d>& rho, const std::vector<int>& faces,
-                                                                int max_texels = 256);
+                                                                int max_texels = 256, const TexelDirect* texel_direct = nullptr);
 
 // A light as the probes see it: its unit-emission source and its emission (relative units, RGB).
 // `indirect`: counted in the probes' indirect part (an unknown environment's residual, which the

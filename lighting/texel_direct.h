@@ -1,0 +1,64 @@
+// The direct light of the area lights per texel of the modulation textures, where the virtual
+// objects change it (issue 12; lighting/snapshot_builder.h TexelDirect). `commonlight bench
+// lighting --incremental --direct-analysis` measured per-texel shadow rays better than the
+// elements' transmissions for the direct term at the same number of rays (docs/lighting.md): the
+// elements keep the indirect light and decide where the objects change the direct light; the
+// texels compute it where they do.
+//
+// A texel's answer is kept while no object that moved had its old or new bounds in the shaft
+// between the texel's point and a light (the influence's rule, lighting/influence.h), so a move
+// traces the texels it reaches. Lighting thread only; at() is called in parallel for distinct texels.
+#pragma once
+
+#include <atomic>
+#include <deque>
+#include <mutex>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "lighting/direct.h"
+#include "lighting/ray_scene.h"
+#include "lighting/shaft_index.h"
+
+namespace commonlight::lighting {
+
+class TexelDirectCache {
+public:
+    struct Light {
+        const LightGeometry* polygon = nullptr;
+        Eigen::Vector3d emission = Eigen::Vector3d::Zero();  // relative radiance
+    };
+    // `pairs`: visibility pairs per texel and light (stratified on the light, kernel-weighted).
+    TexelDirectCache(const RayScene& rays, int pairs) : rays_(rays), pairs_(pairs) {}
+
+    // A new set of lights (a full update): every answer goes.
+    void reset(std::vector<Light> lights, std::size_t faces);
+    // Before the textures of an update: the answers whose shafts meet any of `moved` go.
+    void forget(const std::vector<Ball>& moved);
+    // The direct light at point x of texel `texel` of face `face` (layout width x height), facing
+    // `normal`: without the virtual objects and with them. Thread-safe for distinct texels.
+    void at(int face, std::size_t texel, int width, int height, const Eigen::Vector3d& x, const Eigen::Vector3d& normal,
+            Eigen::Vector3d& without, Eigen::Vector3d& with);
+
+    long traced() const noexcept { return traced_; }  // texels traced since the last reset() (statistics)
+
+private:
+    struct Entry {
+        bool valid = false;
+        Eigen::Vector3d x = Eigen::Vector3d::Zero();
+        Eigen::Vector3d without = Eigen::Vector3d::Zero(), with = Eigen::Vector3d::Zero();
+    };
+    struct Face {
+        int width = 0, height = 0;
+        std::vector<Entry> entries;
+    };
+    const RayScene& rays_;
+    int pairs_;
+    std::vector<Light> lights_;
+    std::vector<Face> faces_;
+    std::deque<std::mutex> locks_;  // by face: a change of layout
+    std::atomic<long> traced_{0};
+};
+
+}  // namespace commonlight::lighting
