@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <fstream>
 #include <map>
 #include <optional>
@@ -32,6 +33,14 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 using nlohmann::json;
+
+// The calling thread's CPU time: on a shared, loaded machine the wall time also counts the waits
+// for a core (libapriltag runs with one thread here, so the thread's time is all of it).
+double threadCpuMs() {
+    timespec t{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
+}
 
 // Step 0: the sequences. "desk" is the bundled sample; the others are rendered once into the
 // data folder (with the sim's ground truth) and reused while their parameters match.
@@ -218,6 +227,7 @@ Result<LoadedCase> loadCase(const CaseSpec& spec, const fs::path& path, int max_
 // Error statistics of a set of poses against the truth.
 struct ErrorStats {
     std::vector<double> rot_deg, trans_mm, ms;
+    std::vector<double> cpu_ms;     // the thread's CPU time per frame (beside the wall time `ms`)
     std::vector<double> range_rel;  // single tags: |t_estimate| / |t_true| - 1 (signed: < 0 too close)
     int attempts = 0;  // frames (or tag detections) that should have had a pose
 
@@ -257,6 +267,9 @@ struct ErrorStats {
         j["gross_rate"] = gross();
         if (!range_rel.empty()) j["range_bias_pct"] = rangeBiasPct();
         if (!ms.empty()) j["ms_per_frame"] = {{"p50", pct(ms, 50)}, {"p95", pct(ms, 95)}, {"max", pct(ms, 100)}};
+        if (!cpu_ms.empty()) {
+            j["cpu_ms_per_frame"] = {{"p50", pct(cpu_ms, 50)}, {"p95", pct(cpu_ms, 95)}, {"max", pct(cpu_ms, 100)}};
+        }
         return j;
     }
 };
@@ -269,22 +282,28 @@ std::string fmt(double v, const char* f = "%.3f") {
 }
 
 void printRow(const std::string& name, const ErrorStats& s) {
-    std::printf("| %-26s | %4zu/%-4d | %7s | %7s | %7s | %8s | %8s | %8s | %6s | %7s |\n", name.c_str(), s.rot_deg.size(),
+    std::printf("| %-26s | %4zu/%-4d | %7s | %7s | %7s | %8s | %8s | %8s | %6s | %7s | %7s |\n", name.c_str(),
+                s.rot_deg.size(),
                 s.attempts, fmt(ErrorStats::pct(s.rot_deg, 50)).c_str(), fmt(ErrorStats::pct(s.rot_deg, 95)).c_str(),
                 fmt(ErrorStats::pct(s.rot_deg, 100)).c_str(), fmt(ErrorStats::pct(s.trans_mm, 50), "%.2f").c_str(),
                 fmt(ErrorStats::pct(s.trans_mm, 95), "%.2f").c_str(), fmt(ErrorStats::pct(s.trans_mm, 100), "%.2f").c_str(),
-                fmt(100.0 * s.gross(), "%.1f%%").c_str(), s.ms.empty() ? "-" : fmt(ErrorStats::pct(s.ms, 50), "%.2f").c_str());
+                fmt(100.0 * s.gross(), "%.1f%%").c_str(),
+                s.ms.empty() ? "-" : fmt(ErrorStats::pct(s.ms, 50), "%.2f").c_str(),
+                s.cpu_ms.empty() ? "-" : fmt(ErrorStats::pct(s.cpu_ms, 50), "%.2f").c_str());
 }
 
 void printHeader(const char* first) {
-    std::printf("| %-26s | %9s | %7s | %7s | %7s | %8s | %8s | %8s | %6s | %7s |\n", first, "poses", "rot p50", "rot p95",
-                "rot max", "mm p50", "mm p95", "mm max", "gross", "ms/frm");
-    std::printf("|%s|\n", std::string(131, '-').c_str());
+    std::printf("| %-26s | %9s | %7s | %7s | %7s | %8s | %8s | %8s | %6s | %7s | %7s |\n", first, "poses", "rot p50",
+                "rot p95", "rot max", "mm p50", "mm p95", "mm max", "gross", "ms/frm", "cpu ms");
+    std::printf("|%s|\n", std::string(141, '-').c_str());
 }
 
 // Step 2: libapriltag's own pose against ours on the same detections; the detector alone timed.
 struct SingleTagComparison {
-    ErrorStats reference, ours, ours_refined, ours_aligned_fixed, ours_aligned, detector_only;
+    ErrorStats reference, ours, ours_refined, ours_aligned_fixed, ours_aligned;
+    // The detector alone (what the tracking stage's time is compared with), and with libapriltag's
+    // estimate_tag_pose for every tag (what a user of libapriltag runs for poses).
+    ErrorStats detector_only, detector_with_pose;
 };
 
 SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
@@ -300,12 +319,22 @@ SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
     det.reference_pose = tracking::TagDetectorOptions::ReferencePose{1.0, lc.camera.fx, lc.camera.fy, lc.camera.cx,
                                                                      lc.camera.cy};
     auto detector = tracking::TagDetector::create(det);
-    if (!detector) return out;
+    tracking::TagDetectorOptions det_alone = det;
+    det_alone.reference_pose.reset();
+    auto detector_alone = tracking::TagDetector::create(det_alone);
+    if (!detector || !detector_alone) return out;
     tracking::TagPatternCache patterns(det.family);
-    for (std::size_t i = 0; i < lc.frames.size(); ++i) {
+    const auto timed = [&](tracking::TagDetector& d, ErrorStats& stats, const ImageView& image) {
         const auto start = Clock::now();
-        auto detections = detector->detect(lc.frames[i].view());
-        out.detector_only.ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - start).count());
+        const double start_cpu = threadCpuMs();
+        auto detections = d.detect(image);
+        stats.cpu_ms.push_back(threadCpuMs() - start_cpu);
+        stats.ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - start).count());
+        return detections;
+    };
+    for (std::size_t i = 0; i < lc.frames.size(); ++i) {
+        (void)timed(*detector_alone, out.detector_only, lc.frames[i].view());
+        auto detections = timed(*detector, out.detector_with_pose, lc.frames[i].view());
         if (!detections) continue;
         for (const auto& d : *detections) {
             const TagItem* item = lc.scene.tags.find(d.id);
@@ -348,9 +377,23 @@ SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
 }
 
 // Step 3: the tracker, in a given configuration, over the whole sequence.
+// The CPU time of each step of one frame, in the tracker's order.
+std::vector<std::pair<std::string, double>> stageCpuMs(const tracking::StageTimes& t) {
+    return {{"detect", t.detect_cpu_ms},
+            {"refine", t.refine_cpu_ms},
+            {"align", t.align_cpu_ms},
+            {"solve", std::max(0.0, t.tag_pose_cpu_ms - t.refine_cpu_ms - t.align_cpu_ms)},
+            {"bundle", t.bundle_cpu_ms},
+            {"edges", t.edges_cpu_ms},
+            {"filter", t.filter_cpu_ms}};
+}
+
 struct TrackerRun {
     ErrorStats camera;       // cam_from_world per frame
     ErrorStats single_tags;  // the tracker's chosen single-tag poses
+    // CPU time per frame of each step (StageTimes): detect, refine, align, the rest of the
+    // single-tag step (pose solving), bundle, edges, filter.
+    std::map<std::string, std::vector<double>> stage_cpu_ms;
     double detect_ms_p50 = 0;
     int full_frame_detections = 0;
 };
@@ -363,6 +406,8 @@ Result<TrackerRun> runTracker(const LoadedCase& lc, const tracking::TrackerOptio
         CL_TRY(auto track, tracker.process(lc.frames[i].view(), lc.meta[i]));
         ++run.camera.attempts;
         run.camera.ms.push_back(track.times.total_ms);
+        run.camera.cpu_ms.push_back(track.times.total_cpu_ms);
+        for (const auto& [name, value] : stageCpuMs(track.times)) run.stage_cpu_ms[name].push_back(value);
         detect_ms.push_back(track.times.detect_ms);
         if (track.full_frame_detection) ++run.full_frame_detections;
         if (track.cam_from_world) run.camera.addCamera(*track.cam_from_world, lc.cam_from_world_true[i]);
@@ -502,6 +547,30 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         const double track_ms = ErrorStats::pct(run_filter->camera.ms, 50);
         std::printf("\nlibapriltag detector alone: %.2f ms/frame (p50); tracking stage (bundle + filter): %.2f ms = %.2fx\n",
                     det_ms, track_ms, track_ms / det_ms);
+        const double det_cpu = ErrorStats::pct(single.detector_only.cpu_ms, 50);
+        const double track_cpu = ErrorStats::pct(run_filter->camera.cpu_ms, 50);
+        const double det_pose_cpu = ErrorStats::pct(single.detector_with_pose.cpu_ms, 50);
+        std::printf("CPU time: libapriltag detector alone %.2f ms/frame (p50); tracking stage (bundle + filter) "
+                    "%.2f ms = %.2fx [target at most 1.2x: %s]; with edges %.2f ms; libapriltag detector + "
+                    "estimate_tag_pose %.2f ms\n",
+                    det_cpu, track_cpu, track_cpu / det_cpu, track_cpu / det_cpu <= 1.2 ? "met" : "MISSED",
+                    ErrorStats::pct(run_edges->camera.cpu_ms, 50), det_pose_cpu);
+        const auto printSplit = [](const char* label, const TrackerRun& run) {
+            std::printf("CPU time per frame, mean, %s:", label);
+            double sum = 0;
+            for (const char* name : {"detect", "refine", "align", "solve", "bundle", "edges", "filter"}) {
+                const auto it = run.stage_cpu_ms.find(name);
+                if (it == run.stage_cpu_ms.end() || it->second.empty()) continue;
+                double mean = 0;
+                for (const double v : it->second) mean += v;
+                mean /= static_cast<double>(it->second.size());
+                sum += mean;
+                std::printf(" %s %.2f", name, mean);
+            }
+            std::printf(" (sum %.2f ms)\n", sum);
+        };
+        printSplit("bundle + filter", *run_filter);
+        printSplit("with edges", *run_edges);
         const double ref_p50 = ErrorStats::pct(single.reference.rot_deg, 50);
         const double ours_p50 = ErrorStats::pct(single.ours_aligned.rot_deg, 50);
         std::printf("single-tag rotation p50: ours %.3f deg vs libapriltag %.3f deg = %.2fx\n", ours_p50, ref_p50,
@@ -555,6 +624,18 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         j["bundle_filter_edges"] = run_edges->camera.toJson();
         j["detector_only_ms_p50"] = det_ms;
         j["tracking_over_detector"] = track_ms / det_ms;
+        j["detector_only_cpu_ms_p50"] = det_cpu;
+        j["detector_estimate_tag_pose_cpu_ms_p50"] = det_pose_cpu;
+        j["tracking_over_detector_cpu"] = track_cpu / det_cpu;
+        for (const auto* run : {&*run_filter, &*run_edges}) {
+            json split;
+            for (const auto& [name, v] : run->stage_cpu_ms) {
+                double mean = 0;
+                for (const double x : v) mean += x;
+                split[name] = v.empty() ? 0.0 : mean / static_cast<double>(v.size());
+            }
+            j[run == &*run_filter ? "stage_cpu_ms_mean" : "stage_cpu_ms_mean_edges"] = split;
+        }
         j["single_over_apriltag_rot_p50"] = ours_p50 / ref_p50;
         j["single_over_apriltag_trans_p50"] = ours_mm / ref_mm;
         j["single_in_tracker_over_apriltag_trans_p50"] = tracker_mm / ref_mm;

@@ -1,5 +1,6 @@
 #include "core/camera_model.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -106,6 +107,12 @@ double CameraModel::maxValidRadius() const {
 bool CameraModel::radialMonotonicUpTo(double r2) const {
     const auto& d = distortion;
     if (d.k1 >= 0 && d.k2 >= 0 && d.k3 >= 0) return true;
+    // Every projection asks this: first a bound that needs no sampling. On [0, r2] each negative
+    // term of the slope is at its most negative at s = r2 and the positive ones are >= 0, so when
+    // the negative terms alone at r2 leave the slope positive, every sample below is positive too
+    // (the same answer, without the 64 evaluations).
+    const double k1 = std::min(d.k1, 0.0), k2 = std::min(d.k2, 0.0), k3 = std::min(d.k3, 0.0);
+    if (r2 >= 0 && 1.0 + r2 * (3.0 * k1 + r2 * (5.0 * k2 + r2 * 7.0 * k3)) > 0.0) return true;
     // The slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 (s = r^2) is 1 at s = 0; sample it up to r2.
     // A cubic that dips below zero and recovers between two of 64 samples would need a root
     // pair closer than r2 / 64; no calibrated lens has that.

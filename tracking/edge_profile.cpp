@@ -40,8 +40,10 @@ std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, co
                                  const Eigen::Vector2d& n, const Eigen::Vector2d& along, double range) {
     constexpr double kStep = 0.25;
     const int steps = static_cast<int>(std::ceil(range / kStep));
-    std::vector<double> values;
-    values.reserve(static_cast<std::size_t>(2 * steps + 3));
+    // Called for every boundary point of every tag in every frame: the profile's buffer is kept
+    // (per thread) instead of allocated per call.
+    thread_local std::vector<double> values;
+    values.clear();
     for (int k = -steps - 1; k <= steps + 1; ++k) {
         // Three profiles 0.5 px apart along the edge, averaged: less noise, same edge.
         double sum = 0.0;
@@ -56,11 +58,10 @@ std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, co
     // Central differences at k = -steps..steps (index i + 1 in values).
     int best = -1;
     double best_d = 0.0;
-    std::vector<double> d(static_cast<std::size_t>(2 * steps + 1));
     for (int i = 0; i < 2 * steps + 1; ++i) {
-        d[static_cast<std::size_t>(i)] = values[static_cast<std::size_t>(i + 2)] - values[static_cast<std::size_t>(i)];
-        if (d[static_cast<std::size_t>(i)] > best_d) {
-            best_d = d[static_cast<std::size_t>(i)];
+        const double d = values[static_cast<std::size_t>(i + 2)] - values[static_cast<std::size_t>(i)];
+        if (d > best_d) {
+            best_d = d;
             best = i;
         }
     }

@@ -6,7 +6,6 @@
 #include <cmath>
 #include <limits>
 #include <sstream>
-#include <unordered_map>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
@@ -29,28 +28,26 @@ constexpr double kNearZ = 0.02;  // metres: edges are clipped to points at least
 // One level of the image pyramid: the gradient of the blurred image, in grey levels per pixel of
 // this level.
 struct Level {
-    cv::Mat gx;          // CV_32F
-    cv::Mat gy;          // CV_32F
+    cv::Mat g;           // CV_32FC2: (d/dx, d/dy) interleaved, so a bilinear sample reads one place
     double scale = 1.0;  // this level's pixels per full-resolution pixel (2^-level)
 };
 
-// Bilinear sample of both gradient images at (x, y) (pixel centres at integers); false outside.
-bool sampleGradient(const Level& level, const Vector2d& q, Vector2d& gradient) {
-    const double x = q.x();
-    const double y = q.y();
-    if (!(x >= 0.0 && y >= 0.0 && x <= level.gx.cols - 1.0 && y <= level.gx.rows - 1.0)) return false;
-    const int x0 = std::min(static_cast<int>(x), level.gx.cols - 2);
-    const int y0 = std::min(static_cast<int>(y), level.gx.rows - 2);
+// Bilinear sample of both gradient components at (x, y) (pixel centres at integers); false outside.
+bool sampleGradient(const Level& level, double x, double y, double& gx, double& gy) {
+    if (!(x >= 0.0 && y >= 0.0 && x <= level.g.cols - 1.0 && y <= level.g.rows - 1.0)) return false;
+    const int x0 = std::min(static_cast<int>(x), level.g.cols - 2);
+    const int y0 = std::min(static_cast<int>(y), level.g.rows - 2);
     const double ax = x - x0;
     const double ay = y - y0;
-    const auto lerp = [&](const cv::Mat& m) {
-        const float* r0 = m.ptr<float>(y0);
-        const float* r1 = m.ptr<float>(y0 + 1);
-        const double top = (1.0 - ax) * r0[x0] + ax * r0[x0 + 1];
-        const double bottom = (1.0 - ax) * r1[x0] + ax * r1[x0 + 1];
+    const float* r0 = level.g.ptr<float>(y0) + 2 * x0;
+    const float* r1 = level.g.ptr<float>(y0 + 1) + 2 * x0;
+    const auto lerp = [&](int c) {
+        const double top = (1.0 - ax) * r0[c] + ax * r0[c + 2];
+        const double bottom = (1.0 - ax) * r1[c] + ax * r1[c + 2];
         return (1.0 - ay) * top + ay * bottom;
     };
-    gradient = {lerp(level.gx), lerp(level.gy)};
+    gx = lerp(0);
+    gy = lerp(1);
     return true;
 }
 
@@ -66,8 +63,10 @@ std::vector<Level> buildPyramid(const ImageView& gray8, const EdgeRefineOptions&
         if (l > 0 && std::min(image.cols, image.rows) < 64) break;
         Level level;
         level.scale = std::ldexp(1.0, -l);
-        cv::Sobel(image, level.gx, CV_32F, 1, 0, 3, 1.0 / 8.0);
-        cv::Sobel(image, level.gy, CV_32F, 0, 1, 3, 1.0 / 8.0);
+        cv::Mat gradient[2];
+        cv::Sobel(image, gradient[0], CV_32F, 1, 0, 3, 1.0 / 8.0);
+        cv::Sobel(image, gradient[1], CV_32F, 0, 1, 3, 1.0 / 8.0);
+        cv::merge(gradient, 2, level.g);
         levels.push_back(std::move(level));
         // pyrDown keeps the even pixels of the blurred image: level pixel i is centred on pixel
         // 2i of the level below, so coordinates simply halve in the OpenCV pixel convention.
@@ -252,9 +251,10 @@ void searchEdges(const Level& level, const EdgeRefineOptions& options, std::vect
         s.matched = false;
         const Vector2d q0 = s.pixel * level.scale;
         for (int i = -half; i <= half; ++i) {
-            Vector2d g;
-            const bool inside = sampleGradient(level, q0 + (i * kStep) * s.normal, g);
-            profile[static_cast<std::size_t>(i + half)] = inside ? g.dot(s.normal) : 0.0;
+            const double t = i * kStep;
+            double gx = 0.0, gy = 0.0;
+            const bool inside = sampleGradient(level, q0.x() + t * s.normal.x(), q0.y() + t * s.normal.y(), gx, gy);
+            profile[static_cast<std::size_t>(i + half)] = inside ? gx * s.normal.x() + gy * s.normal.y() : 0.0;
         }
         // Maxima on the ends of the range are cut-off slopes, not edges: interior ones only.
         int best_p = -1;
@@ -281,12 +281,15 @@ void searchEdges(const Level& level, const EdgeRefineOptions& options, std::vect
     }
     // Polarity: the edge's brighter side is the same along the whole edge (one surface against
     // another); take the sign whose strongest gradients add up to more over the edge.
-    std::unordered_map<int, double> vote;
+    int edges = 0;
+    for (const Sample& s : samples) edges = std::max(edges, s.edge + 1);
+    std::vector<double> vote(static_cast<std::size_t>(edges), 0.0);
     for (const Sample& s : samples) {
-        vote[s.edge] += s.best_positive >= s.best_negative ? s.best_positive : -s.best_negative;
+        const double signed_best = s.best_positive >= s.best_negative ? s.best_positive : -s.best_negative;
+        vote[static_cast<std::size_t>(s.edge)] += signed_best;
     }
     for (Sample& s : samples) {
-        const bool positive = vote[s.edge] >= 0.0;
+        const bool positive = vote[static_cast<std::size_t>(s.edge)] >= 0.0;
         const double strength = positive ? s.best_positive : s.best_negative;
         if (strength < options.min_gradient) continue;
         const double t = positive ? s.t_positive : s.t_negative;
@@ -435,6 +438,12 @@ Result<void> EdgeRefineOptions::validate() const {
         return fail(ErrorCode::kUsage,
                     "EdgeRefineOptions.pyramid_levels must be in 1..6, got " + std::to_string(pyramid_levels));
     }
+    if (!(coarse_converged_px >= 0.0) || !std::isfinite(coarse_converged_px)) {
+        return fail(ErrorCode::kUsage, "EdgeRefineOptions.coarse_converged_px must be a finite number >= 0");
+    }
+    if (!(prior_sigmas >= 0.0) || !std::isfinite(prior_sigmas)) {
+        return fail(ErrorCode::kUsage, "EdgeRefineOptions.prior_sigmas must be a finite number >= 0");
+    }
     if (!(min_inlier_fraction >= 0.0 && min_inlier_fraction <= 1.0)) {
         return fail(ErrorCode::kUsage, "EdgeRefineOptions.min_inlier_fraction must be in [0, 1]");
     }
@@ -520,15 +529,50 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
         return static_cast<int>(std::count_if(s.begin(), s.end(), [](const Sample& x) { return x.matched; }));
     };
 
+    // The level to start at: the coarsest, unless the prior says the pose is near enough for a
+    // finer one (EdgeRefineOptions::prior_sigmas): how far each sample point may be from where the
+    // initial pose puts it, along its normal (the search's direction), is the image motion of the
+    // initial pose's offset from the prior's plus prior_sigmas of the prior's standard deviation
+    // there (J Sigma J^T, linearised: the rotation and translation uncertainties of a pose from
+    // tags are strongly correlated, and largely cancel in the image).
+    int first_level = static_cast<int>(levels.size()) - 1;
+    bool sampled = false;  // the samples at the initial pose are already there
+    if (prior_term && options.prior_sigmas > 0.0 && first_level > 0) {
+        t0 = Clock::now();
+        sampleEdges(model, camera, fov, pose, options, samples);
+        result.step_seconds.sampling += since(t0);
+        sampled = true;
+        const Matrix6d cov = 0.5 * (prior->covariance + prior->covariance.transpose());
+        const Vector6d offset = logSe3(pose * prior_term->prior_from);
+        double motion_px = 0.0;
+        for (const Sample& x : samples) {
+            const Vector3d p = pose * x.p_in_world;
+            Eigen::Matrix<double, 3, 6> dp;
+            dp.leftCols<3>() = -hat3(p);
+            dp.rightCols<3>().setIdentity();
+            const RowVector6d j = x.normal.transpose() * projectionJacobian(camera, p) * dp;
+            const double sigma = std::sqrt(std::max(j.dot(cov * j.transpose()), 0.0));
+            motion_px = std::max(motion_px, std::abs(j.dot(offset)) + options.prior_sigmas * sigma);
+        }
+        if (!std::isfinite(motion_px)) motion_px = std::numeric_limits<double>::infinity();
+        while (first_level > 0 && motion_px <= 0.5 * options.search_px * std::ldexp(1.0, first_level - 1)) {
+            --first_level;
+        }
+    }
+    result.first_level = first_level;
+
     // Steps 1-3 per level, coarse to fine.
-    for (int l = static_cast<int>(levels.size()) - 1; l >= 0; --l) {
+    for (int l = first_level; l >= 0; --l) {
         const Level& level = levels[static_cast<std::size_t>(l)];
         const double level_px = 1.0 / level.scale;  // full-resolution pixels per level pixel
         for (int it = 0; it < options.iterations; ++it) {
             // Step 1: sample the visible edges at the current pose.
-            t0 = Clock::now();
-            sampleEdges(model, camera, fov, pose, options, samples);
-            result.step_seconds.sampling += since(t0);
+            if (!sampled) {
+                t0 = Clock::now();
+                sampleEdges(model, camera, fov, pose, options, samples);
+                result.step_seconds.sampling += since(t0);
+            }
+            sampled = false;
             result.points_visible = static_cast<int>(samples.size());
             if (std::string why = checkVisible(samples); !why.empty()) return finish(result, why);
             // Step 2: search along the normals.
@@ -596,7 +640,10 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
                 return d;
             }());
             const double motion_px = camera.fx * (delta.head<3>().norm() + delta.tail<3>().norm() / median_depth);
-            if (!stepped || motion_px < 0.01) break;
+            // A coarser level only has to bring the pose within the next level's reach: it stops
+            // once a step moves points by less than coarse_converged_px of its own pixels.
+            const double converged_px = l > 0 ? std::max(0.01, options.coarse_converged_px * level_px) : 0.01;
+            if (!stepped || motion_px < converged_px) break;
         }
     }
 

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <limits>
 
 #include <Eigen/Cholesky>
 
@@ -153,9 +154,19 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
             out.reason = "the alignment did not converge";
             return out;
         }
-        pose = expSe3(Vector6d(step.head<6>())) * pose;
+        const Rigid3d next = expSe3(Vector6d(step.head<6>())) * pose;
+        // How far the step moves the black square's corners (and, by the dilation, its outline).
+        double moved_px = std::abs(step(6)) * cell_px;
+        for (int c = 0; c < 4 && moved_px <= options.converged_px; ++c) {
+            const Eigen::Vector3d corner = tagCornerInTag(c, size);
+            const auto before = camera.project(pose * corner);
+            const auto after = camera.project(next * corner);
+            moved_px = before && after ? std::max(moved_px, (*after - *before).norm())
+                                       : std::numeric_limits<double>::infinity();
+        }
+        pose = next;
         dilation += step(6);
-        if (step.norm() < 1e-9) break;
+        if (moved_px <= options.converged_px) break;
     }
     out.points = used;
     out.rms_px = std::sqrt(sum2 / used);

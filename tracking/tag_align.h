@@ -66,7 +66,11 @@ private:
 
 struct TagAlignOptions {
     double min_cell_px = 2.0;   // cells smaller than this in the image: no alignment
-    int iterations = 4;
+    int iterations = 4;         // at most
+    // Converged: a step that moves no corner of the black square by more than this many pixels
+    // ends the iterations (measured on the bundled sample: the second step moves the corners by
+    // 0.008 px at the median, the third by 0.001 px).
+    double converged_px = 0.01;
     double search_px = 1.5;     // +- along the normal (at least; 35% of a cell when cells are larger)
     double huber_px = 0.5;
     double max_rms_px = 0.6;    // a final RMS above this: the alignment is refused

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <map>
 
 namespace commonlight::tracking {
@@ -11,6 +12,12 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double msSince(Clock::time_point start) {
     return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+// The calling thread's CPU time (StageTimes).
+double threadCpuMs() {
+    timespec t{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
 }
 
 // The box around image points, grown by `margin` of its size and at least `min_px` pixels.
@@ -181,6 +188,7 @@ Result<FrameTrack> Tracker::process(const ImageView& gray8, std::int64_t timesta
 Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t timestamp_ns, std::int64_t pose_instant_ns) {
     State& s = *state_;
     const auto start = Clock::now();
+    const double start_cpu = threadCpuMs();
     if (gray8.format != PixelFormat::kGray8) {
         return fail(ErrorCode::kBadInput, "tracking needs an 8-bit grey frame, got " +
                                               std::string(pixelFormatName(gray8.format)));
@@ -201,6 +209,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
 
     // Step 1: detection.
     auto t0 = Clock::now();
+    double c0 = threadCpuMs();
     std::vector<TagDetection> detections;
     out.full_frame_detection = true;
     if (s.options.tracking_mode && s.frames_since_full + 1 < s.options.redetect_every) {
@@ -217,6 +226,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         ++s.frames_since_full;
     }
     out.times.detect_ms = msSince(t0);
+    out.times.detect_cpu_ms = threadCpuMs() - c0;
 
     // Step 2: single-tag poses. A tag whose pattern cannot be aligned (cells too small, the
     // alignment refused) keeps its refined corners, which a response or print other than the
@@ -226,7 +236,14 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
     // mismatch, whose shift is in pixels, it under-corrects a tag smaller than the aligned ones
     // and never overshoots).
     t0 = Clock::now();
+    c0 = threadCpuMs();
     out.tags.reserve(detections.size());
+    const auto align = [&](const TagPattern& pattern, double size, const Rigid3d& start_pose) {
+        const double a0 = threadCpuMs();
+        TagAlignResult a = alignTagPose(gray8, s.camera, pattern, size, start_pose, s.options.align);
+        out.times.align_cpu_ms += threadCpuMs() - a0;
+        return a;
+    };
     const auto solveTag = [&](const TagDetection& d, double dilation_cells, double* measured_dilation_cells) {
         TrackedTag tag{d, false, false, std::nullopt, {}};
         if (s.options.refine_corners) {
@@ -238,7 +255,9 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                 const TagPattern* pattern = s.patterns.get(d.id);
                 refine.dilation_px += dilation_cells * side * (pattern ? pattern->cell() : 0.0);
             }
+            const double r0 = threadCpuMs();
             tag.corners_refined = refineTagCorners(gray8, s.camera, tag.detection.corners, refine);
+            out.times.refine_cpu_ms += threadCpuMs() - r0;
         }
         const TagItem* item = s.tags.find(d.id);
         const double size = item ? item->size : s.options.default_tag_size;
@@ -271,7 +290,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             return true;
         };
         if (pattern && pose->choice == PoseChoice::kPrediction) {
-            const TagAlignResult a = alignTagPose(gray8, s.camera, *pattern, size, pose->cam_from_tag, s.options.align);
+            const TagAlignResult a = align(*pattern, size, pose->cam_from_tag);
             if (a.ok && adopt(a)) pose->candidates[0] = {a.cam_from_tag, a.rms_px};
         } else if (pattern) {
             // Nothing predicted: the cell pattern chooses. Both candidates (the second one, when
@@ -281,8 +300,8 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             // same pose, or a second one refused, leave no ambiguity.
             const Rigid3d other_start = pose->candidates.size() > 1 ? pose->candidates[1].cam_from_tag
                                                                       : planarMirror(pose->candidates[0].cam_from_tag);
-            TagAlignResult a[2] = {alignTagPose(gray8, s.camera, *pattern, size, pose->candidates[0].cam_from_tag, s.options.align),
-                                   alignTagPose(gray8, s.camera, *pattern, size, other_start, s.options.align)};
+            TagAlignResult a[2] = {align(*pattern, size, pose->candidates[0].cam_from_tag),
+                                   align(*pattern, size, other_start)};
             if (a[0].ok || a[1].ok) {
                 const int best = !a[1].ok || (a[0].ok && a[0].rms_px <= a[1].rms_px) ? 0 : 1;
                 const TagAlignResult& chosen = a[best];
@@ -339,10 +358,12 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         }
     }
     out.times.tag_pose_ms = msSince(t0);
+    out.times.tag_pose_cpu_ms = threadCpuMs() - c0;
 
     // Step 3: bundle over the scene's tags. Where two or more of them are in view, they choose
     // each ambiguous tag's candidate: the one nearer the pose the bundle gives it.
     t0 = Clock::now();
+    c0 = threadCpuMs();
     std::optional<PoseMeasurement> measurement;
     std::optional<std::size_t> alone_ambiguous;  // the frame's pose rests on this ambiguous tag (out.tags) alone
     {
@@ -383,10 +404,12 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         }
     }
     out.times.bundle_ms = msSince(t0);
+    out.times.bundle_cpu_ms = threadCpuMs() - c0;
 
     // Step 4: model edges. A frame resting on one ambiguous tag: refined from both candidates,
     // the proxies' edges choose when only one of them converges (or both end on one pose).
     t0 = Clock::now();
+    c0 = threadCpuMs();
     bool edges_only = false;
     std::optional<Rigid3d> alternative;  // the other candidate's camera pose while ambiguous
     if (alone_ambiguous && out.tags[*alone_ambiguous].pose->candidates.size() > 1) {
@@ -431,10 +454,12 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         }
     }
     out.times.edges_ms = msSince(t0);
+    out.times.edges_cpu_ms = threadCpuMs() - c0;
 
     // Step 5: filter. A pose resting on one ambiguous tag is reported as such (both candidates)
     // and neither updates the filter nor predicts the next frame: either may be the truth.
     t0 = Clock::now();
+    c0 = threadCpuMs();
     if (measurement && alone_ambiguous) {
         out.status = TrackStatus::kAmbiguous;
         out.cam_from_world = measurement->cam_from_world;
@@ -480,6 +505,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         }
     }
     out.times.filter_ms = msSince(t0);
+    out.times.filter_cpu_ms = threadCpuMs() - c0;
 
     // For the next frame.
     s.last_detections = std::move(detections);
@@ -492,6 +518,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
     s.last_pose_instant = instant;
     ++s.frames;
     out.times.total_ms = msSince(start);
+    out.times.total_cpu_ms = threadCpuMs() - start_cpu;
     return out;
 }
 

@@ -88,7 +88,15 @@ struct TrackedTag {
 };
 
 struct StageTimes {
+    // Wall-clock time of each step, milliseconds.
     double detect_ms = 0, tag_pose_ms = 0, bundle_ms = 0, edges_ms = 0, filter_ms = 0, total_ms = 0;
+    // The calling thread's CPU time (CLOCK_THREAD_CPUTIME_ID) of the same steps: what a step costs
+    // on a shared, loaded machine, where the wall time also counts the waits for a core. The
+    // detection's misses libapriltag's worker threads when TagDetectorOptions::threads > 1. The
+    // single-tag step's includes its corner refinement (refine_cpu_ms) and pattern alignment
+    // (align_cpu_ms).
+    double detect_cpu_ms = 0, refine_cpu_ms = 0, align_cpu_ms = 0, tag_pose_cpu_ms = 0, bundle_cpu_ms = 0,
+           edges_cpu_ms = 0, filter_cpu_ms = 0, total_cpu_ms = 0;
 };
 
 struct FrameTrack {

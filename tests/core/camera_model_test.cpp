@@ -1,5 +1,6 @@
 #include "core/camera_model.h"
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -81,6 +82,35 @@ TEST(CameraModel, UndistortRefusesPointsBeyondTheFold) {
     EXPECT_FALSE(cam.undistortNormalized({NAN, 0.0}));
     // Projection of a point beyond the fold is refused instead of folding back into the image.
     EXPECT_FALSE(cam.project({1.2, 0.0, 1.0}));
+}
+
+TEST(CameraModel, MonotonicCheckAgreesWithSamplingTheSlope) {
+    // radialMonotonicUpTo answers most calls from a bound without sampling; its answer must be
+    // the sampled one: the slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 positive at 64 samples of [0, r2].
+    const auto sampled = [](const Distortion& d, double r2) {
+        for (int i = 1; i <= 64; ++i) {
+            const double s = r2 * i / 64;
+            if (1.0 + s * (3.0 * d.k1 + s * (5.0 * d.k2 + s * 7.0 * d.k3)) <= 0.0) return false;
+        }
+        return true;
+    };
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> k(-0.6, 0.6), r2(0.0, 3.0);
+    int folded = 0, fast = 0;
+    for (int trial = 0; trial < 20000; ++trial) {
+        const Distortion d{k(rng), k(rng) * 0.5, 0.0, 0.0, k(rng) * 0.2};
+        const CameraModel cam = makeCamera(d);
+        const double r = r2(rng);
+        ASSERT_EQ(cam.radialMonotonicUpTo(r), sampled(d, r)) << d.k1 << " " << d.k2 << " " << d.k3 << " r2 " << r;
+        folded += sampled(d, r) ? 0 : 1;
+        const double bound =
+            1.0 + r * (3.0 * std::min(d.k1, 0.0) + r * (5.0 * std::min(d.k2, 0.0) + r * 7.0 * std::min(d.k3, 0.0)));
+        fast += bound > 0.0 ? 1 : 0;
+    }
+    // Both answers occur, and both paths are taken.
+    EXPECT_GT(folded, 1000);
+    EXPECT_GT(fast, 1000);
+    EXPECT_LT(fast, 19000);
 }
 
 TEST(CameraModel, ValidateRejectsBadIntrinsics) {

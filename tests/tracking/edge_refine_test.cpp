@@ -490,6 +490,68 @@ TEST(EdgeRefineDesk, PriorIsFusedBetweenEdgesAndPrior) {
     }
 }
 
+TEST(EdgeRefineDesk, ATightPriorStartsAtFullResolutionAndALooseOneAtTheCoarsestLevel) {
+    // EdgeRefineOptions::prior_sigmas: a prior that puts the pose within a few pixels (a tag
+    // bundle's) skips the coarse levels; one that allows more, or an initial pose far from the
+    // prior's, keeps them. The result is as good either way.
+    const CameraModel& camera = deskCamera();
+    const Image& image = deskImage(1.0, camera);
+    const Rigid3d truth = deskTrajectory().worldFromCam(1.0).inverse();
+    auto model = EdgeModel::fromScene(deskScene());
+    ASSERT_TRUE(model);
+    const Rigid3d start = perturb(truth, 0.1, 0.002, 8);
+    const auto covariance = [](double rot_deg, double trans_m) {
+        Vector6d sigma;
+        const double r = rot_deg * M_PI / 180.0;
+        sigma << r, r, r, trans_m, trans_m, trans_m;
+        return Matrix6d(sigma.cwiseAbs2().asDiagonal());
+    };
+    struct Case {
+        const char* what;
+        Rigid3d initial;
+        Matrix6d cov;
+        int min_level, max_level;
+    };
+    const Case cases[] = {
+        {"tight prior (0.02 deg, 0.3 mm)", start, covariance(0.02, 0.0003), 0, 0},
+        {"loose prior (2 deg, 30 mm)", start, covariance(2.0, 0.03), 2, 2},
+        {"tight prior, initial pose 1.5 deg from it", perturb(truth, 1.5, 0.025, 9), covariance(0.02, 0.0003), 1, 2},
+    };
+    for (const Case& c : cases) {
+        const PoseMeasurement prior{0, start, c.cov};
+        auto r = refinePoseWithEdges(image, camera, *model, c.initial, EdgeRefineOptions{}, prior);
+        ASSERT_TRUE(r);
+        std::printf("%s: first level %d, %d iterations, ok %d\n", c.what, r->first_level, r->iterations, r->ok ? 1 : 0);
+        EXPECT_GE(r->first_level, c.min_level) << c.what;
+        EXPECT_LE(r->first_level, c.max_level) << c.what;
+    }
+    // With the tight prior, from the start it describes: as accurate as from the coarsest level.
+    const PoseMeasurement prior{0, start, covariance(0.1, 0.002)};
+    EdgeRefineOptions all_levels;
+    all_levels.prior_sigmas = 0.0;
+    auto fine = refinePoseWithEdges(image, camera, *model, start, EdgeRefineOptions{}, prior);
+    auto coarse = refinePoseWithEdges(image, camera, *model, start, all_levels, prior);
+    ASSERT_TRUE(fine && coarse);
+    ASSERT_TRUE(fine->ok && coarse->ok) << fine->reason << " / " << coarse->reason;
+    EXPECT_EQ(coarse->first_level, 2);
+    EXPECT_LT(fine->first_level, 2);
+    const double fine_deg = rotationErrorDeg(fine->cam_from_world, truth);
+    const double coarse_deg = rotationErrorDeg(coarse->cam_from_world, truth);
+    std::printf("prior 0.1 deg, 2 mm: from level %d %.4f deg %.3f mm (%d iterations), from level 2 %.4f deg %.3f mm "
+                "(%d iterations)\n",
+                fine->first_level, fine_deg, 1000 * centreError(fine->cam_from_world, truth), fine->iterations,
+                coarse_deg, 1000 * centreError(coarse->cam_from_world, truth), coarse->iterations);
+    EXPECT_LT(fine_deg, 0.05);
+    EXPECT_LT(std::abs(fine_deg - coarse_deg), 0.01);
+    EXPECT_LT(fine->iterations, coarse->iterations);
+    EdgeRefineOptions bad;
+    bad.prior_sigmas = -1.0;
+    EXPECT_FALSE(refinePoseWithEdges(image, camera, *model, start, bad, prior));
+    bad = EdgeRefineOptions{};
+    bad.coarse_converged_px = NAN;
+    EXPECT_FALSE(refinePoseWithEdges(image, camera, *model, start, bad, prior));
+}
+
 TEST(EdgeRefineFailures, BlankWallAndFeaturelessImageAreNotOkWithAReason) {
     const CameraModel& camera = deskCamera();
     auto model = EdgeModel::fromScene(deskScene());
