@@ -44,14 +44,25 @@ std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, co
     // (per thread) instead of allocated per call.
     thread_local std::vector<double> values;
     values.clear();
+    // The samples are affine in (k, a): all are inside the image when the four extreme ones are
+    // (the image's sampling rectangle is convex), so the bounds are checked once per profile.
+    for (const double k : {-steps - 1.0, steps + 1.0}) {
+        for (const double a : {-0.5, 0.5}) {
+            const Eigen::Vector2d q = p + (k * kStep) * n + a * along;
+            if (!sample(img, lin, q.x(), q.y())) return std::nullopt;
+        }
+    }
     for (int k = -steps - 1; k <= steps + 1; ++k) {
         // Three profiles 0.5 px apart along the edge, averaged: less noise, same edge.
         double sum = 0.0;
         for (const double a : {-0.5, 0.0, 0.5}) {
             const Eigen::Vector2d q = p + (k * kStep) * n + a * along;
-            const auto v = sample(img, lin, q.x(), q.y());
-            if (!v) return std::nullopt;
-            sum += *v;
+            const int x0 = static_cast<int>(q.x()), y0 = static_cast<int>(q.y());
+            const double fx = q.x() - x0, fy = q.y() - y0;
+            const std::uint8_t* r0 = img.row(y0) + x0;
+            const std::uint8_t* r1 = img.row(y0 + 1) + x0;
+            sum += (1 - fy) * ((1 - fx) * lin.lut[r0[0]] + fx * lin.lut[r0[1]]) +
+                   fy * ((1 - fx) * lin.lut[r1[0]] + fx * lin.lut[r1[1]]);
         }
         values.push_back(sum / 3.0);
     }

@@ -51,30 +51,56 @@ bool sampleGradient(const Level& level, double x, double y, double& gx, double& 
     return true;
 }
 
-std::vector<Level> buildPyramid(const ImageView& gray8, const EdgeRefineOptions& options) {
-    // The view's rows may be padded: wrap them without copying (OpenCV does not write to it).
-    const cv::Mat view(gray8.height, gray8.width, CV_8UC1, const_cast<std::uint8_t*>(gray8.data), gray8.stride);
-    cv::Mat image;
-    view.convertTo(image, CV_32F);
-    if (options.blur_sigma_px > 0.0) cv::GaussianBlur(image, image, cv::Size(0, 0), options.blur_sigma_px);
-    std::vector<Level> levels;
+// How many levels buildPyramid makes for an image of this size.
+int pyramidLevelCount(int width, int height, const EdgeRefineOptions& options) {
+    int levels = 0;
     for (int l = 0; l < options.pyramid_levels; ++l) {
-        // Hard case: a small image; stop before a level gets too small to hold an edge profile.
-        if (l > 0 && std::min(image.cols, image.rows) < 64) break;
-        Level level;
-        level.scale = std::ldexp(1.0, -l);
-        cv::Mat gradient[2];
-        cv::Sobel(image, gradient[0], CV_32F, 1, 0, 3, 1.0 / 8.0);
-        cv::Sobel(image, gradient[1], CV_32F, 0, 1, 3, 1.0 / 8.0);
-        cv::merge(gradient, 2, level.g);
-        levels.push_back(std::move(level));
-        // pyrDown keeps the even pixels of the blurred image: level pixel i is centred on pixel
-        // 2i of the level below, so coordinates simply halve in the OpenCV pixel convention.
-        cv::Mat next;
-        cv::pyrDown(image, next);
-        image = next;
+        if (l > 0 && std::min(width, height) < 64) break;
+        ++levels;
+        width = (width + 1) / 2;  // cv::pyrDown's size
+        height = (height + 1) / 2;
     }
     return levels;
+}
+
+// The pyramid's buffers, kept between calls on a thread: allocated afresh, a 640x480 pyramid is
+// megabytes of new pages per call, whose page faults and unmapping cost about as much as the
+// filters (desk: the refinement 6.8 -> 4.4 ms CPU per frame; docs/tracking.md, "Speed").
+struct PyramidBuffers {
+    cv::Mat converted;            // the grey image as float
+    std::vector<cv::Mat> images;  // the blurred image per level
+    cv::Mat gradient[2];          // d/dx, d/dy of one level before interleaving
+    std::vector<Level> levels;
+};
+
+// The levels 0..max_level (those the refinement will use). Valid until the next call on the
+// same thread.
+const std::vector<Level>& buildPyramid(const ImageView& gray8, const EdgeRefineOptions& options, int max_level) {
+    thread_local PyramidBuffers b;
+    // The view's rows may be padded: wrap them without copying (OpenCV does not write to it).
+    const cv::Mat view(gray8.height, gray8.width, CV_8UC1, const_cast<std::uint8_t*>(gray8.data), gray8.stride);
+    // Hard case: a small image; no level too small to hold an edge profile (pyramidLevelCount).
+    const auto count =
+        static_cast<std::size_t>(std::min(max_level + 1, pyramidLevelCount(gray8.width, gray8.height, options)));
+    b.images.resize(count);
+    b.levels.resize(count);
+    view.convertTo(b.converted, CV_32F);
+    if (options.blur_sigma_px > 0.0) {
+        cv::GaussianBlur(b.converted, b.images[0], cv::Size(0, 0), options.blur_sigma_px);
+    } else {
+        b.converted.copyTo(b.images[0]);
+    }
+    for (std::size_t l = 0; l < count; ++l) {
+        // pyrDown keeps the even pixels of the blurred image: level pixel i is centred on pixel
+        // 2i of the level below, so coordinates simply halve in the OpenCV pixel convention.
+        if (l > 0) cv::pyrDown(b.images[l - 1], b.images[l]);
+        Level& level = b.levels[l];
+        level.scale = std::ldexp(1.0, -static_cast<int>(l));
+        cv::Sobel(b.images[l], b.gradient[0], CV_32F, 1, 0, 3, 1.0 / 8.0);
+        cv::Sobel(b.images[l], b.gradient[1], CV_32F, 0, 1, 3, 1.0 / 8.0);
+        cv::merge(b.gradient, 2, level.g);
+    }
+    return b.levels;
 }
 
 // Jacobian of CameraModel::project (distorted pixels) with respect to the point in the camera frame.
@@ -506,7 +532,6 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
     using Clock = std::chrono::steady_clock;
     const auto since = [](Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); };
     auto t0 = Clock::now();
-    const std::vector<Level> levels = buildPyramid(gray8, options);
     const FieldOfView fov = fieldOfView(camera);
     result.step_seconds.pyramid = since(t0);
     std::vector<Sample> samples;
@@ -535,7 +560,7 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
     // initial pose's offset from the prior's plus prior_sigmas of the prior's standard deviation
     // there (J Sigma J^T, linearised: the rotation and translation uncertainties of a pose from
     // tags are strongly correlated, and largely cancel in the image).
-    int first_level = static_cast<int>(levels.size()) - 1;
+    int first_level = pyramidLevelCount(gray8.width, gray8.height, options) - 1;
     bool sampled = false;  // the samples at the initial pose are already there
     if (prior_term && options.prior_sigmas > 0.0 && first_level > 0) {
         t0 = Clock::now();
@@ -560,6 +585,10 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
         }
     }
     result.first_level = first_level;
+    // Only the levels used: from full resolution up to the first.
+    t0 = Clock::now();
+    const std::vector<Level>& levels = buildPyramid(gray8, options, first_level);
+    result.step_seconds.pyramid += since(t0);
 
     // Steps 1-3 per level, coarse to fine.
     for (int l = first_level; l >= 0; --l) {

@@ -424,13 +424,10 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             auto alt = refinePoseWithEdges(gray8, s.camera, *s.edge_model, *alternative, s.options.edge_options, alt_prior);
             const bool alt_ok = alt && alt->ok;
             bool resolved = false;
+            const TrackedTag& t = out.tags[*alone_ambiguous];
             TagPose& p = *out.tags[*alone_ambiguous].pose;
             if (alt_ok && !refined->ok) {
-                // The edges confirm the other candidate only: it becomes the tag's and the frame's.
-                std::swap(p.candidates[0], p.candidates[1]);
-                p.cam_from_tag = p.candidates[0].cam_from_tag;
-                p.rms_px = p.candidates[0].rms_px;
-                p.ambiguity_ratio = 1.0 / p.ambiguity_ratio;
+                // The edges confirm the other candidate only: it becomes the frame's.
                 measurement->cam_from_world = *alternative;
                 refined = std::move(alt);
                 resolved = true;
@@ -439,6 +436,18 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                 resolved = !alt_ok || rotationErrorDeg(alt->cam_from_world, refined->cam_from_world) < 1.0;
             }
             if (resolved) {
+                // As with the scene's tags (step 3): the candidate nearer the pose the edges give
+                // the tag goes first, and the tag's pose becomes that pose (both starts may have
+                // converged onto it from either candidate).
+                const TagItem* item = s.tags.find(t.detection.id);
+                const Rigid3d implied = refined->cam_from_world * item->world_from_tag;
+                if (rotationErrorDeg(p.candidates[1].cam_from_tag, implied) <
+                    rotationErrorDeg(p.candidates[0].cam_from_tag, implied)) {
+                    std::swap(p.candidates[0], p.candidates[1]);
+                    p.ambiguity_ratio = 1.0 / p.ambiguity_ratio;
+                }
+                p.cam_from_tag = implied;
+                p.rms_px = tagReprojectionRms(t.detection.corners, item->size, s.camera, implied);
                 p.choice = PoseChoice::kEdges;
                 p.ambiguous = false;
                 alone_ambiguous.reset();

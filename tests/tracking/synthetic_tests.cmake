@@ -8,3 +8,6 @@ commonlight_test(tracking timestamps SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/timesta
 # Ambiguous single tags: reported as such alone, chosen by a second tag in view.
 commonlight_test(tracking ambiguity SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/ambiguity_test.cpp
                  DEPS commonlight::tracking commonlight_test_synthetic_tags)
+# The proxies' edges choose a small single tag's candidate (desk scene, rendered by mocks/sim).
+commonlight_test(tracking ambiguity_edges SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/ambiguity_edges_test.cpp
+                 DEPS commonlight::tracking commonlight::sim)
