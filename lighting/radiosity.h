@@ -235,6 +235,8 @@ private:
         double radius = 0.0;
         double peak = 1.0;                 // largest radiance of its faces / the scene's
         std::vector<double> projected;     // per direction bin: sum of A_f exposure max(0, n_f . w_b)
+        // The same by face: (bin, A_f exposure cos) for every bin a face sees (its exitance's share).
+        std::vector<std::vector<std::pair<int, float>>> face_bins;
     };
     void makeClusters();
     int clusterOfFace(int face) const;

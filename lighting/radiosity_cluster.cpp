@@ -31,7 +31,7 @@ namespace commonlight::lighting {
 
 namespace {
 
-constexpr int kCells = 8;                       // per cube face side
+constexpr int kCells = 6;                       // per cube face side
 constexpr int kBins = 6 * kCells * kCells;      // direction bins
 constexpr int kVisibilityPairs = 16;
 constexpr double kMaxAngle = 0.3;               // a cluster's source is at most this wide over its distance
@@ -48,7 +48,7 @@ int directionBin(const Eigen::Vector3d& u) {
     return (face * kCells + j) * kCells + i;
 }
 
-Eigen::Vector3d binDirection(int bin) {
+Eigen::Vector3d binCentre(int bin) {
     const int i = bin % kCells, j = (bin / kCells) % kCells, face = bin / (kCells * kCells);
     const int axis = face / 2;
     Eigen::Vector3d u;
@@ -57,6 +57,17 @@ Eigen::Vector3d binDirection(int bin) {
     u[(axis + 2) % 3] = (j + 0.5) / kCells * 2.0 - 1.0;
     return u.normalized();
 }
+
+const std::vector<Eigen::Vector3d>& binDirections() {
+    static const std::vector<Eigen::Vector3d> table = [] {
+        std::vector<Eigen::Vector3d> t;
+        for (int b = 0; b < kBins; ++b) t.push_back(binCentre(b));
+        return t;
+    }();
+    return table;
+}
+
+Eigen::Vector3d binDirection(int bin) { return binDirections()[static_cast<std::size_t>(bin)]; }
 
 Eigen::Vector3d faceCentroid(const Face& f) {
     return f.origin + (f.triangle ? (f.edge_s + f.edge_t) / 3.0 : (f.edge_s + f.edge_t) / 2.0);
@@ -113,13 +124,16 @@ void Radiosity::makeClusters() {
         const bool small = options_.cluster_small_radius > 0.0 && c.radius <= options_.cluster_small_radius;
         if (!(many || small) || c.radius > options_.cluster_max_fraction * scene_radius || !(c.radius > 0.0)) continue;
         c.projected.assign(kBins, 0.0);
-        for (int b = 0; b < kBins; ++b) {
-            const Eigen::Vector3d w = binDirection(b);
-            for (int f : faces) {
-                const int root = hierarchy_.root(f);
-                if (hierarchy_[root].buried) continue;
-                const Face& face = faces_[static_cast<std::size_t>(f)];
-                c.projected[static_cast<std::size_t>(b)] += face.area * exposure(root) * std::max(0.0, face.normal.dot(w));
+        c.face_bins.resize(faces.size());
+        for (std::size_t i = 0; i < faces.size(); ++i) {
+            const int root = hierarchy_.root(faces[i]);
+            if (hierarchy_[root].buried) continue;
+            const Face& face = faces_[static_cast<std::size_t>(faces[i])];
+            for (int b = 0; b < kBins; ++b) {
+                const double w = face.area * exposure(root) * face.normal.dot(binDirection(b));
+                if (!(w > 0.0)) continue;
+                c.projected[static_cast<std::size_t>(b)] += w;
+                c.face_bins[i].emplace_back(b, static_cast<float>(w));
             }
         }
         c.peak = 0.0;
@@ -329,18 +343,14 @@ void Radiosity::gatherClusters(const std::vector<Eigen::Vector3d>& radiance, std
         const Cluster& c = clusters_[ci];
         exitance[ci].assign(kBins, Eigen::Vector3d::Zero());
         double area = 0.0;
-        for (int f : c.faces) {
-            const int root = hierarchy_.root(f);
+        for (std::size_t i = 0; i < c.faces.size(); ++i) {
+            const int root = hierarchy_.root(c.faces[i]);
             if (hierarchy_[root].buried) continue;
-            const Face& face = faces_[static_cast<std::size_t>(f)];
-            const double a = face.area * exposure(root);
+            const double a = faces_[static_cast<std::size_t>(c.faces[i])].area * exposure(root);
             const Eigen::Vector3d& l = radiance[static_cast<std::size_t>(root)];
             mean[ci] += a * l;
             area += a;
-            for (int b = 0; b < kBins; ++b) {
-                const double cosine = face.normal.dot(binDirection(b));
-                if (cosine > 0.0) exitance[ci][static_cast<std::size_t>(b)] += a * cosine * l;
-            }
+            for (const auto& [b, w] : c.face_bins[i]) exitance[ci][static_cast<std::size_t>(b)] += static_cast<double>(w) * l;
         }
         if (area > 0.0) mean[ci] /= area;
         incident[ci].assign(kBins, Eigen::Matrix3d::Zero());
