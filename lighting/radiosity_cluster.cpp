@@ -378,7 +378,10 @@ void Radiosity::gatherClusters(const std::vector<Eigen::Vector3d>& radiance, std
             if (used[ci][static_cast<std::size_t>(b)]) bins.push_back(b);
         }
         if (bins.empty()) continue;
-        for (int f : clusters_[ci].faces) {
+        // In parallel over faces (each writes its own root): every face reads every used bin.
+        const std::vector<int>& faces = clusters_[ci].faces;
+        tbb::parallel_for(std::size_t{0}, faces.size(), [&](std::size_t i) {
+            const int f = faces[i];
             const Face& face = faces_[static_cast<std::size_t>(f)];
             const Eigen::Vector3d& n = face.normal;
             const Eigen::Vector3d offset = faceCentroid(face) - clusters_[ci].centre;
@@ -391,7 +394,7 @@ void Radiosity::gatherClusters(const std::vector<Eigen::Vector3d>& radiance, std
                 }
             }
             gathered[static_cast<std::size_t>(hierarchy_.root(f))] += e;
-        }
+        });
     }
 }
 
