@@ -126,6 +126,7 @@ Result<nlohmann::json> runClusterCase(const BenchLightingOptions&) {
     std::printf("%-6s %-12s %8s %8s %8s %9s %9s %10s %10s %10s %10s\n", "balls", "method", "leaves", "links", "cluster", "setup_ms",
                 "solve_ms", "room_rms%", "room_max%", "ball_rms%", "ball_max%");
     RadiosityOptions clustered;
+    clustered.cluster_min_faces = 24;
     RadiosityOptions plain = clustered;
     plain.cluster_min_faces = 0;
     RadiosityOptions fine = plain;

@@ -78,8 +78,11 @@ struct RadiosityOptions {
     // direction pushed to each face by its own cosine. A link opens the cluster into its faces
     // when its receiver (or source) is closer than cluster_distance radii, or when the form
     // factor's variation over the cluster's extent, times the radiance, exceeds link_epsilon.
-    // cluster_min_faces = 0: no clustering (every face linked on its own).
-    int cluster_min_faces = 24;
+    // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default until
+    // the virtual objects' influence corrects cluster links (lighting/influence.h only corrects
+    // element links: a virtual object between a clustered proxy and a surface would cast no
+    // shadow through them); 24 is the setting the tests and `bench lighting --cases cluster` use.
+    int cluster_min_faces = 0;
     double cluster_small_radius = 0.0;
     double cluster_max_fraction = 0.25;
     double cluster_distance = 2.0;

@@ -94,6 +94,7 @@ Difference compare(const Solved& a, const Solved& b, int first, int last) {
 TEST(RadiosityCluster, DetailedRealMeshKeepsLinksBoundedAndTheSolution) {
     const std::string room = kRoom, with_ball = std::string(kRoom) + kBall;
     RadiosityOptions options;
+    options.cluster_min_faces = 24;
     options.min_link_size = 0.15;
     const Solved base = solveScene(room, options, 1.0, 0.0, 0.5);
     const Solved clustered = solveScene(with_ball, options, 1.0, 0.0, 0.5);
@@ -143,6 +144,7 @@ TEST(RadiosityCluster, DetailedRealMeshKeepsLinksBoundedAndTheSolution) {
 TEST(RadiosityCluster, MeshRestingOnATableStaysWithinTheOracleBound) {
     const std::string yaml = std::string(kRoom) + "  - {name: ball, sphere: {radius: 0.1}, world_from_object: {t: [-0.4, 0.3, 0.8]}}\n";
     RadiosityOptions options;
+    options.cluster_min_faces = 24;
     const Solved base = solveScene(kRoom, options, 1.0, 0.0, 0.5);
     const Solved clustered = solveScene(yaml, options, 1.0, 0.0, 0.5);
     RadiosityOptions fine = options;
@@ -173,6 +175,7 @@ TEST(RadiosityCluster, MeshRestingOnATableStaysWithinTheOracleBound) {
 TEST(RadiosityCluster, FurnaceWithClusteredMeshStaysUniform) {
     const std::string with_ball = std::string(kRoom) + kBall;
     RadiosityOptions options;
+    options.cluster_min_faces = 24;
     options.min_link_size = 0.15;
     const Solved s = solveScene(with_ball, options, 0.0, 1.0, 0.5);
     EXPECT_GT(s.cluster_links, 0);
