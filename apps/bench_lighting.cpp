@@ -879,7 +879,7 @@ Result<nlohmann::json> caseShading(const BenchLightingOptions& o) {
 
 }  // namespace
 
-std::vector<std::string> benchLightingCaseNames() { return {"solver", "known", "distant", "nothing", "ratio", "shading", "incremental"}; }
+std::vector<std::string> benchLightingCaseNames() { return {"solver", "known", "distant", "nothing", "ratio", "shading", "cluster", "incremental"}; }
 
 int runBenchLighting(const BenchLightingOptions& options) {
     // Every case but `incremental` (its own run: --incremental) by default.
@@ -902,6 +902,7 @@ int runBenchLighting(const BenchLightingOptions& options) {
         if (name == "nothing") result = caseRatio(options, true);
         if (name == "ratio") result = caseRatio(options, false);
         if (name == "shading") result = caseShading(options);
+        if (name == "cluster") result = runClusterCase(options);
         if (name == "incremental") {
             // Its plot beside the solver's when both run.
             std::string plot = options.plot;

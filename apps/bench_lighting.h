@@ -17,6 +17,8 @@
 //             masks/changed (RMS and mean signed error), desk and room, against a reference
 //             rendered at 8x the sequence's spp over the changed region (and against the frames)
 //   shading   light direction from a known sphere's shading against seed 002's Tables 1-3
+//   cluster   real mesh proxies (real spheres, 320 triangles) in a room, with and without clustering:
+//             links, elements, setup and solve time, error against the unclustered solve at fine settings
 //   incremental  (--incremental; not in the default set) a virtual object moving along a path for
 //             `steps` steps on the desk and in the room: incremental update time (p50/p95/max),
 //             elements and links over time, ratio B/B~ against the path tracer at some steps, the
@@ -58,6 +60,9 @@ struct BenchLightingOptions {
 
 // Every case's name (all but `incremental` run by default).
 std::vector<std::string> benchLightingCaseNames();
+
+// Case `cluster` (apps/bench_lighting_cluster.cpp).
+Result<nlohmann::json> runClusterCase(const BenchLightingOptions& options);
 
 // Case `incremental` (apps/bench_lighting_incremental.cpp); `plot`: its PNG, or empty.
 Result<nlohmann::json> runIncrementalCase(const BenchLightingOptions& options, const std::string& plot);

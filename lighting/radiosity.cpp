@@ -276,6 +276,7 @@ void Radiosity::enforceConsistency() {
         for (const Link& l : links_) {
             own[static_cast<std::size_t>(l.receiver)] += l.form_factor * l.vis_real;
         }
+        clusterFormFactors(own);
         for (std::size_t i = 0; i < elements.size(); ++i) {
             for (int c = 0; c < elements[i].child_count; ++c) own[static_cast<std::size_t>(elements[i].first_child + c)] += own[i];
         }
@@ -310,6 +311,7 @@ void Radiosity::enforceConsistency() {
         links_ = std::move(kept);
         std::vector<Link> pushed = takePendingLinks();
         links_.insert(links_.end(), pushed.begin(), pushed.end());
+        finishClusterLinks();
     }
 }
 
@@ -641,10 +643,28 @@ void Radiosity::buildRealLinks() {
     links_.clear();
     pending_pairs_.clear();
     measureShelters();
+    cluster_links_.clear();
+    pending_cluster_links_.clear();
+    makeClusters();
     if (options_.hierarchical) {
+        // Pairs of faces, of a face and a cluster, or of two clusters (lighting/radiosity_cluster.cpp);
+        // a cluster's own faces are linked among themselves as faces.
+        const auto first_of = [&](std::size_t f, int cluster) {
+            return clusters_[static_cast<std::size_t>(cluster)].faces.front() == static_cast<int>(f);
+        };
         for (std::size_t fr = 0; fr < real_count_; ++fr) {
+            const int cr = clusterOfFace(static_cast<int>(fr));
             for (std::size_t fs = 0; fs < real_count_; ++fs) {
-                if (fr != fs) refine(hierarchy_.root(static_cast<int>(fr)), hierarchy_.root(static_cast<int>(fs)), 0);
+                if (fr == fs) continue;
+                const int cs = clusterOfFace(static_cast<int>(fs));
+                const int r = hierarchy_.root(static_cast<int>(fr)), s = hierarchy_.root(static_cast<int>(fs));
+                if (cr == cs) {
+                    refine(r, s, 0);
+                } else if (cs >= 0 && first_of(fs, cs)) {
+                    refineFromCluster(r, cs, 0);  // a face, or a face of another cluster, from a cluster
+                } else if (cr >= 0 && cs < 0 && first_of(fr, cr)) {
+                    refineToCluster(cr, s, 0);
+                }
             }
         }
     } else {
@@ -657,6 +677,7 @@ void Radiosity::buildRealLinks() {
         }
     }
     links_ = takePendingLinks();
+    finishClusterLinks();
     if (options_.hierarchical) enforceConsistency();
     sortLinks();
 }
@@ -668,7 +689,7 @@ void Radiosity::sortLinks() {
     for (std::size_t i = 1; i < link_offsets_.size(); ++i) link_offsets_[i] += link_offsets_[i - 1];
 }
 
-int Radiosity::linkCount(Mode) const { return static_cast<int>(links_.size()); }
+int Radiosity::linkCount(Mode) const { return static_cast<int>(links_.size() + cluster_links_.size()); }
 
 std::vector<int> Radiosity::leaves(Mode mode) const {
     std::vector<int> out;
@@ -732,8 +753,9 @@ GatherTerms gatherTerms(const std::vector<Link>& links, const std::vector<int>& 
 
 // One gather (H = pi sum F V L over each element's links, in parallel over receivers), then the
 // push: every leaf receives what its ancestors gathered (parents precede children).
+template <typename Extra>
 void gatherWith(const GatherTerms& t, const Hierarchy& hierarchy, const std::vector<Eigen::Vector3d>& radiance,
-                       std::vector<Eigen::Vector3d>& gathered) {
+                std::vector<Eigen::Vector3d>& gathered, const Extra& extra) {
     const auto& elements = hierarchy.elements();
     const std::size_t n = elements.size();
     gathered.resize(n);
@@ -746,6 +768,7 @@ void gatherWith(const GatherTerms& t, const Hierarchy& hierarchy, const std::vec
             gathered[e] = sum;
         }
     });
+    extra(radiance, gathered);  // the cluster links
     for (std::size_t i = 0; i < n; ++i) {
         const Element& e = elements[i];
         for (int c = 0; c < e.child_count; ++c) gathered[static_cast<std::size_t>(e.first_child + c)] += gathered[i];
@@ -759,7 +782,8 @@ void gatherWith(const GatherTerms& t, const Hierarchy& hierarchy, const std::vec
 
 std::vector<Eigen::Vector3d> Radiosity::gatherIndirect(Mode, const std::vector<Eigen::Vector3d>& radiance) const {
     std::vector<Eigen::Vector3d> gathered;
-    gatherWith(gatherTerms(links_, link_offsets_, hierarchy_.elements().size()), hierarchy_, radiance, gathered);
+    gatherWith(gatherTerms(links_, link_offsets_, hierarchy_.elements().size()), hierarchy_, radiance, gathered,
+               [this](const std::vector<Eigen::Vector3d>& l, std::vector<Eigen::Vector3d>& g) { gatherClusters(l, g); });
     return gathered;
 }
 
@@ -787,7 +811,8 @@ Solution Radiosity::solve(Mode mode, const std::vector<Eigen::Vector3d>& rho, co
     double residual = scale > 0.0 ? 1.0 : 0.0;
     while (residual > options_.residual && iteration < options_.max_iterations) {
         ++iteration;
-        gatherWith(terms, hierarchy_, out.radiance, gathered);
+        gatherWith(terms, hierarchy_, out.radiance, gathered,
+                   [this](const std::vector<Eigen::Vector3d>& l, std::vector<Eigen::Vector3d>& g) { gatherClusters(l, g); });
         double change = 0.0;
         for (int e : active) {
             const auto i = static_cast<std::size_t>(e);

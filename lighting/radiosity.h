@@ -70,12 +70,47 @@ struct RadiosityOptions {
     int max_elements = 8000;         // leaf budget
     int visibility_rays = 4;         // jittered rays per link (16 for near pairs)
     bool hierarchical = true;        // false: every pair of leaves linked (the uniform-grid gather baseline)
+    // Clustering of small real proxies (Smits et al. 1994; lighting/radiosity_cluster.cpp): a real
+    // object with at least cluster_min_faces faces (a mesh, a real sphere's 320 triangles), or
+    // with a bounding radius of at most cluster_small_radius metres, whose bounding radius is at
+    // most cluster_max_fraction of the scene's, exchanges light with everything else through one
+    // cluster: as a source, its faces' exitance by direction; as a receiver, the incident light by
+    // direction pushed to each face by its own cosine. A link opens the cluster into its faces
+    // when its receiver (or source) is closer than cluster_distance radii, or when the form
+    // factor's variation over the cluster's extent, times the radiance, exceeds link_epsilon.
+    // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default until
+    // the virtual objects' influence corrects cluster links (lighting/influence.h only corrects
+    // element links: a virtual object between a clustered proxy and a surface would cast no
+    // shadow through them); 24 is the setting the tests and `bench lighting --cases cluster` use.
+    int cluster_min_faces = 0;
+    double cluster_small_radius = 0.0;
+    double cluster_max_fraction = 0.25;
+    double cluster_distance = 2.0;
     double residual = 1e-4;          // stop when the largest radiance change of an iteration is below this fraction of the largest radiance
     int max_iterations = 2000;
     std::uint64_t seed = 1;          // of every jittered sample
 };
 
 enum class Mode : std::uint8_t { kReal, kAll };
+
+// A link through a cluster (RadiosityOptions::cluster_min_faces). `kind` kSource: element
+// `element` gathers from cluster `cluster`: its irradiance is weight x vis x the cluster's mean
+// radiance towards direction bin `bin` (weight: the receiver's mean of sum over the cluster's faces
+// of A_f cos_f cos_r / d^2). kReceiver: cluster `cluster` gathers from element `element`: each face
+// f of it receives vis x L_element x max(0, n_f . dir), dir the unit direction from the cluster's
+// centre to the source times its solid angle's cosine-weighted measure (the source's mean of
+// A_s cos_s / d^2), taken at the face's centroid to first order (`grad`).
+struct ClusterLink {
+    enum class Kind : std::uint8_t { kSource, kReceiver };
+    Kind kind = Kind::kSource;
+    int cluster = 0;
+    int element = 0;
+    int bin = 0;
+    float weight = 0.0f;
+    float vis_real = 1.0f;
+    Eigen::Vector3f dir = Eigen::Vector3f::Zero();
+    Eigen::Matrix3f grad = Eigen::Matrix3f::Zero();  // kReceiver: d dir / d x at the centre (faces off the centre)
+};
 
 struct Link {
     int receiver = 0;
@@ -183,14 +218,43 @@ public:
     // no iteration): inverse radiosity (seed 003 sec. 5.2) uses it with observed radiances.
     std::vector<Eigen::Vector3d> gatherIndirect(Mode mode, const std::vector<Eigen::Vector3d>& radiance) const;
 
+    // Links: element links plus cluster links.
     int linkCount(Mode mode) const;
     const std::vector<Link>& links() const noexcept { return links_; }
+    const std::vector<ClusterLink>& clusterLinks() const noexcept { return cluster_links_; }
+    // Clusters made by buildRealLinks() (RadiosityOptions::cluster_min_faces): the real object of each.
+    std::vector<int> clusterObjects() const;
     // Leaves in use for a mode (not buried; virtual leaves only in kAll).
     std::vector<int> leaves(Mode mode) const;
     // Pull: fills non-leaf radiances as area-weighted means of their children.
     void pull(std::vector<Eigen::Vector3d>& radiance) const;
 
 private:
+    // A small real proxy as one node (lighting/radiosity_cluster.cpp).
+    struct Cluster {
+        int object = -1;
+        std::vector<int> faces;  // face indices
+        Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+        double radius = 0.0;
+        double peak = 1.0;                 // largest radiance of its faces / the scene's
+        std::vector<double> projected;     // per direction bin: sum of A_f exposure max(0, n_f . w_b)
+        // The same by face: (bin, A_f exposure cos) for every bin a face sees (its exitance's share).
+        std::vector<std::vector<std::pair<int, float>>> face_bins;
+    };
+    void makeClusters();
+    int clusterOfFace(int face) const;
+    void refineFromCluster(int receiver, int cluster, int depth);
+    void refineToCluster(int cluster, int source, int depth);
+    void openCluster(int receiver, int cluster, int depth);
+    void computeClusterLink(ClusterLink& link) const;
+    double clusterKernel(int cluster, const Eigen::Vector3d& x, const Eigen::Vector3d& normal) const;
+    double clusterVisibility(int cluster, int element, const Eigen::Vector3d& towards, std::uint64_t seed) const;
+    void finishClusterLinks();
+    // Adds what the cluster links gather (irradiance at face roots and elements) to `gathered`.
+    void gatherClusters(const std::vector<Eigen::Vector3d>& radiance, std::vector<Eigen::Vector3d>& gathered) const;
+    // Adds each element's F x V through cluster links to `own` (enforceConsistency()).
+    void clusterFormFactors(std::vector<double>& own) const;
+
     void refine(int receiver, int source, int depth);
     double sourceStat(const std::vector<double>& stat, int element) const;
     void addLink(int receiver, int source);
@@ -235,6 +299,10 @@ private:
     std::vector<std::pair<int, int>> pending_pairs_;  // during refinement
     std::vector<double> source_range_;                // per element: radiance spread / scene maximum
     std::vector<double> source_peak_;                 // per element: largest radiance under it / scene maximum
+    std::vector<Cluster> clusters_;
+    std::vector<int> face_cluster_;                   // per face: its cluster, or -1
+    std::vector<ClusterLink> cluster_links_;
+    std::vector<ClusterLink> pending_cluster_links_;
 };
 
 }  // namespace commonlight::lighting
