@@ -453,6 +453,19 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                 alone_ambiguous.reset();
                 alternative.reset();
             }
+        } else if (refined && refined->ok && alone_ambiguous && !alternative &&
+                   rotationSigmaDeg(refined->covariance) <= s.options.tag_pose.ambiguous_rotation_sigma_deg) {
+            // One candidate, ambiguous only because the tag hardly fixes its tilt (step 2): the
+            // proxies' edges converged and fix it, so the frame is no longer ambiguous.
+            const TrackedTag& t = out.tags[*alone_ambiguous];
+            TagPose& p = *out.tags[*alone_ambiguous].pose;
+            const TagItem* item = s.tags.find(t.detection.id);
+            p.cam_from_tag = refined->cam_from_world * item->world_from_tag;
+            p.rms_px = tagReprojectionRms(t.detection.corners, item->size, s.camera, p.cam_from_tag);
+            p.candidates[0] = {p.cam_from_tag, p.rms_px};
+            p.choice = PoseChoice::kEdges;
+            p.ambiguous = false;
+            alone_ambiguous.reset();
         }
         if (refined) {
             if (refined->ok) {

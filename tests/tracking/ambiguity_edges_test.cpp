@@ -160,5 +160,58 @@ TEST(AmbiguityEdges, TheProxiesEdgesChooseASmallTagsCandidate) {
     EXPECT_GE(swapped, 1) << "these views were chosen so that the smaller residual is sometimes the wrong candidate";
 }
 
+// Head-on (0 and 0.5 degrees off), the tag's second candidate aligns onto the first, so there is
+// one candidate, but its tilt is too uncertain to trust (rotation sigma over
+// TagPoseOptions::ambiguous_rotation_sigma_deg): `ambiguous` alone, 4-5 degrees off. The proxies'
+// edges fix the tilt: the frame is tracked and the tag's pose is the edges' (before, the edges
+// converged to 0.03-0.05 degrees but the frame stayed `ambiguous`).
+TEST(AmbiguityEdges, TheProxiesEdgesFixAHeadOnTagsUncertainTilt) {
+    const Scene scene = oneTagDesk();
+    auto built = sim::SimScene::build(scene);
+    ASSERT_TRUE(built) << built.error().message;
+    const Rigid3d& world_from_tag = scene.tags.items[0].world_from_tag;
+    for (const double tilt : {0.0, 0.5}) {
+        const Rigid3d world_from_cam = worldFromCam(tilt, 45.0, 0.01, 0.0);
+        const Rigid3d truth = world_from_cam.inverse();
+        const Rigid3d tag_truth = truth * world_from_tag;
+        sim::RenderRequest request;
+        request.scene = &*built;
+        request.camera = *scene.camera;
+        request.world_from_cam = world_from_cam;
+        request.spp = 4;
+        request.max_depth = 2;
+        request.seed = 1;
+        auto rendered = sim::render(request);
+        ASSERT_TRUE(rendered) << rendered.error().message;
+        const Image image = toGray8(rendered->radiance, 1.5, 1);
+
+        auto alone = track(scene, image, false);
+        ASSERT_TRUE(alone) << alone.error().message;
+        ASSERT_EQ(alone->tags.size(), 1u);
+        ASSERT_TRUE(alone->tags[0].pose);
+        EXPECT_EQ(alone->status, TrackStatus::kAmbiguous) << "tilt " << tilt;
+        EXPECT_EQ(alone->tags[0].pose->candidates.size(), 1u) << "tilt " << tilt << ": this case is the single candidate's";
+        const double alone_err = rotationErrorDeg(alone->tags[0].pose->cam_from_tag, tag_truth);
+
+        auto with = track(scene, image, true);
+        ASSERT_TRUE(with) << with.error().message;
+        ASSERT_EQ(with->tags.size(), 1u);
+        ASSERT_TRUE(with->tags[0].pose && with->cam_from_world && with->edges);
+        const TagPose& p = *with->tags[0].pose;
+        const double err = rotationErrorDeg(*with->cam_from_world, truth);
+        std::printf("  tilt %.1f deg: alone %s, tag %.2f deg off; with edges %s, %s, camera %.3f deg off, tag %.3f deg off\n",
+                    tilt, trackStatusName(alone->status), alone_err, trackStatusName(with->status), poseChoiceName(p.choice), err,
+                    rotationErrorDeg(p.cam_from_tag, tag_truth));
+        EXPECT_TRUE(with->edges->ok) << with->edges->reason;
+        EXPECT_EQ(with->status, TrackStatus::kTracked) << "tilt " << tilt;
+        EXPECT_FALSE(p.ambiguous) << "tilt " << tilt;
+        EXPECT_EQ(p.choice, PoseChoice::kEdges) << "tilt " << tilt;
+        EXPECT_LT(err, 0.2) << "tilt " << tilt;
+        EXPECT_LT(rotationErrorDeg(p.cam_from_tag, tag_truth), 0.5) << "tilt " << tilt;
+        ASSERT_FALSE(p.candidates.empty());
+        EXPECT_LT(rotationErrorDeg(p.candidates[0].cam_from_tag, tag_truth), 0.5) << "tilt " << tilt;
+    }
+}
+
 }  // namespace
 }  // namespace commonlight::tracking
