@@ -18,6 +18,16 @@ std::vector<Eigen::Vector3d> ElementGeometry::polygon() const {
     return {corner, corner + edge_s, corner + edge_s + edge_t, corner + edge_t};
 }
 
+double ElementGeometry::distanceTo(const Eigen::Vector3d& x) const {
+    Eigen::Matrix<double, 3, 2> b;
+    b.col(0) = edge_s;
+    b.col(1) = edge_t;
+    Eigen::Vector2d ab = (b.transpose() * b).inverse() * (b.transpose() * (x - corner));
+    ab = ab.cwiseMax(0.0).cwiseMin(1.0);
+    if (triangle && ab.sum() > 1.0) ab /= ab.sum();
+    return (corner + ab.x() * edge_s + ab.y() * edge_t - x).norm();
+}
+
 namespace {
 
 Element makeElement(const Face& face, int face_index, const Eigen::Vector2d& st, const Eigen::Vector2d& ds,

@@ -51,6 +51,8 @@ struct ElementGeometry {
     Eigen::Vector3d centroid;
     bool triangle = false;
     std::vector<Eigen::Vector3d> polygon() const;
+    // Distance from a point to the polygon (its nearest point within the clamped edge coordinates).
+    double distanceTo(const Eigen::Vector3d& x) const;
 };
 
 class Hierarchy {

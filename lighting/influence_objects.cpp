@@ -17,17 +17,6 @@ namespace {
 
 constexpr double kPi = std::numbers::pi;
 
-// Distance from a point to an element's polygon (parallelogram or triangle).
-double distanceToPolygon(const ElementGeometry& g, const Eigen::Vector3d& x) {
-    Eigen::Matrix<double, 3, 2> b;
-    b.col(0) = g.edge_s;
-    b.col(1) = g.edge_t;
-    Eigen::Vector2d ab = (b.transpose() * b).inverse() * (b.transpose() * (x - g.corner));
-    ab = ab.cwiseMax(0.0).cwiseMin(1.0);
-    if (g.triangle && ab.sum() > 1.0) ab /= ab.sum();
-    return (g.corner + ab.x() * g.edge_s + ab.y() * g.edge_t - x).norm();
-}
-
 }  // namespace
 
 void VirtualInfluence::Impl::placeObject(int o, const InfluenceObject& in) {
@@ -246,7 +235,7 @@ void VirtualInfluence::Impl::clusterLinks(int o, std::vector<int>& leaf_level) {
         const ElementGeometry g = rad.geometry(a);
         if (g.normal.dot(s.ball.centre - g.centroid) < -s.radius) continue;  // behind the element
         // Step 1: can its light matter here? The largest form factor any point could have.
-        const double dmin = std::max(distanceToPolygon(g, s.ball.centre) - s.radius, 0.25 * s.radius);
+        const double dmin = std::max(g.distanceTo(s.ball.centre) - s.radius, 0.25 * s.radius);
         const double f_max = std::min(1.0, s.projected_max / (kPi * dmin * dmin));
         const double den = std::max(lumaOf(base.radiance[static_cast<std::size_t>(a)]), floorLuma(a));
         const double rho = rho_mean[static_cast<std::size_t>(a)];

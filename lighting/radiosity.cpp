@@ -357,21 +357,6 @@ Radiosity::Shelter Radiosity::shelter(int element) {
     return s;
 }
 
-namespace {
-
-// Distance from a point to an element's polygon (parallelogram or triangle).
-double distanceTo(const ElementGeometry& g, const Eigen::Vector3d& x) {
-    Eigen::Matrix<double, 3, 2> b;
-    b.col(0) = g.edge_s;
-    b.col(1) = g.edge_t;
-    Eigen::Vector2d ab = (b.transpose() * b).inverse() * (b.transpose() * (x - g.corner));
-    ab = ab.cwiseMax(0.0).cwiseMin(1.0);
-    if (g.triangle && ab.sum() > 1.0) ab /= ab.sum();
-    return (g.corner + ab.x() * g.edge_s + ab.y() * g.edge_t - x).norm();
-}
-
-}  // namespace
-
 double Radiosity::sourceStat(const std::vector<double>& stat, int element) const {
     // Elements made after setSourceRadiance() take their nearest measured ancestor's value (a
     // child's peak and spread are at most its parent's); without any, they count fully.
@@ -468,7 +453,7 @@ void Radiosity::refine(int r, int s, int depth) {
     // Near field: a source much larger than its distance to the receiver (the cabinet's side 5 cm
     // from the wall behind it) is seen through a small part of it, not through its mean radiance.
     const double source_size = std::sqrt(hierarchy_[s].area);
-    const bool near_field = f_centre > options_.link_epsilon && source_size > 2.0 * distanceTo(gs, gr.centroid);
+    const bool near_field = f_centre > options_.link_epsilon && source_size > 2.0 * gs.distanceTo(gr.centroid);
     if (depth < 40 && (f_centre * variation > options_.source_epsilon || near_field) && can_descend(s)) {
         if (hierarchy_[s].leaf()) hierarchy_.subdivide(s, min_size);
         const int first = hierarchy_[s].first_child, count = hierarchy_[s].child_count;

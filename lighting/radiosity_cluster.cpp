@@ -73,16 +73,6 @@ Eigen::Vector3d faceCentroid(const Face& f) {
     return f.origin + (f.triangle ? (f.edge_s + f.edge_t) / 3.0 : (f.edge_s + f.edge_t) / 2.0);
 }
 
-double distanceToElement(const ElementGeometry& g, const Eigen::Vector3d& x) {
-    Eigen::Matrix<double, 3, 2> b;
-    b.col(0) = g.edge_s;
-    b.col(1) = g.edge_t;
-    Eigen::Vector2d ab = (b.transpose() * b).inverse() * (b.transpose() * (x - g.corner));
-    ab = ab.cwiseMax(0.0).cwiseMin(1.0);
-    if (g.triangle && ab.sum() > 1.0) ab /= ab.sum();
-    return (g.corner + ab.x() * g.edge_s + ab.y() * g.edge_t - x).norm();
-}
-
 }  // namespace
 
 std::vector<int> Radiosity::clusterObjects() const {
@@ -253,7 +243,7 @@ void Radiosity::refineFromCluster(int r, int cluster, int depth) {
         for (int k = 0; k < count; ++k) refineFromCluster(first + k, cluster, depth + 1);
     };
     const double receiver_size = std::sqrt(hierarchy_[r].area);
-    const double nearest = distanceToElement(gr, c.centre);
+    const double nearest = gr.distanceTo(c.centre);
     // Close to the cluster: its faces one by one (after the receiver is split to the cluster's scale).
     if (nearest < options_.cluster_distance * c.radius || depth >= 40) {
         if (depth < 40 && can_descend && receiver_size > 2.0 * c.radius) return split();
@@ -298,7 +288,7 @@ void Radiosity::refineToCluster(int cluster, int s, int depth) {
         for (int f : c.faces) refine(hierarchy_.root(f), s, depth + 1);
     };
     const double source_size = std::sqrt(hierarchy_[s].area);
-    const double nearest = distanceToElement(gs, c.centre);
+    const double nearest = gs.distanceTo(c.centre);
     if (nearest < options_.cluster_distance * c.radius || depth >= 40) {
         if (depth < 40 && can_descend && source_size > 2.0 * c.radius) return split();
         return open();

@@ -86,6 +86,19 @@ std::vector<View> views() {
     return out;
 }
 
+// The path tracer's view (4 spp, two bounces) as the camera's 8-bit grey, with 1.5 grey levels of noise.
+Result<Image> renderView(const sim::SimScene& built, const Scene& scene, const Rigid3d& world_from_cam, std::uint64_t seed) {
+    sim::RenderRequest request;
+    request.scene = &built;
+    request.camera = *scene.camera;
+    request.world_from_cam = world_from_cam;
+    request.spp = 4;
+    request.max_depth = 2;
+    request.seed = seed;
+    CL_TRY(auto rendered, sim::render(request));
+    return toGray8(rendered.radiance, 1.5, seed);
+}
+
 Result<FrameTrack> track(const Scene& scene, const Image& image, bool edges) {
     TrackerOptions options;
     options.filter = false;
@@ -108,19 +121,11 @@ TEST(AmbiguityEdges, TheProxiesEdgesChooseASmallTagsCandidate) {
         const Rigid3d world_from_cam = worldFromCam(v.tilt_deg, v.axis_deg, v.dx, v.dy);
         const Rigid3d truth = world_from_cam.inverse();
         const Rigid3d tag_truth = truth * world_from_tag;
-        sim::RenderRequest request;
-        request.scene = &*built;
-        request.camera = *scene.camera;
-        request.world_from_cam = world_from_cam;
-        request.spp = 4;
-        request.max_depth = 2;
-        request.seed = v.seed;
-        auto rendered = sim::render(request);
-        ASSERT_TRUE(rendered) << rendered.error().message;
-        const Image image = toGray8(rendered->radiance, 1.5, v.seed);
+        auto image = renderView(*built, scene, world_from_cam, v.seed);
+        ASSERT_TRUE(image) << image.error().message;
 
         // Alone, the tag's residuals cannot tell.
-        auto alone = track(scene, image, false);
+        auto alone = track(scene, *image, false);
         ASSERT_TRUE(alone) << alone.error().message;
         ASSERT_EQ(alone->tags.size(), 1u) << "seed " << v.seed;
         ASSERT_TRUE(alone->tags[0].pose);
@@ -131,7 +136,7 @@ TEST(AmbiguityEdges, TheProxiesEdgesChooseASmallTagsCandidate) {
                                         rotationErrorDeg(a.candidates[1].cam_from_tag, tag_truth)};
 
         // The edges choose.
-        auto with = track(scene, image, true);
+        auto with = track(scene, *image, true);
         ASSERT_TRUE(with) << with.error().message;
         ASSERT_EQ(with->tags.size(), 1u);
         ASSERT_TRUE(with->tags[0].pose && with->cam_from_world && with->edges);
@@ -174,18 +179,10 @@ TEST(AmbiguityEdges, TheProxiesEdgesFixAHeadOnTagsUncertainTilt) {
         const Rigid3d world_from_cam = worldFromCam(tilt, 45.0, 0.01, 0.0);
         const Rigid3d truth = world_from_cam.inverse();
         const Rigid3d tag_truth = truth * world_from_tag;
-        sim::RenderRequest request;
-        request.scene = &*built;
-        request.camera = *scene.camera;
-        request.world_from_cam = world_from_cam;
-        request.spp = 4;
-        request.max_depth = 2;
-        request.seed = 1;
-        auto rendered = sim::render(request);
-        ASSERT_TRUE(rendered) << rendered.error().message;
-        const Image image = toGray8(rendered->radiance, 1.5, 1);
+        auto image = renderView(*built, scene, world_from_cam, 1);
+        ASSERT_TRUE(image) << image.error().message;
 
-        auto alone = track(scene, image, false);
+        auto alone = track(scene, *image, false);
         ASSERT_TRUE(alone) << alone.error().message;
         ASSERT_EQ(alone->tags.size(), 1u);
         ASSERT_TRUE(alone->tags[0].pose);
@@ -193,7 +190,7 @@ TEST(AmbiguityEdges, TheProxiesEdgesFixAHeadOnTagsUncertainTilt) {
         EXPECT_EQ(alone->tags[0].pose->candidates.size(), 1u) << "tilt " << tilt << ": this case is the single candidate's";
         const double alone_err = rotationErrorDeg(alone->tags[0].pose->cam_from_tag, tag_truth);
 
-        auto with = track(scene, image, true);
+        auto with = track(scene, *image, true);
         ASSERT_TRUE(with) << with.error().message;
         ASSERT_EQ(with->tags.size(), 1u);
         ASSERT_TRUE(with->tags[0].pose && with->cam_from_world && with->edges);
