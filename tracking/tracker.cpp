@@ -60,6 +60,28 @@ std::vector<PixelWindow> mergeOverlapping(std::vector<PixelWindow> windows) {
     return windows;
 }
 
+// An ambiguous tag settled by the camera pose the scene's other tags (step 3) or the proxies'
+// edges (step 4) give: the candidate nearer the pose this implies for the tag goes first (a lone
+// candidate becomes that pose), and the tag's pose becomes it (its own tilt is what the image
+// hardly fixed; both edge starts may have converged onto it from either candidate).
+void settleAmbiguousTag(TrackedTag& t, const TagItem& item, const CameraModel& camera, const Rigid3d& cam_from_world,
+                        PoseChoice choice) {
+    TagPose& p = *t.pose;
+    const Rigid3d implied = cam_from_world * item.world_from_tag;
+    p.cam_from_tag = implied;
+    p.rms_px = tagReprojectionRms(t.detection.corners, item.size, camera, implied);
+    if (p.candidates.size() > 1) {
+        if (rotationErrorDeg(p.candidates[1].cam_from_tag, implied) < rotationErrorDeg(p.candidates[0].cam_from_tag, implied)) {
+            std::swap(p.candidates[0], p.candidates[1]);
+            p.ambiguity_ratio = 1.0 / p.ambiguity_ratio;
+        }
+    } else if (!p.candidates.empty()) {
+        p.candidates[0] = {implied, p.rms_px};
+    }
+    p.choice = choice;
+    p.ambiguous = false;
+}
+
 }  // namespace
 
 const char* trackStatusName(TrackStatus status) noexcept {
@@ -385,19 +407,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                         alone_ambiguous = k;
                         continue;
                     }
-                    // The candidate nearer the pose the scene gives the tag goes first; the tag's
-                    // pose becomes the scene's (its own tilt is what the image hardly fixed).
-                    const Rigid3d implied = bundle->cam_from_world * item->world_from_tag;
-                    TagPose& p = *t.pose;
-                    if (p.candidates.size() > 1 && rotationErrorDeg(p.candidates[1].cam_from_tag, implied) <
-                                                       rotationErrorDeg(p.candidates[0].cam_from_tag, implied)) {
-                        std::swap(p.candidates[0], p.candidates[1]);
-                        p.ambiguity_ratio = 1.0 / p.ambiguity_ratio;
-                    }
-                    p.cam_from_tag = implied;
-                    p.rms_px = tagReprojectionRms(t.detection.corners, item->size, s.camera, implied);
-                    p.choice = PoseChoice::kScene;
-                    p.ambiguous = false;
+                    settleAmbiguousTag(t, *item, s.camera, bundle->cam_from_world, PoseChoice::kScene);
                 }
                 out.bundle = std::move(*bundle);
             }
@@ -424,8 +434,6 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             auto alt = refinePoseWithEdges(gray8, s.camera, *s.edge_model, *alternative, s.options.edge_options, alt_prior);
             const bool alt_ok = alt && alt->ok;
             bool resolved = false;
-            const TrackedTag& t = out.tags[*alone_ambiguous];
-            TagPose& p = *out.tags[*alone_ambiguous].pose;
             if (alt_ok && !refined->ok) {
                 // The edges confirm the other candidate only: it becomes the frame's.
                 measurement->cam_from_world = *alternative;
@@ -436,20 +444,8 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                 resolved = !alt_ok || rotationErrorDeg(alt->cam_from_world, refined->cam_from_world) < 1.0;
             }
             if (resolved) {
-                // As with the scene's tags (step 3): the candidate nearer the pose the edges give
-                // the tag goes first, and the tag's pose becomes that pose (both starts may have
-                // converged onto it from either candidate).
-                const TagItem* item = s.tags.find(t.detection.id);
-                const Rigid3d implied = refined->cam_from_world * item->world_from_tag;
-                if (rotationErrorDeg(p.candidates[1].cam_from_tag, implied) <
-                    rotationErrorDeg(p.candidates[0].cam_from_tag, implied)) {
-                    std::swap(p.candidates[0], p.candidates[1]);
-                    p.ambiguity_ratio = 1.0 / p.ambiguity_ratio;
-                }
-                p.cam_from_tag = implied;
-                p.rms_px = tagReprojectionRms(t.detection.corners, item->size, s.camera, implied);
-                p.choice = PoseChoice::kEdges;
-                p.ambiguous = false;
+                TrackedTag& t = out.tags[*alone_ambiguous];
+                settleAmbiguousTag(t, *s.tags.find(t.detection.id), s.camera, refined->cam_from_world, PoseChoice::kEdges);
                 alone_ambiguous.reset();
                 alternative.reset();
             }
@@ -457,14 +453,8 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                    rotationSigmaDeg(refined->covariance) <= s.options.tag_pose.ambiguous_rotation_sigma_deg) {
             // One candidate, ambiguous only because the tag hardly fixes its tilt (step 2): the
             // proxies' edges converged and fix it, so the frame is no longer ambiguous.
-            const TrackedTag& t = out.tags[*alone_ambiguous];
-            TagPose& p = *out.tags[*alone_ambiguous].pose;
-            const TagItem* item = s.tags.find(t.detection.id);
-            p.cam_from_tag = refined->cam_from_world * item->world_from_tag;
-            p.rms_px = tagReprojectionRms(t.detection.corners, item->size, s.camera, p.cam_from_tag);
-            p.candidates[0] = {p.cam_from_tag, p.rms_px};
-            p.choice = PoseChoice::kEdges;
-            p.ambiguous = false;
+            TrackedTag& t = out.tags[*alone_ambiguous];
+            settleAmbiguousTag(t, *s.tags.find(t.detection.id), s.camera, refined->cam_from_world, PoseChoice::kEdges);
             alone_ambiguous.reset();
         }
         if (refined) {
