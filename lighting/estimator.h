@@ -47,7 +47,7 @@ struct EstimatorOptions {
     double mean_albedo_prior = 0.5;     // scale of reflectances when nothing of known albedo is seen
     // The area lights' direct light per texel where the virtual objects change it, from this many
     // visibility pairs per texel and light (lighting/texel_direct.h); 0: the elements' (box-filtered).
-    int texel_direct_pairs = 16;
+    int texel_direct_pairs = 16;  // at most 64 (a bit mask per texel and light)
     int texel_direct_oversample = 1;  // texels per finest leaf along a side on those faces (2: the desk's ratio
                                       // RMS 0.0328 -> 0.0300, twice the update's CPU time)
 };

@@ -3,6 +3,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 #include <optional>
@@ -115,36 +116,47 @@ std::optional<FaceModulation> buildFaceModulation(const Radiosity& radiosity, co
         }
     }
     // Box filter of the piecewise-constant leaf field around (s, t), over the local leaf's extent:
-    // linear between element centres, no steps at element borders.
-    const auto filtered = [&](double s, double t, auto sample) {
+    // linear between element centres, no steps at element borders. The leaves it averages (the
+    // four corners of the box, those not buried; the centre's when all are) are found once per
+    // texel and read for every field.
+    struct Stencil {
+        std::array<int, 4> leaf{};
+        int n = 0;
+    };
+    const auto stencil = [&](double s, double t) {
         const int centre = leafAt(s, t);
         const Element& e = h[centre];
         const double hs = 0.5 * std::max(std::abs(e.ds.x()), std::abs(e.dt.x()));
         const double ht = 0.5 * std::max(std::abs(e.ds.y()), std::abs(e.dt.y()));
-        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-        int n = 0;
+        Stencil st;
         for (int dj = -1; dj <= 1; dj += 2) {
             for (int di = -1; di <= 1; di += 2) {
                 const int leaf = leafAt(std::clamp(s + 0.5 * di * hs, 0.0, 1.0), std::clamp(t + 0.5 * dj * ht, 0.0, 1.0));
                 if (h[leaf].buried) continue;
-                sum += sample(leaf);
-                ++n;
+                st.leaf[static_cast<std::size_t>(st.n++)] = leaf;
             }
         }
-        return n == 0 ? Eigen::Vector3d(sample(centre)) : Eigen::Vector3d(sum / n);
+        if (st.n == 0) st.leaf[static_cast<std::size_t>(st.n++)] = centre;
+        return st;
+    };
+    const auto filtered = [](const Stencil& st, const std::vector<Eigen::Vector3d>& field) {
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        for (int q = 0; q < st.n; ++q) sum += field[static_cast<std::size_t>(st.leaf[static_cast<std::size_t>(q)])];
+        return Eigen::Vector3d(sum / st.n);
     };
     tbb::parallel_for(0, m.height, [&](int j) {
         for (int i = 0; i < m.width; ++i) {
             const double s = (i + 0.5) / m.width, t = (j + 0.5) / m.height;
             const std::size_t k = m.texel(i, j);
-            Eigen::Vector3d b0 = filtered(s, t, [&](int l) { return without[static_cast<std::size_t>(l)]; });
-            Eigen::Vector3d b1 = filtered(s, t, [&](int l) { return with[static_cast<std::size_t>(l)]; });
-            const Eigen::Vector3d r = filtered(s, t, [&](int l) { return rho[static_cast<std::size_t>(l)]; });
+            const Stencil st = stencil(s, t);
+            Eigen::Vector3d b0 = filtered(st, without);
+            Eigen::Vector3d b1 = filtered(st, with);
+            const Eigen::Vector3d r = filtered(st, rho);
             if (texel_direct && !face.triangle) {
                 // The area lights' direct light at the texel's point instead of the elements' where
                 // the objects change it.
-                const Eigen::Vector3d e0 = filtered(s, t, [&](int l) { return (*texel_direct->without)[static_cast<std::size_t>(l)]; });
-                const Eigen::Vector3d e1 = filtered(s, t, [&](int l) { return (*texel_direct->with)[static_cast<std::size_t>(l)]; });
+                const Eigen::Vector3d e0 = filtered(st, *texel_direct->without);
+                const Eigen::Vector3d e1 = filtered(st, *texel_direct->with);
                 if ((e1 - e0).cwiseAbs().maxCoeff() > texel_direct->threshold) {
                     Eigen::Vector3d d0 = Eigen::Vector3d::Zero(), d1 = Eigen::Vector3d::Zero();
                     texel_direct->at(f, k, m.width, m.height, face.origin + s * face.edge_s + t * face.edge_t, d0, d1);

@@ -11,6 +11,12 @@ namespace commonlight::lighting {
 
 void TexelDirectCache::reset(std::vector<Light> lights, std::size_t faces) {
     lights_ = std::move(lights);
+    light_radius_.clear();
+    for (const Light& l : lights_) {
+        double radius = 0.0;
+        for (const Eigen::Vector3d& c : l.polygon->polygon) radius = std::max(radius, (c - l.polygon->centre).norm());
+        light_radius_.push_back(radius);
+    }
     faces_.assign(faces, Face{});
     locks_.clear();
     locks_.resize(faces);
@@ -22,11 +28,9 @@ void TexelDirectCache::forget(const std::vector<Ball>& moved) {
     for (Face& f : faces_) {
         for (Entry& e : f.entries) {
             if (!e.valid) continue;
-            for (const Light& l : lights_) {
+            for (std::size_t k = 0; k < lights_.size(); ++k) {
                 // The cone from the texel's point to a ball holding the light polygon.
-                double radius = 0.0;
-                for (const Eigen::Vector3d& c : l.polygon->polygon) radius = std::max(radius, (c - l.polygon->centre).norm());
-                const Shaft shaft{e.x, l.polygon->centre, 0.0, radius};
+                const Shaft shaft{e.x, lights_[k].polygon->centre, 0.0, light_radius_[k]};
                 if (std::any_of(moved.begin(), moved.end(), [&](const Ball& b) { return shaftMeetsBall(shaft, b); })) {
                     e.valid = false;
                     break;
@@ -39,48 +43,66 @@ void TexelDirectCache::forget(const std::vector<Ball>& moved) {
 void TexelDirectCache::at(int face, std::size_t texel, int width, int height, const Eigen::Vector3d& x, const Eigen::Vector3d& normal,
                           Eigen::Vector3d& without, Eigen::Vector3d& with) {
     Face& f = faces_[static_cast<std::size_t>(face)];
+    const std::size_t nl = lights_.size();
     {
         const std::lock_guard lock(locks_[static_cast<std::size_t>(face)]);
         if (f.width != width || f.height != height) {
             f.width = width;
             f.height = height;
             f.entries.assign(static_cast<std::size_t>(width) * static_cast<std::size_t>(height), Entry{});
+            f.parts.assign(f.entries.size() * nl, RealPart{});
         }
     }
     Entry& e = f.entries[texel];
-    if (e.valid && (e.x - x).squaredNorm() < 1e-18) {
+    const bool same_point = e.real && (e.x - x).squaredNorm() < 1e-18;
+    if (e.valid && same_point) {
         without = e.without;
         with = e.with;
         return;
     }
     // Each light: its exact form factor at x times the kernel-weighted fraction of `pairs_`
-    // stratified segments to it that the real scene (and the virtual objects) leave open.
+    // stratified segments to it that the real scene (and the virtual objects) leave open. The
+    // real part is traced once per point; a move traces the virtual rays of the open pairs.
     constexpr double kPi = std::numbers::pi;
-    without.setZero();
+    const int pairs = std::clamp(pairs_, 1, 64);
+    if (!same_point) without.setZero();
     with.setZero();
-    for (std::size_t k = 0; k < lights_.size(); ++k) {
+    for (std::size_t k = 0; k < nl; ++k) {
+        RealPart& part = f.parts[texel * nl + k];
         const LightGeometry& light = *lights_[k].polygon;
-        const double form = pointToPolygon(x, normal, light.polygon, light.normal);
-        if (!(form > 0.0)) continue;
         const std::uint64_t seed = hashCombine(hashCombine(0x7e8e1ull, static_cast<std::uint64_t>(face)), hashCombine(texel, k));
-        double all = 0.0, open_real = 0.0, open_both = 0.0;
-        for (int j = 0; j < pairs_; ++j) {
-            const Eigen::Vector3d q = sampleLight(light, stratified2d(seed, j, pairs_));
+        if (!same_point) {
+            part = RealPart{};
+            part.form = pointToPolygon(x, normal, light.polygon, light.normal);
+        }
+        if (!(part.form > 0.0)) continue;
+        double open_real = 0.0, open_both = 0.0;
+        for (int j = 0; j < pairs; ++j) {
+            const std::uint64_t bit = std::uint64_t{1} << j;
+            if (same_point && (part.blocked & bit) != 0) continue;
+            const Eigen::Vector3d q = sampleLight(light, stratified2d(seed, j, pairs));
             const Eigen::Vector3d dv = q - x;
             const double d2 = dv.squaredNorm();
             const double w = d2 > 0.0 ? std::max(0.0, normal.dot(dv)) * std::max(0.0, -light.normal.dot(dv)) / (d2 * d2) : 0.0;
-            if (!(w > 0.0)) continue;
-            all += w;
-            if (rays_.occludedReal(x, normal, q, light.normal)) continue;
+            if (!same_point) {
+                if (!(w > 0.0) || rays_.occludedReal(x, normal, q, light.normal)) {
+                    part.blocked |= bit;
+                    part.all += w > 0.0 ? w : 0.0;
+                    continue;
+                }
+                part.all += w;
+            }
             open_real += w;
             if (!rays_.occludedVirtual(x, normal, q, light.normal)) open_both += w;
         }
-        if (!(all > 0.0)) continue;
-        without += kPi * form * (open_real / all) * lights_[k].emission;
-        with += kPi * form * (open_both / all) * lights_[k].emission;
+        if (!(part.all > 0.0)) continue;
+        if (!same_point) without += kPi * part.form * (open_real / part.all) * lights_[k].emission;
+        with += kPi * part.form * (open_both / part.all) * lights_[k].emission;
     }
+    if (same_point) without = e.without;
     ++traced_;
     e.valid = true;
+    e.real = true;
     e.x = x;
     e.without = without;
     e.with = with;

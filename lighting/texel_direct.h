@@ -7,10 +7,12 @@
 //
 // A texel's answer is kept while no object that moved had its old or new bounds in the shaft
 // between the texel's point and a light (the influence's rule, lighting/influence.h), so a move
-// traces the texels it reaches. Lighting thread only; at() is called in parallel for distinct texels.
+// traces the texels it reaches; and of those, only the virtual rays: the form factor and which
+// pairs the real scene blocks are kept (the real scene does not change between full updates). Lighting thread only; at() is called in parallel for distinct texels.
 #pragma once
 
 #include <atomic>
+#include <cstdint>
 #include <deque>
 #include <mutex>
 #include <vector>
@@ -45,17 +47,26 @@ public:
 
 private:
     struct Entry {
-        bool valid = false;
+        bool valid = false;  // `with` stands (no move reached the texel's shafts)
+        bool real = false;   // `without` and the parts below stand (the texel's point is x)
         Eigen::Vector3d x = Eigen::Vector3d::Zero();
         Eigen::Vector3d without = Eigen::Vector3d::Zero(), with = Eigen::Vector3d::Zero();
+    };
+    // Per texel and light: what does not depend on the virtual objects.
+    struct RealPart {
+        double form = 0.0;           // point-to-polygon form factor
+        double all = 0.0;            // kernel weight of the pairs
+        std::uint64_t blocked = 0;   // pairs the real scene blocks (bit j), or with no weight
     };
     struct Face {
         int width = 0, height = 0;
         std::vector<Entry> entries;
+        std::vector<RealPart> parts;  // entries x lights
     };
     const RayScene& rays_;
     int pairs_;
     std::vector<Light> lights_;
+    std::vector<double> light_radius_;  // a ball about each light polygon's centre holding it
     std::vector<Face> faces_;
     std::deque<std::mutex> locks_;  // by face: a change of layout
     std::atomic<long> traced_{0};

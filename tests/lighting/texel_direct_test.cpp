@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <memory>
 
 #include "core/scene_io.h"
 #include "lighting/estimator.h"
@@ -35,9 +36,9 @@ struct PenumbraError {
     int texels = 0;
 };
 
-PenumbraError penumbraError(int texel_pairs) {
-    auto scene = parseScene(kScene, "texel_direct.yaml");
-    EXPECT_TRUE(scene) << scene.error().message;
+// The estimator of the scene with every light and albedo given, the camera 1 m above the floor
+// looking down (the influence refines to its 2-pixel footprint).
+std::unique_ptr<Estimator> makeEstimator(const Scene& scene, int texel_pairs) {
     CameraModel cam;
     cam.width = 160;
     cam.height = 120;
@@ -49,13 +50,21 @@ PenumbraError penumbraError(int texel_pairs) {
     o.initial_element_size = 0.2;
     o.light_refinement_size = 0.08;
     o.texel_direct_pairs = texel_pairs;
-    auto est = Estimator::create(*scene, cam, {}, o);
+    auto est = Estimator::create(scene, cam, {}, o);
     EXPECT_TRUE(est) << est.error().message;
-    // The camera 1 m above the floor looking down: the influence refines to its 2-pixel footprint.
+    if (!est) return nullptr;
     (*est)->setViewer(Rigid3d::fromRpyDeg(Eigen::Vector3d(0.0, 0.0, 1.0), Eigen::Vector3d(180, 0, 0)).inverse());
-    const std::vector<Rigid3d> poses = SceneLighting::scenePoses(*scene, 0.0);
-    EXPECT_TRUE((*est)->solveWith({*scene->lights[0].emission.value}, {Eigen::Vector3d::Constant(0.5)}, poses));
-    auto snapshot = (*est)->update(poses);
+    const std::vector<Rigid3d> poses = SceneLighting::scenePoses(scene, 0.0);
+    EXPECT_TRUE((*est)->solveWith({*scene.lights[0].emission.value}, {Eigen::Vector3d::Constant(0.5)}, poses));
+    return std::move(*est);
+}
+
+PenumbraError penumbraError(int texel_pairs) {
+    auto scene = parseScene(kScene, "texel_direct.yaml");
+    EXPECT_TRUE(scene) << scene.error().message;
+    auto est = makeEstimator(*scene, texel_pairs);
+    if (!est) return {};
+    auto snapshot = est->update(SceneLighting::scenePoses(*scene, 0.0));
     EXPECT_TRUE(snapshot) << snapshot.error().message;
     const FaceModulation* floor = snapshot->findFace(0, 0);
     EXPECT_NE(floor, nullptr);
@@ -107,6 +116,44 @@ TEST(TexelDirect, PenumbraCloserToTheTruthThanTheElements) {
     EXPECT_LT(texels.rms, 0.6 * elements.rms) << "elements " << elements.rms << ", per texel " << texels.rms;
     RecordProperty("elements_rms", std::to_string(elements.rms));
     RecordProperty("texels_rms", std::to_string(texels.rms));
+}
+
+// A texel's real visibility is traced once and kept; a move traces its virtual rays again where the
+// ball's old or new bounds reach its shafts. After three moves the floor's texture is the one a
+// fresh estimator gives with the ball where it ended (both estimators trace the same pairs): a
+// kept answer that should have been traced again would leave the old shadow behind.
+TEST(TexelDirect, KeptAnswersAfterMovesEqualAFreshEstimate) {
+    auto scene = parseScene(kScene, "texel_direct.yaml");
+    ASSERT_TRUE(scene) << scene.error().message;
+    auto moving = makeEstimator(*scene, 16);
+    ASSERT_TRUE(moving);
+    std::vector<Rigid3d> poses = SceneLighting::scenePoses(*scene, 0.0);
+    auto first = moving->update(poses);
+    ASSERT_TRUE(first) << first.error().message;
+    for (double x : {0.03, 0.06, 0.09}) {
+        poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(x, 0.0, 0.2), Eigen::Vector3d::Zero());
+        ASSERT_TRUE(moving->update(poses));
+    }
+    auto last = moving->update(poses);
+    ASSERT_TRUE(last) << last.error().message;
+    auto fresh_est = makeEstimator(*scene, 16);
+    ASSERT_TRUE(fresh_est);
+    auto fresh = fresh_est->update(poses);
+    ASSERT_TRUE(fresh) << fresh.error().message;
+    const FaceModulation* a = last->findFace(0, 0);
+    const FaceModulation* b = fresh->findFace(0, 0);
+    const FaceModulation* start = first->findFace(0, 0);
+    ASSERT_TRUE(a && b && start);
+    ASSERT_EQ(a->width, b->width);
+    ASSERT_EQ(a->height, b->height);
+    double worst = 0.0;
+    int moved = 0;
+    for (std::size_t k = 0; k < a->ratio.size(); ++k) {
+        worst = std::max(worst, static_cast<double>(std::abs(a->ratio[k].y() - b->ratio[k].y())));
+        if (k < start->ratio.size() && a->width == start->width && std::abs(a->ratio[k].y() - start->ratio[k].y()) > 0.2) ++moved;
+    }
+    EXPECT_GT(moved, 50) << "the shadow moved";
+    EXPECT_LT(worst, 0.01) << "largest ratio difference against a fresh estimate";
 }
 
 }  // namespace
