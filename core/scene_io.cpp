@@ -389,7 +389,7 @@ private:
 
     Result<void> parseLighting(const YAML::Node& root, LightingOptions& lighting) const {
         const YAML::Node node = root["lighting"];
-        CL_TRY_VOID(yaml::checkKeys(file_, node, "lighting", {"max_elements", "error"}));
+        CL_TRY_VOID(yaml::checkKeys(file_, node, "lighting", {"max_elements", "error", "texel_pairs", "texel_oversample"}));
         if (present(node, "max_elements")) {
             CL_TRY(lighting.max_elements, yaml::getInt(file_, node, "lighting.max_elements"));
             if (lighting.max_elements <= 0) {
@@ -398,6 +398,17 @@ private:
         }
         if (present(node, "error")) {
             CL_TRY(lighting.error, yaml::getPositive(file_, node, "lighting.error"));
+        }
+        // (At most 64 pairs: a bit mask per texel and light; at most 4 texels per element side.)
+        for (const auto& [name, field, lo, hi] : {std::tuple{"texel_pairs", &lighting.texel_pairs, 0, 64},
+                                                  std::tuple{"texel_oversample", &lighting.texel_oversample, 1, 4}}) {
+            if (!present(node, name)) continue;
+            const std::string key = std::string("lighting.") + name;
+            CL_TRY(const int v, yaml::getInt(file_, node, key));
+            if (v < lo || v > hi) {
+                return fail(keyError(file_, node[name], key, "must be between " + std::to_string(lo) + " and " + std::to_string(hi)));
+            }
+            *field = v;
         }
         return {};
     }

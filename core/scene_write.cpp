@@ -59,7 +59,10 @@ public:
             for (const VirtualObject& object : scene.virtual_objects) writeVirtual(object);
         }
         out_ << "lighting: {max_elements: " << scene.lighting.max_elements
-             << ", error: " << yaml::formatNumber(scene.lighting.error) << "}\n";
+             << ", error: " << yaml::formatNumber(scene.lighting.error);
+        if (scene.lighting.texel_pairs) out_ << ", texel_pairs: " << *scene.lighting.texel_pairs;
+        if (scene.lighting.texel_oversample) out_ << ", texel_oversample: " << *scene.lighting.texel_oversample;
+        out_ << "}\n";
         return out_.str();
     }
 

@@ -151,6 +151,8 @@ Result<std::unique_ptr<Estimator>> Estimator::create(const Scene& scene, const C
     Impl& d = *out->impl_;
     out->options_ = estimator_options;
     out->options_.radiosity.max_elements = std::max(64, scene.lighting.max_elements);
+    if (scene.lighting.texel_pairs) out->options_.texel_direct_pairs = *scene.lighting.texel_pairs;
+    if (scene.lighting.texel_oversample) out->options_.texel_direct_oversample = *scene.lighting.texel_oversample;
     out->radiance_scale_ = options.radiance_scale.value_or(1.0);
     if (!options.radiance_scale) {
         d.setup_warnings.push_back(

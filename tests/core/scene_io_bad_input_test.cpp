@@ -300,6 +300,12 @@ TEST(SceneIoBadInput, EstimateIsNotAVirtualAlbedo) {
                      "virtual[0].material.albedo", "expected a number, found 'estimate'", "estimate");
 }
 
+TEST(SceneIoBadInput, TexelSettingsOutOfRange) {
+    expectSceneError("lighting: {texel_pairs: 65}\n", "lighting.texel_pairs", "must be between 0 and 64", "lighting");
+    expectSceneError("lighting: {texel_oversample: 0}\n", "lighting.texel_oversample", "must be between 1 and 4", "lighting");
+    expectSceneError("lighting: {texel_pairs: many}\n", "lighting.texel_pairs", "", "many");
+}
+
 TEST(SceneIoBadInput, NonPositiveMaxElements) {
     expectSceneError("lighting: {max_elements: 0, error: 0.01}\n", "lighting.max_elements", "must be positive",
                      "lighting");

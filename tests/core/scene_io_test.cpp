@@ -116,6 +116,16 @@ TEST(SceneIo, MinimalSceneGetsDefaults) {
     EXPECT_EQ(scene->lighting, LightingOptions{});
     EXPECT_EQ(scene->lighting.max_elements, 8000);
     EXPECT_EQ(scene->lighting.error, 0.01);
+    EXPECT_FALSE(scene->lighting.texel_pairs);
+    EXPECT_FALSE(scene->lighting.texel_oversample);
+}
+
+TEST(SceneIo, TexelSettings) {
+    const auto scene = parseScene("real:\n  - {name: floor, plane: {size: [2, 3]}}\nlighting: {texel_pairs: 32, texel_oversample: 2}\n",
+                                  "/tmp/texels.yaml");
+    ASSERT_TRUE(scene) << scene.error().message;
+    EXPECT_EQ(scene->lighting.texel_pairs, 32);
+    EXPECT_EQ(scene->lighting.texel_oversample, 2);
 }
 
 TEST(SceneIo, TransformSpellingsAgree) {
@@ -275,7 +285,7 @@ TEST(SceneIo, AwkwardValuesRoundTripExactly) {
     attached.shape = PlaneShape{{0.2, 0.1}};
     attached.placement = TagPlacement{2000, Rigid3d::fromRpyDeg({0, 0, 0.01}, {90, 0, 0})};
     scene.virtual_objects.push_back(attached);
-    scene.lighting = {123, 1e-4};
+    scene.lighting = {123, 1e-4, 32, 2};
 
     const auto file = dir / "scene.yaml";
     ASSERT_TRUE(writeScene(file, scene));
