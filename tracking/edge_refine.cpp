@@ -70,8 +70,7 @@ int pyramidLevelCount(int width, int height, const EdgeRefineOptions& options) {
 // megabytes of new pages per call, whose page faults and unmapping cost about as much as the
 // filters (desk: the refinement 6.8 -> 4.4 ms CPU per frame; docs/tracking.md, "Speed").
 struct PyramidBuffers {
-    cv::Mat converted;            // the grey image as float
-    std::vector<cv::Mat> images;  // the blurred image per level
+    std::vector<cv::Mat> images;  // the blurred image per level (level 0: converted to float, blurred in place)
     std::vector<Level> levels;
 };
 
@@ -86,12 +85,9 @@ const std::vector<Level>& buildPyramid(const ImageView& gray8, const EdgeRefineO
         static_cast<std::size_t>(std::min(max_level + 1, pyramidLevelCount(gray8.width, gray8.height, options)));
     b.images.resize(count);
     b.levels.resize(count);
-    view.convertTo(b.converted, CV_32F);
-    if (options.blur_sigma_px > 0.0) {
-        cv::GaussianBlur(b.converted, b.images[0], cv::Size(0, 0), options.blur_sigma_px);
-    } else {
-        b.converted.copyTo(b.images[0]);
-    }
+    view.convertTo(b.images[0], CV_32F);
+    // In place (OpenCV's separable filters support it): one float image less to keep in the caches.
+    if (options.blur_sigma_px > 0.0) cv::GaussianBlur(b.images[0], b.images[0], cv::Size(0, 0), options.blur_sigma_px);
     for (std::size_t l = 0; l < count; ++l) {
         // pyrDown keeps the even pixels of the blurred image: level pixel i is centred on pixel
         // 2i of the level below, so coordinates simply halve in the OpenCV pixel convention.
