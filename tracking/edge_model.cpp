@@ -223,8 +223,8 @@ Result<EdgeModel> EdgeModel::fromScene(const Scene& scene, const EdgeModelOption
     return model;
 }
 
-std::optional<double> EdgeModel::firstHit(const Vector3d& origin, const Vector3d& dir, double t_min,
-                                          double t_max) const {
+std::optional<double> EdgeModel::firstHit(const Vector3d& origin, const Vector3d& dir, double t_min, double t_max,
+                                          bool any) const {
     double best = kInfinity;
     const auto consider = [&](std::optional<double> t) {
         if (t && *t > t_min && *t <= t_max && *t < best) best = *t;
@@ -233,6 +233,7 @@ std::optional<double> EdgeModel::firstHit(const Vector3d& origin, const Vector3d
         const Vector3d o = box.object_from_world * origin;
         const Vector3d d = box.object_from_world.rotation * dir;
         if (const auto span = slabs(o, d, -box.half_size, box.half_size)) consider(boxCrossing(*span, t_min, t_max));
+        if (any && best < kInfinity) return best;
     }
     for (const PlaneOccluder& plane : planes_) {
         const Vector3d o = plane.object_from_world * origin;
@@ -241,6 +242,7 @@ std::optional<double> EdgeModel::firstHit(const Vector3d& origin, const Vector3d
         const double t = -o.z() / d.z();
         const Vector3d p = o + t * d;
         if (std::abs(p.x()) <= plane.half_size.x() && std::abs(p.y()) <= plane.half_size.y()) consider(t);
+        if (any && best < kInfinity) return best;
     }
     for (const SphereOccluder& sphere : spheres_) {
         // |o + t d - c|^2 = r^2
@@ -254,12 +256,14 @@ std::optional<double> EdgeModel::firstHit(const Vector3d& origin, const Vector3d
         const double t0 = (-b - root) / a;
         const double t1 = (-b + root) / a;
         consider(t0 > t_min ? t0 : t1);
+        if (any && best < kInfinity) return best;
     }
     for (const MeshOccluder& mesh : meshes_) {
         const auto span = slabs(origin, dir, mesh.lower, mesh.upper);
         if (!span || span->second < t_min || span->first > std::min(t_max, best)) continue;
         for (std::size_t v = 0; v + 2 < mesh.vertices.size(); v += 3) {
             consider(triangleHit(origin, dir, mesh.vertices[v], mesh.vertices[v + 1], mesh.vertices[v + 2]));
+            if (any && best < kInfinity) return best;
         }
     }
     if (best == kInfinity) return std::nullopt;
@@ -270,7 +274,8 @@ bool EdgeModel::occluded(const Vector3d& from, const Vector3d& to, double epsilo
     const Vector3d dir = to - from;
     const double length = dir.norm();
     if (!(length > epsilon)) return false;
-    return firstHit(from, dir / length, 0.0, length - epsilon).has_value();
+    // firstHit's tests, ending at the first hit in range: any hit occludes, the nearest is not needed.
+    return firstHit(from, dir / length, 0.0, length - epsilon, true).has_value();
 }
 
 }  // namespace commonlight::tracking

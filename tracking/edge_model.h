@@ -65,8 +65,9 @@ public:
     // first proxy surface with t in (t_min, t_max]; nullopt when there is none. Brute force over
     // the objects (boxes and planes analytically, spheres exactly, meshes triangle by triangle
     // behind a bounding box): fine for tens of objects and meshes of a few thousand triangles.
+    // `any`: return the first hit found in range instead of the nearest (an occlusion test).
     std::optional<double> firstHit(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir, double t_min,
-                                   double t_max) const;
+                                   double t_max, bool any = false) const;
     // Whether a proxy lies between `from` and `to`, ignoring the last `epsilon` metres before `to`
     // (so that a point on a surface is not hidden by that surface).
     bool occluded(const Eigen::Vector3d& from, const Eigen::Vector3d& to, double epsilon) const;

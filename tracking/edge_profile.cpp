@@ -23,15 +23,9 @@ const Linearizer& Linearizer::get(bool srgb) {
 
 namespace {
 
-// Bilinear sample of the linearized image; nullopt outside the image (with a one-pixel margin).
-std::optional<double> sample(const ImageView& img, const Linearizer& lin, double x, double y) {
-    if (!(x >= 0.0) || !(y >= 0.0) || x > img.width - 1.001 || y > img.height - 1.001) return std::nullopt;
-    const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
-    const double fx = x - x0, fy = y - y0;
-    const std::uint8_t* r0 = img.row(y0) + x0;
-    const std::uint8_t* r1 = img.row(y0 + 1) + x0;
-    return (1 - fy) * ((1 - fx) * lin.lut[r0[0]] + fx * lin.lut[r0[1]]) +
-           fy * ((1 - fx) * lin.lut[r1[0]] + fx * lin.lut[r1[1]]);
+// Whether the bilinear sample at (x, y) is inside the image (with a one-pixel margin).
+bool inside(const ImageView& img, double x, double y) {
+    return x >= 0.0 && y >= 0.0 && x <= img.width - 1.001 && y <= img.height - 1.001;
 }
 
 }  // namespace
@@ -49,14 +43,15 @@ std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, co
     for (const double k : {-steps - 1.0, steps + 1.0}) {
         for (const double a : {-0.5, 0.5}) {
             const Eigen::Vector2d q = p + (k * kStep) * n + a * along;
-            if (!sample(img, lin, q.x(), q.y())) return std::nullopt;
+            if (!inside(img, q.x(), q.y())) return std::nullopt;
         }
     }
     for (int k = -steps - 1; k <= steps + 1; ++k) {
         // Three profiles 0.5 px apart along the edge, averaged: less noise, same edge.
+        const Eigen::Vector2d across = p + (k * kStep) * n;
         double sum = 0.0;
         for (const double a : {-0.5, 0.0, 0.5}) {
-            const Eigen::Vector2d q = p + (k * kStep) * n + a * along;
+            const Eigen::Vector2d q = across + a * along;
             const int x0 = static_cast<int>(q.x()), y0 = static_cast<int>(q.y());
             const double fx = q.x() - x0, fy = q.y() - y0;
             const std::uint8_t* r0 = img.row(y0) + x0;

@@ -28,26 +28,29 @@ constexpr double kNearZ = 0.02;  // metres: edges are clipped to points at least
 // One level of the image pyramid: the gradient of the blurred image, in grey levels per pixel of
 // this level.
 struct Level {
-    cv::Mat g;           // CV_32FC2: (d/dx, d/dy) interleaved, so a bilinear sample reads one place
+    // CV_32F each, d/dx and d/dy as cv::Sobel writes them: interleaving them for the bilinear
+    // samples cost a pass over 2.4 MB per frame at 640x480 and another buffer that evicted the
+    // detector's data from the caches (docs/tracking.md, "Speed (issue 13)").
+    cv::Mat gx, gy;
     double scale = 1.0;  // this level's pixels per full-resolution pixel (2^-level)
 };
 
 // Bilinear sample of both gradient components at (x, y) (pixel centres at integers); false outside.
 bool sampleGradient(const Level& level, double x, double y, double& gx, double& gy) {
-    if (!(x >= 0.0 && y >= 0.0 && x <= level.g.cols - 1.0 && y <= level.g.rows - 1.0)) return false;
-    const int x0 = std::min(static_cast<int>(x), level.g.cols - 2);
-    const int y0 = std::min(static_cast<int>(y), level.g.rows - 2);
+    if (!(x >= 0.0 && y >= 0.0 && x <= level.gx.cols - 1.0 && y <= level.gx.rows - 1.0)) return false;
+    const int x0 = std::min(static_cast<int>(x), level.gx.cols - 2);
+    const int y0 = std::min(static_cast<int>(y), level.gx.rows - 2);
     const double ax = x - x0;
     const double ay = y - y0;
-    const float* r0 = level.g.ptr<float>(y0) + 2 * x0;
-    const float* r1 = level.g.ptr<float>(y0 + 1) + 2 * x0;
-    const auto lerp = [&](int c) {
-        const double top = (1.0 - ax) * r0[c] + ax * r0[c + 2];
-        const double bottom = (1.0 - ax) * r1[c] + ax * r1[c + 2];
+    const auto lerp = [&](const cv::Mat& g) {
+        const float* r0 = g.ptr<float>(y0) + x0;
+        const float* r1 = g.ptr<float>(y0 + 1) + x0;
+        const double top = (1.0 - ax) * r0[0] + ax * r0[1];
+        const double bottom = (1.0 - ax) * r1[0] + ax * r1[1];
         return (1.0 - ay) * top + ay * bottom;
     };
-    gx = lerp(0);
-    gy = lerp(1);
+    gx = lerp(level.gx);
+    gy = lerp(level.gy);
     return true;
 }
 
@@ -67,9 +70,7 @@ int pyramidLevelCount(int width, int height, const EdgeRefineOptions& options) {
 // megabytes of new pages per call, whose page faults and unmapping cost about as much as the
 // filters (desk: the refinement 6.8 -> 4.4 ms CPU per frame; docs/tracking.md, "Speed").
 struct PyramidBuffers {
-    cv::Mat converted;            // the grey image as float
-    std::vector<cv::Mat> images;  // the blurred image per level
-    cv::Mat gradient[2];          // d/dx, d/dy of one level before interleaving
+    std::vector<cv::Mat> images;  // the blurred image per level (level 0: converted to float, blurred in place)
     std::vector<Level> levels;
 };
 
@@ -84,21 +85,17 @@ const std::vector<Level>& buildPyramid(const ImageView& gray8, const EdgeRefineO
         static_cast<std::size_t>(std::min(max_level + 1, pyramidLevelCount(gray8.width, gray8.height, options)));
     b.images.resize(count);
     b.levels.resize(count);
-    view.convertTo(b.converted, CV_32F);
-    if (options.blur_sigma_px > 0.0) {
-        cv::GaussianBlur(b.converted, b.images[0], cv::Size(0, 0), options.blur_sigma_px);
-    } else {
-        b.converted.copyTo(b.images[0]);
-    }
+    view.convertTo(b.images[0], CV_32F);
+    // In place (OpenCV's separable filters support it): one float image less to keep in the caches.
+    if (options.blur_sigma_px > 0.0) cv::GaussianBlur(b.images[0], b.images[0], cv::Size(0, 0), options.blur_sigma_px);
     for (std::size_t l = 0; l < count; ++l) {
         // pyrDown keeps the even pixels of the blurred image: level pixel i is centred on pixel
         // 2i of the level below, so coordinates simply halve in the OpenCV pixel convention.
         if (l > 0) cv::pyrDown(b.images[l - 1], b.images[l]);
         Level& level = b.levels[l];
         level.scale = std::ldexp(1.0, -static_cast<int>(l));
-        cv::Sobel(b.images[l], b.gradient[0], CV_32F, 1, 0, 3, 1.0 / 8.0);
-        cv::Sobel(b.images[l], b.gradient[1], CV_32F, 0, 1, 3, 1.0 / 8.0);
-        cv::merge(b.gradient, 2, level.g);
+        cv::Sobel(b.images[l], level.gx, CV_32F, 1, 0, 3, 1.0 / 8.0);
+        cv::Sobel(b.images[l], level.gy, CV_32F, 0, 1, 3, 1.0 / 8.0);
     }
     return b.levels;
 }

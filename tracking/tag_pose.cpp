@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <string>
 
 #include <Eigen/Cholesky>
@@ -242,7 +243,32 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
         });
         if (!duplicate) candidates.push_back(c);
     };
+    // With a prediction that clearly tells the two IPPE starts apart, the one far from it is not
+    // refined: the prediction chooses the other whatever LM does to it (LM moves a start by far
+    // less than the gap), and it stays as the alternative with its corner residual. This halves
+    // the Levenberg-Marquardt work of a tracked tag (docs/tracking.md, "Speed (issue 13)").
+    std::optional<Rigid3d> unrefined_far;
+    if (predicted && predicted->translation.z() > 0 && initial.size() == 2) {
+        const double d[2] = {rotationErrorDeg(initial[0], *predicted), rotationErrorDeg(initial[1], *predicted)};
+        const int far = d[1] > d[0] ? 1 : 0;
+        if (d[1 - far] < 0.5 * options.prediction_gate_deg && d[far] > 2.0 * options.prediction_gate_deg) {
+            unrefined_far = initial[static_cast<std::size_t>(far)];
+            initial.erase(initial.begin() + far);
+        }
+    }
     for (const Rigid3d& start : initial) refineStart(start);
+    if (unrefined_far) {
+        // Kept unrefined only when the near start refined stays near the prediction and the far one
+        // would survive the plausibility cut below as it is (refined, its residual is smaller still).
+        const double rms = tagReprojectionRms(corners, size, camera, *unrefined_far);
+        const bool holds = candidates.size() == 1 && std::isfinite(rms) && rms <= 3.0 * candidates[0].rms_px + 2.0 &&
+                           rotationErrorDeg(candidates[0].cam_from_tag, *predicted) < 0.5 * options.prediction_gate_deg;
+        if (holds) {
+            candidates.push_back({*unrefined_far, rms});
+        } else {
+            refineStart(*unrefined_far);  // the shortcut does not hold: as without it
+        }
+    }
     // The prediction is a third start: with noise, both IPPE starts can fall into the mirrored
     // minimum while the true one is still a minimum near the prediction. When they found two
     // distinct minima, the prediction's start ends on one of them (on every tag of bench

@@ -6,6 +6,9 @@
 // SOLVEPNP_IPPE_SQUARE); step 3 refines each with Levenberg-Marquardt on the reprojection error in
 // the distorted image (solvePnPRefineLM with the lens model); step 4 chooses by the temporal
 // prediction when there is one, else by the residual, and reports the ambiguity ratio.
+// With a prediction within half the gate of one IPPE start and more than twice the gate from
+// the other, the other is not refined: it stays the alternative as IPPE gave it (its residual
+// the corner RMS of that pose), since LM cannot move it near enough to the prediction to win.
 //
 // Hard cases handled on purpose (each has a test in tests/tracking/tag_pose_test.cpp):
 // - exactly fronto-parallel, noise-free corners, where OpenCV 4.6's IPPE can return NaN or a

@@ -1,6 +1,7 @@
 // Single-tag pose: both planar candidates, LM refinement, the choice, and the hard cases of
 // issue 4 (fronto-parallel noise-free, 80 degrees, 12 px, strong distortion, degenerate corners).
 // Ground truth: corners projected from known poses with CameraModel::project.
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <random>
@@ -108,6 +109,52 @@ TEST(TagPose, TwelvePixelTagWithNoiseStaysFiniteAndClose) {
         ++solved;
     }
     EXPECT_EQ(solved, 200);
+}
+
+TEST(TagPose, PredictionLeavesTheFarCandidateUnrefined) {
+    // With a prediction near one IPPE start and far (over 40 degrees) from the other, only the
+    // near one is refined: the chosen pose is bit for bit the one both refinements give, and the
+    // far candidate stays, as IPPE gave it, the alternative. A prediction near neither refines both.
+    const CameraModel cam = camera(-0.2);
+    const Rigid3d truth = tagPose(2.5, 30.0, 10.0, Vector3d(0.3, -0.2, 0.0));
+    const Corners clean = project(cam, truth, 0.1);
+    std::mt19937 rng(5);
+    std::normal_distribution<double> noise(0.0, 0.3);
+    for (int trial = 0; trial < 50; ++trial) {
+        Corners noisy = clean;
+        for (auto& c : noisy) c += Vector2d(noise(rng), noise(rng));
+        auto alone = solveTagPose(0, noisy, 0.1, cam);
+        ASSERT_TRUE(alone) << alone.error().message;
+        ASSERT_EQ(alone->candidates.size(), 2u);
+        const int near = rotationErrorDeg(alone->candidates[0].cam_from_tag, truth) <
+                                 rotationErrorDeg(alone->candidates[1].cam_from_tag, truth)
+                             ? 0
+                             : 1;
+        const TagPoseCandidate& near_refined = alone->candidates[static_cast<std::size_t>(near)];
+        const TagPoseCandidate& far_refined = alone->candidates[static_cast<std::size_t>(1 - near)];
+        const Rigid3d predicted = expSe3((Vector6d() << 0.03, -0.02, 0.0, 0.005, 0.0, 0.0).finished()) * truth;
+        ASSERT_GT(rotationErrorDeg(far_refined.cam_from_tag, predicted), 45.0) << "the case must be unambiguous";
+        auto guided = solveTagPose(0, noisy, 0.1, cam, predicted);
+        ASSERT_TRUE(guided) << guided.error().message;
+        EXPECT_EQ(guided->choice, PoseChoice::kPrediction);
+        EXPECT_EQ(guided->cam_from_tag.translation, near_refined.cam_from_tag.translation);
+        EXPECT_EQ(guided->cam_from_tag.rotation.coeffs(), near_refined.cam_from_tag.rotation.coeffs());
+        ASSERT_EQ(guided->candidates.size(), 2u);
+        const TagPoseCandidate& far = guided->candidates[1];
+        EXPECT_LT(rotationErrorDeg(far.cam_from_tag, far_refined.cam_from_tag), 5.0);  // the same minimum's start
+        EXPECT_GT(far.rms_px, far_refined.rms_px);  // not refined (LM lowers the residual of a noisy start)
+        // Near neither (25 degrees off the truth about another axis): both refined, as without one.
+        const Rigid3d elsewhere = expSe3((Vector6d() << 0.0, 0.0, 0.44, 0.0, 0.0, 0.0).finished()) * truth;
+        auto both = solveTagPose(0, noisy, 0.1, cam, elsewhere);
+        ASSERT_TRUE(both) << both.error().message;
+        ASSERT_EQ(both->candidates.size(), 2u);
+        for (const TagPoseCandidate& c : both->candidates) {
+            const bool found = std::any_of(alone->candidates.begin(), alone->candidates.end(), [&](const TagPoseCandidate& a) {
+                return a.cam_from_tag.translation == c.cam_from_tag.translation && a.rms_px == c.rms_px;
+            });
+            EXPECT_TRUE(found) << "trial " << trial;
+        }
+    }
 }
 
 TEST(TagPose, PredictionResolvesTheAmbiguity) {
