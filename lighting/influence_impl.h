@@ -103,7 +103,7 @@ struct Selection {
 struct ElementShape {
     Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
     double radius = 0.0;  // largest distance from the centroid to a corner
-    std::array<Eigen::Vector3d, 4> corners;
+    std::array<Eigen::Vector3d, 4> corners{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
     int count = 0;
     std::span<const Eigen::Vector3d> polygon() const { return {corners.data(), static_cast<std::size_t>(count)}; }
 };
