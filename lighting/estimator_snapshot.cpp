@@ -29,6 +29,35 @@ namespace commonlight::lighting {
 
 using namespace estimator_detail;
 
+namespace {
+
+// The real face the camera's pixel (x, y) sees first, and the point's (s, t) on it: nullopt where
+// the pixel has no ray or sees nothing real first.
+struct RealHit {
+    int face = -1;
+    Eigen::Vector3d point = Eigen::Vector3d::Zero();
+    Eigen::Vector2d st = Eigen::Vector2d::Zero();
+};
+std::optional<RealHit> realFaceAt(const RayScene& rays, const std::vector<Face>& faces, const CameraModel& cam,
+                                  const Rigid3d& world_from_cam, const Eigen::Matrix3d& rotation, int x, int y) {
+    const auto ray = cam.unproject(Eigen::Vector2d(x, y));
+    if (!ray) return std::nullopt;
+    const Eigen::Vector3d dir = rotation * ray->normalized();
+    const RayHit hit = rays.intersectAll(world_from_cam.translation, dir);
+    if (hit.kind != HitKind::kRealFace) return std::nullopt;
+    const Face& f = faces[static_cast<std::size_t>(hit.index)];
+    RealHit out;
+    out.face = hit.index;
+    out.point = world_from_cam.translation + hit.distance * dir;
+    Eigen::Matrix<double, 3, 2> b;
+    b.col(0) = f.edge_s;
+    b.col(1) = f.edge_t;
+    out.st = (b.transpose() * b).inverse() * (b.transpose() * (out.point - f.origin));
+    return out;
+}
+
+}  // namespace
+
 Result<Estimator::TexelRatio> Estimator::texelDirectRatio(const Rigid3d& cam_from_world, int pairs, const std::vector<std::uint8_t>& mask) const {
     const Impl& d = *impl_;
     if (!cam_from_world.isValid()) return fail(ErrorCode::kBadInput, "lighting: the camera pose is not finite");
@@ -53,18 +82,11 @@ Result<Estimator::TexelRatio> Estimator::texelDirectRatio(const Rigid3d& cam_fro
         for (int x = 0; x < cam.width; ++x) {
             const std::size_t i = static_cast<std::size_t>(y) * static_cast<std::size_t>(cam.width) + static_cast<std::size_t>(x);
             if (!mask.empty() && !mask[i]) continue;
-            const auto ray = cam.unproject(Eigen::Vector2d(x, y));
-            if (!ray) continue;
-            const Eigen::Vector3d dir = rotation * ray->normalized();
-            const RayHit hit = rays_->intersectAll(world_from_cam.translation, dir);
-            if (hit.kind != HitKind::kRealFace) continue;
-            const Face& f = d.real_faces[static_cast<std::size_t>(hit.index)];
-            const Eigen::Vector3d p = world_from_cam.translation + hit.distance * dir;
-            Eigen::Matrix<double, 3, 2> b;
-            b.col(0) = f.edge_s;
-            b.col(1) = f.edge_t;
-            const Eigen::Vector2d st = (b.transpose() * b).inverse() * (b.transpose() * (p - f.origin));
-            const int leaf = h.leafAt(hit.index, st);
+            const std::optional<RealHit> hit = realFaceAt(*rays_, d.real_faces, cam, world_from_cam, rotation, x, y);
+            if (!hit) continue;
+            const Face& f = d.real_faces[static_cast<std::size_t>(hit->face)];
+            const Eigen::Vector3d& p = hit->point;
+            const int leaf = h.leafAt(hit->face, hit->st);
             if (leaf < 0 || h[leaf].buried) continue;
             int base = leaf;
             while (inf.refinedElement(base)) base = h[base].parent;
@@ -115,7 +137,7 @@ Result<Estimator::TexelRatio> Estimator::texelDirectRatio(const Rigid3d& cam_fro
             rays += local_rays;
             const Eigen::Vector3d b0 = rho.cwiseProduct(d0 + ind0) / kPi, bw = rho.cwiseProduct(dw + ind0 + d_ind) / kPi;
             const Eigen::Vector3d l0 = rho.cwiseProduct(leaf_direct + ind0) / kPi, lw = rho.cwiseProduct(leaf_direct + info.direct + ind0 + d_ind) / kPi;
-            out.face[i] = hit.index;
+            out.face[i] = hit->face;
             if (luma(b0) > 0.0) out.texel[i] = static_cast<float>(luma(bw) / luma(b0));
             if (luma(l0) > 0.0) out.leaf[i] = static_cast<float>(luma(lw) / luma(l0));
         }
@@ -142,22 +164,15 @@ Result<Image> Estimator::ratioImage(const LightingSnapshot& snapshot, const Rigi
         const int y = jy * stride;
         auto* row = reinterpret_cast<float*>(out.mutableView().row(y));
         for (int x = 0; x < cam.width; x += stride) {
-            const auto ray = cam.unproject(Eigen::Vector2d(x, y));
-            if (!ray) continue;
-            const Eigen::Vector3d dir = rotation * ray->normalized();
-            const RayHit hit = rays_->intersectAll(world_from_cam.translation, dir);
-            if (hit.kind != HitKind::kRealFace) continue;
-            const Face& f = d.real_faces[static_cast<std::size_t>(hit.index)];
+            const std::optional<RealHit> hit = realFaceAt(*rays_, d.real_faces, cam, world_from_cam, rotation, x, y);
+            if (!hit) continue;
+            const Face& f = d.real_faces[static_cast<std::size_t>(hit->face)];
             const FaceModulation* m = snapshot.findFace(f.object_index, f.face_index);
             if (!m || m->width < 1 || m->height < 1) {
                 row[3 * x] = row[3 * x + 1] = row[3 * x + 2] = 1.0f;  // nothing changed on this face
                 continue;
             }
-            const Eigen::Vector3d p = world_from_cam.translation + hit.distance * dir;
-            Eigen::Matrix<double, 3, 2> b;
-            b.col(0) = f.edge_s;
-            b.col(1) = f.edge_t;
-            const Eigen::Vector2d st = (b.transpose() * b).inverse() * (b.transpose() * (p - f.origin));
+            const Eigen::Vector2d& st = hit->st;
             // Bilinear between texel centres, clamped at the borders.
             const double u = std::clamp(st.x() * m->width - 0.5, 0.0, m->width - 1.0);
             const double v = std::clamp(st.y() * m->height - 0.5, 0.0, m->height - 1.0);
