@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
-
 #include <opencv2/imgproc.hpp>
 
 #include "tracking/tag_detector.h"
@@ -25,13 +24,15 @@ public:
         for (int y = 0; y < height; ++y) {
             for (int x = 0; x < width; ++x) {
                 for (int j = 0; j < 3; ++j) {
-                    for (int i = 0; i < 3; ++i) uv_.push_back(toCells(pixel_to_cells, x0 + x + (i - 1) / 3.0, y0 + y + (j - 1) / 3.0));
+                    for (int i = 0; i < 3; ++i)
+                        uv_.push_back(toCells(pixel_to_cells, x0 + x + (i - 1) / 3.0, y0 + y + (j - 1) / 3.0));
                 }
                 const Eigen::Vector2d c = toCells(pixel_to_cells, x0 + x, y0 + y);
                 const bool inner = c.x() >= 0.5 && c.y() >= 0.5 && c.x() <= total - 0.5 && c.y() <= total - 0.5;
                 if (inner) {
                     mask_.push_back(y * width + x);
-                    image_.push_back(lin.lut[gray8.data[static_cast<std::size_t>((y0 + y) * gray8.stride + x0 + x)]] / 255.0);
+                    image_.push_back(lin.lut[gray8.data[static_cast<std::size_t>((y0 + y) * gray8.stride + x0 + x)]] /
+                                     255.0);
                 }
             }
         }
@@ -73,7 +74,8 @@ public:
     double bestAround(const std::function<bool(int, int)>& white, const Eigen::Vector2d& centre) const {
         double best_ncc = -2.0;
         for (int sy = -1; sy <= 1; ++sy) {
-            for (int sx = -1; sx <= 1; ++sx) best_ncc = std::max(best_ncc, ncc(white, centre + Eigen::Vector2d(0.5 * sx, 0.5 * sy)));
+            for (int sx = -1; sx <= 1; ++sx)
+                best_ncc = std::max(best_ncc, ncc(white, centre + Eigen::Vector2d(0.5 * sx, 0.5 * sy)));
         }
         return best_ncc;
     }
@@ -160,7 +162,10 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
         }
         out.corners[static_cast<std::size_t>(k)] = *px;
     }
-    for (int k = 0; k < 4; ++k) out.side_px += 0.25 * (out.corners[static_cast<std::size_t>(k)] - out.corners[static_cast<std::size_t>((k + 1) % 4)]).norm();
+    for (int k = 0; k < 4; ++k)
+        out.side_px +=
+            0.25 *
+            (out.corners[static_cast<std::size_t>(k)] - out.corners[static_cast<std::size_t>((k + 1) % 4)]).norm();
     if (out.side_px < options.min_side_px || out.side_px > options.max_side_px) {
         out.reason = "predicted side outside the tried range";
         return out;
@@ -231,7 +236,8 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
     }
     for (const TagPattern* other : others) {
         if (!other || other->total() != total) continue;
-        out.ncc_other = std::max(out.ncc_other, matcher.bestAround([&](int c, int r) { return other->white(c, r); }, shift));
+        out.ncc_other =
+            std::max(out.ncc_other, matcher.bestAround([&](int c, int r) { return other->white(c, r); }, shift));
     }
     if (ncc - out.ncc_other < options.min_margin_other) {
         out.reason = "another id matches as well";

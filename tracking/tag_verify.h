@@ -18,11 +18,10 @@
 // moved by the best shift.
 #pragma once
 
+#include <Eigen/Core>
 #include <array>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
 
 #include "core/camera_model.h"
 #include "core/image.h"
@@ -33,30 +32,30 @@
 namespace commonlight::tracking {
 
 struct TagVerifyOptions {
-    double min_side_px = 5.0;    // predicted black squares with a shorter side: not tried
-    double max_side_px = 20.0;   // with a longer side: not tried (the detector finds those)
-    double edge_margin_px = 3.0; // the drawn square (white border included) this far inside the image
-    double search_px = 1.0;      // the prediction's error this verification absorbs, +- pixels
+    double min_side_px = 5.0;     // predicted black squares with a shorter side: not tried
+    double max_side_px = 20.0;    // with a longer side: not tried (the detector finds those)
+    double edge_margin_px = 3.0;  // the drawn square (white border included) this far inside the image
+    double search_px = 1.0;       // the prediction's error this verification absorbs, +- pixels
     // The pattern's normalized cross-correlation with the image: measured on synthetic 7-20 px
     // tags (blur 0.8 px, noise 1.5 grey levels) 0.95-0.99 at the truth; another id printed in
     // the tag's place, 0.8-0.87 (the black square and the border dominate both).
     double min_ncc = 0.9;
     double min_margin_square = 0.12;  // over the plain black square's
     double min_margin_other = 0.05;   // over every other id's
-    int other_ids = 8;           // other ids of the family compared (the ids after the tag's)
-    double min_contrast = 0.03;  // the image's standard deviation over the tag, linear [0, 1]
-    bool srgb = true;            // pixels are sRGB-encoded (as TagAlignOptions::srgb)
+    int other_ids = 8;                // other ids of the family compared (the ids after the tag's)
+    double min_contrast = 0.03;       // the image's standard deviation over the tag, linear [0, 1]
+    bool srgb = true;                 // pixels are sRGB-encoded (as TagAlignOptions::srgb)
 };
 
 struct TagVerifyResult {
     bool ok = false;
-    std::string reason;                        // when not ok
-    std::array<Eigen::Vector2d, 4> corners{};  // the black square's, distorted pixels (tag_detector.h order)
+    std::string reason;                                  // when not ok
+    std::array<Eigen::Vector2d, 4> corners{};            // the black square's, distorted pixels (tag_detector.h order)
     Eigen::Vector2d shift_px = Eigen::Vector2d::Zero();  // from the predicted corners
-    double ncc = 0.0;         // the tag's pattern at the best shift
-    double ncc_square = 0.0;  // the plain black square at its best shift
-    double ncc_other = -1.0;  // the best of the other ids
-    double side_px = 0.0;     // the predicted black square's mean side
+    double ncc = 0.0;                                    // the tag's pattern at the best shift
+    double ncc_square = 0.0;                             // the plain black square at its best shift
+    double ncc_other = -1.0;                             // the best of the other ids
+    double side_px = 0.0;                                // the predicted black square's mean side
 };
 
 // `pattern`: the predicted tag's; `others`: patterns of other ids of the family (may be empty).

@@ -25,7 +25,9 @@ using testing::SyntheticTag;
 TagSet scene() {
     TagSet tags;
     tags.family = "tag36h11";
-    const auto at = [](double x, double y) { return Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, y, 0)); };
+    const auto at = [](double x, double y) {
+        return Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, y, 0));
+    };
     tags.items.push_back({0, 0.1, at(-0.25, 0.0), 0.04, 0.8});
     tags.items.push_back({1, 0.1, at(0.25, 0.0), 0.04, 0.8});
     const double sizes[6] = {0.026, 0.028, 0.030, 0.032, 0.034, 0.036};
@@ -136,8 +138,9 @@ TEST(TinyTags, PredictedTinyTagsAreVerifiedWithinTolerance) {
             if (err <= 0.6) ++accurate;
         }
     }
-    std::printf("tags of 7-10 px: %d; detected without verification %d; verified %d, %d within 0.6 px (worst %.3f px)\n",
-                in_range, detected_before, verified, accurate, worst);
+    std::printf(
+        "tags of 7-10 px: %d; detected without verification %d; verified %d, %d within 0.6 px (worst %.3f px)\n",
+        in_range, detected_before, verified, accurate, worst);
     EXPECT_GE(in_range, 20);
     EXPECT_EQ(detected_before, 0);
     EXPECT_GE(verified, static_cast<int>(std::ceil(0.95 * in_range)));
@@ -156,9 +159,11 @@ TEST(TinyTags, AbsentOccludedOrWrongTagsAreRefused) {
         const Rigid3d truth = camFromWorld(view.distance, view.tilt_deg, view.axis_deg, view.dx);
         std::vector<SyntheticTag> shown;
         for (const SyntheticTag& t : placed(tags, truth)) {
-            if (t.id == 2 || t.id == 3) continue;               // absent
-            if (t.id == 4) shown.push_back({40, t.size, t.cam_from_tag});  // another id in its place
-            else shown.push_back(t);
+            if (t.id == 2 || t.id == 3) continue;  // absent
+            if (t.id == 4)
+                shown.push_back({40, t.size, t.cam_from_tag});  // another id in its place
+            else
+                shown.push_back(t);
         }
         Image image = render(shown, seed++);
         // Tags 5 (fully) and 6 (its left half) covered by a grey card.
@@ -168,10 +173,12 @@ TEST(TinyTags, AbsentOccludedOrWrongTagsAreRefused) {
             const auto c = cam.project(truth * item->world_from_tag.translation);
             const double side = sidePx(*item, truth);
             const int left = static_cast<int>(c->x() - side), top = static_cast<int>(c->y() - side);
-            const int right = static_cast<int>(id == 5 ? c->x() + side : c->x()), bottom = static_cast<int>(c->y() + side);
+            const int right = static_cast<int>(id == 5 ? c->x() + side : c->x()),
+                      bottom = static_cast<int>(c->y() + side);
             MutableImageView v = image.mutableView();
             for (int y = top; y <= bottom; ++y) {
-                for (int x = left; x <= right; ++x) v.row(y)[x] = static_cast<std::uint8_t>(150 + ((x * 7 + y * 3) % 3));
+                for (int x = left; x <= right; ++x)
+                    v.row(y)[x] = static_cast<std::uint8_t>(150 + ((x * 7 + y * 3) % 3));
             }
         }
         auto f = verifying.process(image, 0);
@@ -217,7 +224,9 @@ TEST(TinyTags, BadVerifyOptionsAreRefused) {
 TEST(TinyTags, DetectionBySizeBin) {
     TagSet tags;
     tags.family = "tag36h11";
-    const auto at = [](double x, double y) { return Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, y, 0)); };
+    const auto at = [](double x, double y) {
+        return Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, y, 0));
+    };
     tags.items.push_back({0, 0.1, at(-0.3, 0.0), 0.04, 0.8});
     tags.items.push_back({1, 0.1, at(0.3, 0.0), 0.04, 0.8});
     for (int k = 0; k < 10; ++k) {
