@@ -384,6 +384,7 @@ std::vector<std::pair<std::string, double>> stageCpuMs(const tracking::StageTime
             {"align", t.align_cpu_ms},
             {"solve", std::max(0.0, t.tag_pose_cpu_ms - t.refine_cpu_ms - t.align_cpu_ms)},
             {"bundle", t.bundle_cpu_ms},
+            {"verify", t.verify_cpu_ms},
             {"edges", t.edges_cpu_ms},
             {"filter", t.filter_cpu_ms}};
 }
@@ -392,7 +393,7 @@ struct TrackerRun {
     ErrorStats camera;       // cam_from_world per frame
     ErrorStats single_tags;  // the tracker's chosen single-tag poses
     // CPU time per frame of each step (StageTimes): detect, refine, align, the rest of the
-    // single-tag step (pose solving), bundle, edges, filter.
+    // single-tag step (pose solving), bundle, verify (predicted tags not detected), edges, filter.
     std::map<std::string, std::vector<double>> stage_cpu_ms;
     double detect_ms_p50 = 0;
     int full_frame_detections = 0;
@@ -558,7 +559,7 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         const auto printSplit = [](const char* label, const TrackerRun& run) {
             std::printf("CPU time per frame, mean, %s:", label);
             double sum = 0;
-            for (const char* name : {"detect", "refine", "align", "solve", "bundle", "edges", "filter"}) {
+            for (const char* name : {"detect", "refine", "align", "solve", "bundle", "verify", "edges", "filter"}) {
                 const auto it = run.stage_cpu_ms.find(name);
                 if (it == run.stage_cpu_ms.end() || it->second.empty()) continue;
                 double mean = 0;

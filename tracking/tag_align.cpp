@@ -36,6 +36,11 @@ Result<TagPattern> TagPattern::make(const std::string& family, int id) {
     pattern.cell_ = 1.0 / border;
     const double half = 0.5 * total * pattern.cell_;
     const auto white = [&](int col, int row) { return image->buf[row * image->stride + col] > 127; };
+    pattern.total_ = total;
+    pattern.white_.resize(static_cast<std::size_t>(total * total));
+    for (int row = 0; row < total; ++row) {
+        for (int col = 0; col < total; ++col) pattern.white_[static_cast<std::size_t>(row * total + col)] = white(col, row);
+    }
     const auto x = [&](int col) { return -half + col * pattern.cell_; };
     const auto y = [&](int row) { return half - row * pattern.cell_; };
     for (int row = 0; row < total; ++row) {

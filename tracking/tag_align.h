@@ -47,10 +47,17 @@ public:
     static Result<TagPattern> make(const std::string& family, int id);
     const std::vector<Edge>& edges() const noexcept { return edges_; }
     double cell() const noexcept { return cell_; }  // one cell, in units of the black square's edge
+    // The drawn tag's cells, `total()` by `total()` (the white border included), row 0 at the
+    // tag's top (+y): true for white. The cell (col, row) spans x in [-h + col c, -h + (col+1) c],
+    // y in [h - (row+1) c, h - row c], with c = cell() and h = total() c / 2.
+    int total() const noexcept { return total_; }
+    bool white(int col, int row) const noexcept { return white_[static_cast<std::size_t>(row * total_ + col)]; }
 
 private:
     std::vector<Edge> edges_;
     double cell_ = 0.0;
+    int total_ = 0;
+    std::vector<bool> white_;
 };
 
 // Patterns by id for one family, made on first use.

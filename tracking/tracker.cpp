@@ -110,6 +110,14 @@ Result<void> TrackerOptions::validate() const {
     if (independent_frames && (filter || tracking_mode)) {
         return fail(ErrorCode::kUsage, "independent frames have no filter and no tracking mode (each frame is tracked alone)");
     }
+    if (verify_predicted) {
+        const TagVerifyOptions& v = verify;
+        if (!(v.min_side_px > 0) || !(v.max_side_px >= v.min_side_px) || !(v.search_px >= 0 && v.search_px <= 3) ||
+            !(v.min_ncc > 0 && v.min_ncc <= 1) || !(v.min_margin_square >= 0) || !(v.min_margin_other >= 0) ||
+            v.other_ids < 0 || !(v.edge_margin_px >= 0) || !(v.min_contrast >= 0)) {
+            return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px, min_ncc in (0, 1], margins >= 0)");
+        }
+    }
     if (filter) CL_TRY_VOID(filter_options.validate());
     if (edges) CL_TRY_VOID(edge_options.validate());
     return {};
@@ -267,7 +275,8 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         return a;
     };
     const auto solveTag = [&](const TagDetection& d, double dilation_cells, double* measured_dilation_cells) {
-        TrackedTag tag{d, false, false, std::nullopt, {}};
+        TrackedTag tag;
+        tag.detection = d;
         if (s.options.refine_corners) {
             TagRefineOptions refine = s.options.refine;
             if (dilation_cells != 0.0) {
@@ -388,33 +397,82 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
     c0 = threadCpuMs();
     std::optional<PoseMeasurement> measurement;
     std::optional<std::size_t> alone_ambiguous;  // the frame's pose rests on this ambiguous tag (out.tags) alone
-    {
+    const auto runBundle = [&] {
+        measurement.reset();
+        alone_ambiguous.reset();
+        out.bundle.reset();
         std::vector<BundleTag> bundle_tags;
         for (const TrackedTag& t : out.tags) {
             if (s.tags.find(t.detection.id) && t.pose) bundle_tags.push_back({&t.detection, &*t.pose});
         }
-        if (!bundle_tags.empty()) {
-            auto bundle = solveBundle(bundle_tags, s.tags, s.camera, predicted, s.options.bundle);
-            if (bundle) {
-                measurement = PoseMeasurement{instant, bundle->cam_from_world, bundle->covariance};
-                for (std::size_t k = 0; k < out.tags.size(); ++k) {
-                    TrackedTag& t = out.tags[k];
-                    if (!t.pose || !t.pose->ambiguous) continue;
-                    const TagItem* item = s.tags.find(t.detection.id);
-                    const auto used = std::find(bundle->tags_used.begin(), bundle->tags_used.end(), t.detection.id);
-                    if (!item || used == bundle->tags_used.end()) continue;
-                    if (bundle->tags_used.size() == 1) {
-                        alone_ambiguous = k;
-                        continue;
-                    }
-                    settleAmbiguousTag(t, *item, s.camera, bundle->cam_from_world, PoseChoice::kScene);
-                }
-                out.bundle = std::move(*bundle);
+        if (bundle_tags.empty()) return;
+        auto bundle = solveBundle(bundle_tags, s.tags, s.camera, predicted, s.options.bundle);
+        if (!bundle) return;
+        measurement = PoseMeasurement{instant, bundle->cam_from_world, bundle->covariance};
+        for (std::size_t k = 0; k < out.tags.size(); ++k) {
+            TrackedTag& t = out.tags[k];
+            if (!t.pose || !t.pose->ambiguous) continue;
+            const TagItem* item = s.tags.find(t.detection.id);
+            const auto used = std::find(bundle->tags_used.begin(), bundle->tags_used.end(), t.detection.id);
+            if (!item || used == bundle->tags_used.end()) continue;
+            if (bundle->tags_used.size() == 1) {
+                alone_ambiguous = k;
+                continue;
             }
+            settleAmbiguousTag(t, *item, s.camera, bundle->cam_from_world, PoseChoice::kScene);
         }
-    }
+        out.bundle = std::move(*bundle);
+    };
+    runBundle();
     out.times.bundle_ms = msSince(t0);
     out.times.bundle_cpu_ms = threadCpuMs() - c0;
+
+    // Step 3b: scene tags predicted in view but not detected (too small to decode): verified at
+    // their predicted place against their known pattern (tag_verify.h); an accepted one joins
+    // the bundle, which is solved again.
+    t0 = Clock::now();
+    c0 = threadCpuMs();
+    if (s.options.verify_predicted) {
+        std::optional<Rigid3d> basis;
+        if (measurement && !alone_ambiguous) {
+            basis = measurement->cam_from_world;
+        } else if (!measurement && predicted) {
+            basis = predicted;
+        }
+        bool added = false;
+        for (const TagItem& item : basis ? s.tags.items : std::vector<TagItem>{}) {
+            const bool seen = std::any_of(out.tags.begin(), out.tags.end(),
+                                          [&](const TrackedTag& t) { return t.detection.id == item.id; });
+            const TagPattern* pattern = seen ? nullptr : s.patterns.get(item.id);
+            if (!pattern) continue;
+            std::vector<const TagPattern*> others;
+            const int family_size = tagFamilySize(s.tags.family);
+            for (int k = 1; k <= s.options.verify.other_ids && family_size > 1; ++k) {
+                const int other = (item.id + k) % family_size;
+                if (other != item.id) others.push_back(s.patterns.get(other));
+            }
+            const Rigid3d predicted_cam_from_tag = *basis * item.world_from_tag;
+            const TagVerifyResult v =
+                verifyPredictedTag(gray8, s.camera, *pattern, others, item.size, predicted_cam_from_tag, s.options.verify);
+            if (!v.ok) continue;
+            TrackedTag tag;
+            tag.detection.id = item.id;
+            tag.detection.corners = v.corners;
+            tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
+            tag.verified = true;
+            auto pose = solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+            if (pose) {
+                tag.pose = std::move(*pose);
+            } else {
+                tag.error = pose.error().message;
+            }
+            out.tags.push_back(std::move(tag));
+            added = true;
+        }
+        if (added) runBundle();
+    }
+    out.times.verify_ms = msSince(t0);
+    out.times.verify_cpu_ms = threadCpuMs() - c0;
 
     // Step 4: model edges. A frame resting on one ambiguous tag: refined from both candidates,
     // the proxies' edges choose when only one of them converges (or both end on one pose).

@@ -30,6 +30,7 @@
 #include "tracking/tag_detector.h"
 #include "tracking/tag_pose.h"
 #include "tracking/tag_refine.h"
+#include "tracking/tag_verify.h"
 
 namespace commonlight::tracking {
 
@@ -44,6 +45,12 @@ struct TrackerOptions {
     bool align_tags = true;
     TagAlignOptions align;
     BundleOptions bundle;
+    // Scene tags the frame's camera pose (the bundle of the detected tags, or the prediction when
+    // no tag was detected) puts in view but the detector did not find (too small to decode): each
+    // is verified at its predicted place against its known pattern (tag_verify.h) and, when
+    // accepted, joins the bundle as TrackedTag::verified.
+    bool verify_predicted = true;
+    TagVerifyOptions verify;
     // Tracking mode: detect only in windows around the predicted tags.
     bool tracking_mode = false;
     int redetect_every = 15;      // full-frame detection every N frames in tracking mode (>= 1)
@@ -83,19 +90,23 @@ struct TrackedTag {
     TagDetection detection;       // corners refined when the options say so (corners_refined)
     bool corners_refined = false;
     bool aligned = false;         // the pose (and the corners) come from the pattern alignment
+    // Not detected: a scene tag predicted in view and verified there against its pattern
+    // (TrackerOptions::verify_predicted); its corners are the verified prediction's.
+    bool verified = false;
     std::optional<TagPose> pose;  // nullopt: unknown size, or the solver refused (see error)
     std::string error;            // why there is no pose
 };
 
 struct StageTimes {
     // Wall-clock time of each step, milliseconds.
-    double detect_ms = 0, tag_pose_ms = 0, bundle_ms = 0, edges_ms = 0, filter_ms = 0, total_ms = 0;
+    double detect_ms = 0, tag_pose_ms = 0, bundle_ms = 0, verify_ms = 0, edges_ms = 0, filter_ms = 0, total_ms = 0;
     // The calling thread's CPU time (CLOCK_THREAD_CPUTIME_ID) of the same steps: what a step costs
     // on a shared, loaded machine, where the wall time also counts the waits for a core. The
     // detection's misses libapriltag's worker threads when TagDetectorOptions::threads > 1. The
     // single-tag step's includes its corner refinement (refine_cpu_ms) and pattern alignment
     // (align_cpu_ms).
-    double detect_cpu_ms = 0, refine_cpu_ms = 0, align_cpu_ms = 0, tag_pose_cpu_ms = 0, bundle_cpu_ms = 0,
+    // verify_*: Step 3b, the predicted tags' verification and the bundle solved again.
+    double detect_cpu_ms = 0, refine_cpu_ms = 0, align_cpu_ms = 0, tag_pose_cpu_ms = 0, bundle_cpu_ms = 0, verify_cpu_ms = 0,
            edges_cpu_ms = 0, filter_cpu_ms = 0, total_cpu_ms = 0;
 };
 

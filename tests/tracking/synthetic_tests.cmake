@@ -11,3 +11,6 @@ commonlight_test(tracking ambiguity SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/ambiguit
 # The proxies' edges choose a small single tag's candidate (desk scene, rendered by mocks/sim).
 commonlight_test(tracking ambiguity_edges SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/ambiguity_edges_test.cpp
                  DEPS commonlight::tracking commonlight::sim)
+# Tiny tags (7-10 px): verified at their predicted place; absent, occluded or wrong ones refused.
+commonlight_test(tracking tiny_tags SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/tiny_tags_test.cpp
+                 DEPS commonlight::tracking commonlight_test_synthetic_tags)

@@ -1,0 +1,250 @@
+#include "tracking/tag_verify.h"
+
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <opencv2/imgproc.hpp>
+
+#include "tracking/tag_detector.h"
+
+namespace commonlight::tracking {
+namespace {
+
+// The expected image of one template over the tag's box, and its NCC with the image there.
+class Matcher {
+public:
+    static constexpr int kSub = 9;  // sub-samples per pixel (3 x 3)
+    Matcher(const ImageView& gray8, const Linearizer& lin, const cv::Matx33d& pixel_to_cells, int total,
+            const Eigen::Matrix2d& cells_per_px, int x0, int y0, int width, int height)
+        : total_(total), cells_per_px_(cells_per_px), width_(width), height_(height) {
+        // Sub-samples at each pixel of the box (3 x 3), in cells of the drawn tag; the inner mask
+        // keeps pixels whose centre is at least half a cell inside the drawn square (the outer half
+        // of the white border sees the unknown surroundings through the blur).
+        uv_.reserve(static_cast<std::size_t>(width * height * kSub));
+        for (int y = 0; y < height; ++y) {
+            for (int x = 0; x < width; ++x) {
+                for (int j = 0; j < 3; ++j) {
+                    for (int i = 0; i < 3; ++i)
+                        uv_.push_back(toCells(pixel_to_cells, x0 + x + (i - 1) / 3.0, y0 + y + (j - 1) / 3.0));
+                }
+                const Eigen::Vector2d c = toCells(pixel_to_cells, x0 + x, y0 + y);
+                const bool inner = c.x() >= 0.5 && c.y() >= 0.5 && c.x() <= total - 0.5 && c.y() <= total - 0.5;
+                if (inner) {
+                    mask_.push_back(y * width + x);
+                    image_.push_back(lin.lut[gray8.data[static_cast<std::size_t>((y0 + y) * gray8.stride + x0 + x)]] /
+                                     255.0);
+                }
+            }
+        }
+        model_.assign(static_cast<std::size_t>(width * height), 0.0);
+        blurred_.assign(model_.size(), 0.0);
+    }
+    std::size_t samples() const { return mask_.size(); }
+    double imageStddev() const {
+        double mean = 0, sq = 0;
+        for (double g : image_) mean += g;
+        mean /= static_cast<double>(image_.size());
+        for (double g : image_) sq += (g - mean) * (g - mean);
+        return std::sqrt(sq / static_cast<double>(image_.size()));
+    }
+    // The best NCC over shifts of the template within +- search px (0.5 px grid, then 0.25).
+    std::pair<double, Eigen::Vector2d> best(const std::function<bool(int, int)>& white, double search) const {
+        double best_ncc = -2.0;
+        Eigen::Vector2d best_shift = Eigen::Vector2d::Zero();
+        const int steps = static_cast<int>(std::floor(search / 0.5 + 1e-9));
+        for (int sy = -steps; sy <= steps; ++sy) {
+            for (int sx = -steps; sx <= steps; ++sx) {
+                const Eigen::Vector2d shift(0.5 * sx, 0.5 * sy);
+                const double v = ncc(white, shift);
+                if (v > best_ncc) best_ncc = v, best_shift = shift;
+            }
+        }
+        const Eigen::Vector2d coarse = best_shift;
+        for (int sy = -1; sy <= 1; ++sy) {
+            for (int sx = -1; sx <= 1; ++sx) {
+                if (sx == 0 && sy == 0) continue;
+                const Eigen::Vector2d shift = coarse + Eigen::Vector2d(0.25 * sx, 0.25 * sy);
+                const double v = ncc(white, shift);
+                if (v > best_ncc) best_ncc = v, best_shift = shift;
+            }
+        }
+        return {best_ncc, best_shift};
+    }
+    // The best NCC on a 3 x 3 grid of 0.5 px around `centre`.
+    double bestAround(const std::function<bool(int, int)>& white, const Eigen::Vector2d& centre) const {
+        double best_ncc = -2.0;
+        for (int sy = -1; sy <= 1; ++sy) {
+            for (int sx = -1; sx <= 1; ++sx)
+                best_ncc = std::max(best_ncc, ncc(white, centre + Eigen::Vector2d(0.5 * sx, 0.5 * sy)));
+        }
+        return best_ncc;
+    }
+
+private:
+    static Eigen::Vector2d toCells(const cv::Matx33d& h, double x, double y) {
+        const cv::Vec3d q = h * cv::Vec3d(x, y, 1.0);
+        return {q[0] / q[2], q[1] / q[2]};
+    }
+    double ncc(const std::function<bool(int, int)>& white, const Eigen::Vector2d& shift_px) const {
+        // The template moved by shift_px: a pixel sees the tag plane at its position minus the shift.
+        const Eigen::Vector2d d = cells_per_px_ * shift_px;
+        for (std::size_t p = 0; p < model_.size(); ++p) {
+            int count = 0;
+            for (int k = 0; k < kSub; ++k) {
+                const Eigen::Vector2d uv = uv_[p * kSub + static_cast<std::size_t>(k)] - d;
+                const int col = static_cast<int>(std::floor(uv.x()));
+                const int row = static_cast<int>(std::floor(uv.y()));
+                const bool inside = col >= 0 && row >= 0 && col < total_ && row < total_;
+                count += (!inside || white(col, row)) ? 1 : 0;
+            }
+            model_[p] = count / static_cast<double>(kSub);
+        }
+        // The optics: a [1 2 1] / 4 blur each way (about 0.7 px sigma), edges clamped.
+        const auto at = [&](const std::vector<double>& v, int x, int y) {
+            return v[static_cast<std::size_t>(std::clamp(y, 0, height_ - 1) * width_ + std::clamp(x, 0, width_ - 1))];
+        };
+        for (int y = 0; y < height_; ++y) {
+            for (int x = 0; x < width_; ++x) {
+                blurred_[static_cast<std::size_t>(y * width_ + x)] =
+                    0.25 * at(model_, x - 1, y) + 0.5 * at(model_, x, y) + 0.25 * at(model_, x + 1, y);
+            }
+        }
+        double sm = 0, sg = 0;
+        std::vector<double>& m = scratch_;
+        m.resize(mask_.size());
+        for (std::size_t i = 0; i < mask_.size(); ++i) {
+            const int p = mask_[i];
+            const int x = p % width_, y = p / width_;
+            m[i] = 0.25 * at(blurred_, x, y - 1) + 0.5 * at(blurred_, x, y) + 0.25 * at(blurred_, x, y + 1);
+            sm += m[i];
+            sg += image_[i];
+        }
+        const double n = static_cast<double>(mask_.size());
+        sm /= n;
+        sg /= n;
+        double smg = 0, smm = 0, sgg = 0;
+        for (std::size_t i = 0; i < mask_.size(); ++i) {
+            const double a = m[i] - sm, b = image_[i] - sg;
+            smg += a * b;
+            smm += a * a;
+            sgg += b * b;
+        }
+        if (smm <= 0 || sgg <= 0) return 0.0;
+        return smg / std::sqrt(smm * sgg);
+    }
+
+    int total_;
+    Eigen::Matrix2d cells_per_px_;
+    int width_, height_;
+    std::vector<Eigen::Vector2d> uv_;
+    std::vector<int> mask_;
+    std::vector<double> image_;
+    mutable std::vector<double> model_, blurred_, scratch_;
+};
+
+}  // namespace
+
+TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& camera, const TagPattern& pattern,
+                                   const std::vector<const TagPattern*>& others, double size,
+                                   const Rigid3d& cam_from_tag, const TagVerifyOptions& options) {
+    TagVerifyResult out;
+    if (gray8.format != PixelFormat::kGray8 || !cam_from_tag.isValid() || !(size > 0) || pattern.total() <= 0) {
+        out.reason = "bad input";
+        return out;
+    }
+    // Step 1: the predicted black square and drawn square (white border included).
+    for (int k = 0; k < 4; ++k) {
+        const Eigen::Vector3d p = cam_from_tag * tagCornerInTag(k, size);
+        const auto px = p.z() > 0 ? camera.project(p) : std::nullopt;
+        if (!px) {
+            out.reason = "behind the camera";
+            return out;
+        }
+        out.corners[static_cast<std::size_t>(k)] = *px;
+    }
+    for (int k = 0; k < 4; ++k)
+        out.side_px +=
+            0.25 *
+            (out.corners[static_cast<std::size_t>(k)] - out.corners[static_cast<std::size_t>((k + 1) % 4)]).norm();
+    if (out.side_px < options.min_side_px || out.side_px > options.max_side_px) {
+        out.reason = "predicted side outside the tried range";
+        return out;
+    }
+    const int total = pattern.total();
+    const double half = 0.5 * total * pattern.cell() * size;
+    // Outer corners in the tag frame, and in cells (u right, v down from the top row).
+    const std::array<Eigen::Vector2d, 4> tag_xy = {Eigen::Vector2d(-half, -half), Eigen::Vector2d(half, -half),
+                                                   Eigen::Vector2d(half, half), Eigen::Vector2d(-half, half)};
+    std::array<cv::Point2f, 4> cells_pts, pixel_pts;
+    double xmin = 1e30, ymin = 1e30, xmax = -1e30, ymax = -1e30;
+    for (std::size_t k = 0; k < 4; ++k) {
+        const Eigen::Vector3d p = cam_from_tag * Eigen::Vector3d(tag_xy[k].x(), tag_xy[k].y(), 0.0);
+        const auto px = p.z() > 0 ? camera.project(p) : std::nullopt;
+        if (!px) {
+            out.reason = "behind the camera";
+            return out;
+        }
+        pixel_pts[k] = cv::Point2f(static_cast<float>(px->x()), static_cast<float>(px->y()));
+        cells_pts[k] = cv::Point2f(static_cast<float>((tag_xy[k].x() + half) / (2 * half) * total),
+                                   static_cast<float>((half - tag_xy[k].y()) / (2 * half) * total));
+        xmin = std::min(xmin, px->x()), xmax = std::max(xmax, px->x());
+        ymin = std::min(ymin, px->y()), ymax = std::max(ymax, px->y());
+    }
+    const double m = options.edge_margin_px;
+    if (xmin < m || ymin < m || xmax > gray8.width - 1 - m || ymax > gray8.height - 1 - m) {
+        out.reason = "not inside the image";
+        return out;
+    }
+    const cv::Matx33d to_cells(cv::getPerspectiveTransform(pixel_pts.data(), cells_pts.data()));
+    // The local pixel-to-cell Jacobian at the tag's centre (for shifting the template).
+    const Eigen::Vector2d centre = 0.25 * (out.corners[0] + out.corners[1] + out.corners[2] + out.corners[3]);
+    const auto cellsAt = [&](const Eigen::Vector2d& p) {
+        const cv::Vec3d q = to_cells * cv::Vec3d(p.x(), p.y(), 1.0);
+        return Eigen::Vector2d(q[0] / q[2], q[1] / q[2]);
+    };
+    Eigen::Matrix2d jac;
+    jac.col(0) = 0.5 * (cellsAt(centre + Eigen::Vector2d(0.5, 0)) - cellsAt(centre - Eigen::Vector2d(0.5, 0)));
+    jac.col(1) = 0.5 * (cellsAt(centre + Eigen::Vector2d(0, 0.5)) - cellsAt(centre - Eigen::Vector2d(0, 0.5)));
+    const int x0 = static_cast<int>(std::floor(xmin)), y0 = static_cast<int>(std::floor(ymin));
+    const int x1 = static_cast<int>(std::ceil(xmax)), y1 = static_cast<int>(std::ceil(ymax));
+    const Matcher matcher(gray8, Linearizer::get(options.srgb), to_cells, total, jac, x0, y0, x1 - x0 + 1, y1 - y0 + 1);
+    if (matcher.samples() < 16) {
+        out.reason = "too few pixels";
+        return out;
+    }
+    if (matcher.imageStddev() < options.min_contrast) {
+        out.reason = "no contrast where the tag is predicted";
+        return out;
+    }
+    // Step 2: the tag's pattern.
+    const auto [ncc, shift] = matcher.best([&](int c, int r) { return pattern.white(c, r); }, options.search_px);
+    out.ncc = ncc;
+    out.shift_px = shift;
+    // Step 3: the alternatives.
+    const int border = static_cast<int>(std::lround(1.0 / pattern.cell()));
+    const int b0 = (total - border) / 2;
+    const auto square = [&](int c, int r) { return c < b0 || r < b0 || c >= b0 + border || r >= b0 + border; };
+    for (auto& c : out.corners) c += shift;
+    if (ncc < options.min_ncc) {
+        out.reason = "the pattern does not match the image";
+        return out;
+    }
+    out.ncc_square = matcher.bestAround(square, shift);
+    if (ncc - out.ncc_square < options.min_margin_square) {
+        out.reason = "a plain black square matches as well";
+        return out;
+    }
+    for (const TagPattern* other : others) {
+        if (!other || other->total() != total) continue;
+        out.ncc_other =
+            std::max(out.ncc_other, matcher.bestAround([&](int c, int r) { return other->white(c, r); }, shift));
+    }
+    if (ncc - out.ncc_other < options.min_margin_other) {
+        out.reason = "another id matches as well";
+        return out;
+    }
+    out.ok = true;
+    return out;
+}
+
+}  // namespace commonlight::tracking

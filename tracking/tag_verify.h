@@ -1,0 +1,66 @@
+// Verifying a predicted tag that the detector did not find (tiny tags: a tag36h11 black square of
+// 7-10 px has cells of 0.9-1.25 px, too small to decode, but not too small to recognise when the
+// id and the place are known).
+//
+// When the frame's other tags (or the motion model) give the camera pose, every scene tag is
+// predicted at known corners with a known id, so its pattern is known. Step 1 projects the tag's
+// whole drawn square (black square and white border) with the predicted pose; a homography from
+// its four outer corners maps each pixel back to the tag plane (the lens is locally a homography
+// over a tag this small). Step 2 renders the expected image of the pattern pixel by pixel (each
+// pixel the white fraction of 3 x 3 sub-samples) and takes its normalized cross-correlation (NCC)
+// with the image in linear light, over shifts of the whole prediction within +- `search_px` (0.5
+// px steps, then 0.25 around the best). Step 3 does the same with the plain black square (no
+// inner cells) and with `other ids` of the family, each on a 3 x 3 grid of 0.5 px around the
+// pattern's best shift (skipped when the pattern already fails). The tag is accepted when its
+// pattern's NCC reaches `min_ncc` and beats each alternative by its margin:
+// a place where the tag is not (background, an occluder, a wrong prediction) matches neither
+// clearly, or a plain square as well as the pattern. The accepted corners are the predicted ones
+// moved by the best shift.
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <string>
+#include <vector>
+
+#include "core/camera_model.h"
+#include "core/image.h"
+#include "tracking/edge_profile.h"
+#include "tracking/pose_types.h"
+#include "tracking/tag_align.h"
+
+namespace commonlight::tracking {
+
+struct TagVerifyOptions {
+    double min_side_px = 5.0;     // predicted black squares with a shorter side: not tried
+    double max_side_px = 20.0;    // with a longer side: not tried (the detector finds those)
+    double edge_margin_px = 3.0;  // the drawn square (white border included) this far inside the image
+    double search_px = 1.0;       // the prediction's error this verification absorbs, +- pixels
+    // The pattern's normalized cross-correlation with the image: measured on synthetic 7-20 px
+    // tags (blur 0.8 px, noise 1.5 grey levels) 0.95-0.99 at the truth; another id printed in
+    // the tag's place, 0.8-0.87 (the black square and the border dominate both).
+    double min_ncc = 0.9;
+    double min_margin_square = 0.12;  // over the plain black square's
+    double min_margin_other = 0.05;   // over every other id's
+    int other_ids = 8;                // other ids of the family compared (the ids after the tag's)
+    double min_contrast = 0.03;       // the image's standard deviation over the tag, linear [0, 1]
+    bool srgb = true;                 // pixels are sRGB-encoded (as TagAlignOptions::srgb)
+};
+
+struct TagVerifyResult {
+    bool ok = false;
+    std::string reason;                                  // when not ok
+    std::array<Eigen::Vector2d, 4> corners{};            // the black square's, distorted pixels (tag_detector.h order)
+    Eigen::Vector2d shift_px = Eigen::Vector2d::Zero();  // from the predicted corners
+    double ncc = 0.0;                                    // the tag's pattern at the best shift
+    double ncc_square = 0.0;                             // the plain black square at its best shift
+    double ncc_other = -1.0;                             // the best of the other ids
+    double side_px = 0.0;                                // the predicted black square's mean side
+};
+
+// `pattern`: the predicted tag's; `others`: patterns of other ids of the family (may be empty).
+TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& camera, const TagPattern& pattern,
+                                   const std::vector<const TagPattern*>& others, double size,
+                                   const Rigid3d& cam_from_tag, const TagVerifyOptions& options = {});
+
+}  // namespace commonlight::tracking
