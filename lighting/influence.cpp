@@ -151,26 +151,12 @@ Shaft VirtualInfluence::Impl::lightShaft(int element, int light) const {
     return shaft;
 }
 
-namespace {
-
-// Whether the segment from a to b meets the ball: a sure "yes" for the hull of two convex polygons
-// whose points a and b are (their centroids), before the hull's planes are tried.
-bool segmentMeetsBall(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Ball& ball) {
-    const Eigen::Vector3d ab = b - a;
-    const double len2 = ab.squaredNorm();
-    const double t = len2 > 0.0 ? std::clamp((ball.centre - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
-    return (a + t * ab - ball.centre).squaredNorm() <= ball.radius * ball.radius;
-}
-
-}  // namespace
-
 bool VirtualInfluence::Impl::linkMeetsBall(int element, int source, const Ball& ball) const {
     const ElementShape& e = shape[static_cast<std::size_t>(element)];
     const ElementShape& s = shape[static_cast<std::size_t>(source)];
     if (!shaftMeetsBall(elementShaft(element, source), ball)) return false;
-    // The segment between the centroids lies in the hull: meeting it decides (most shafts in a
-    // shadow), the hull's planes only for the rest.
-    return segmentMeetsBall(e.centroid, s.centroid, ball) || hullMeetsBall(e.polygon(), s.polygon(), ball);
+    // (hullMeetsBall() tries the segments between the ends first: most shafts in a shadow.)
+    return hullMeetsBall(e.polygon(), s.polygon(), ball);
 }
 
 bool VirtualInfluence::Impl::lightMeetsBall(int element, int light, const Ball& ball) const {
@@ -178,9 +164,7 @@ bool VirtualInfluence::Impl::lightMeetsBall(int element, int light, const Ball& 
     if (s.kind != DirectSource::Kind::kPolygon && s.kind != DirectSource::Kind::kPoint) return farLightMeetsBall(element, light, ball);
     const ElementShape& e = shape[static_cast<std::size_t>(element)];
     if (!shaftMeetsBall(lightShaft(element, light), ball)) return false;
-    // (A light polygon is convex: its centre is in it.)
-    const Eigen::Vector3d& target = s.kind == DirectSource::Kind::kPolygon ? s.polygon->centre : s.position;
-    return segmentMeetsBall(e.centroid, target, ball) || hullMeetsBall(e.polygon(), lightPolygon(light), ball);
+    return hullMeetsBall(e.polygon(), lightPolygon(light), ball);
 }
 
 bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball) const {
@@ -435,10 +419,7 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
             const int id = ids[j];
             if (id >= link_shafts) {
                 const auto [b, k] = light_shafts[static_cast<std::size_t>(id - link_shafts)];
-                const DirectSource& ls = *base.lights[static_cast<std::size_t>(k)].source;
-                const Eigen::Vector3d& target = ls.kind == DirectSource::Kind::kPolygon ? ls.polygon->centre : ls.position;
-                if (segmentMeetsBall(shape[static_cast<std::size_t>(b)].centroid, target, query) ||
-                    hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) {
+                if (hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) {
                     out.emplace_back(b, -1 - k);
                 }
                 continue;
@@ -470,7 +451,7 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
                 const double beta = std::min(1.0, ballSolidAngle(query.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
                 if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
                 if (leaf) {
-                    if (segmentMeetsBall(es.centroid, src.centroid, query) || hullMeetsBall(es.polygon(), src.polygon(), query)) out.emplace_back(e, link);
+                    if (hullMeetsBall(es.polygon(), src.polygon(), query)) out.emplace_back(e, link);
                     continue;
                 }
                 for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);

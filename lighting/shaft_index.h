@@ -52,6 +52,8 @@ bool shaftMeetsBall(const Shaft& shaft, const Ball& ball);
 // The index's cones are far looser for a large end (a ceiling panel seen from the floor): this is
 // the test that decides.
 bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b, const Ball& ball);
+// Whether the segment from p to q meets the ball (a sure "yes" for a hull that holds the segment).
+bool segmentMeetsBall(const Eigen::Vector3d& p, const Eigen::Vector3d& q, const Ball& ball);
 
 // The face planes of the hull hullMeetsBall() tests, found once (a shaft tested against many
 // balls: an object's cached shafts, at every move). A ball misses the hull when it lies wholly
