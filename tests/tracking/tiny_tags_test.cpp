@@ -21,15 +21,21 @@ namespace {
 
 using testing::SyntheticTag;
 
-// Two 0.1 m tags (ids 0 and 1) and six small ones (ids 2-7, 26-36 mm) on one plane.
-TagSet scene() {
+// A tag on the board's plane (z = 0) at (x, y).
+Rigid3d at(double x, double y) { return Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, y, 0)); }
+
+// Two 0.1 m tags (ids 0 and 1) at x = -+half_gap on the board's axis: what gives the pose.
+TagSet twoLargeTags(double half_gap) {
     TagSet tags;
     tags.family = "tag36h11";
-    const auto at = [](double x, double y) {
-        return Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, y, 0));
-    };
-    tags.items.push_back({0, 0.1, at(-0.25, 0.0), 0.04, 0.8});
-    tags.items.push_back({1, 0.1, at(0.25, 0.0), 0.04, 0.8});
+    tags.items.push_back({0, 0.1, at(-half_gap, 0.0), 0.04, 0.8});
+    tags.items.push_back({1, 0.1, at(half_gap, 0.0), 0.04, 0.8});
+    return tags;
+}
+
+// Two 0.1 m tags (ids 0 and 1) and six small ones (ids 2-7, 26-36 mm) on one plane.
+TagSet scene() {
+    TagSet tags = twoLargeTags(0.25);
     const double sizes[6] = {0.026, 0.028, 0.030, 0.032, 0.034, 0.036};
     for (int k = 0; k < 6; ++k) {
         tags.items.push_back({2 + k, sizes[k], at(-0.25 + 0.1 * k, (k % 2 ? 0.15 : -0.15)), 0.04, 0.8});
@@ -222,13 +228,7 @@ TEST(TinyTags, BadVerifyOptionsAreRefused) {
 // (measured: 13 of 14; the target is 95%: the miss is a 7.3 px tag tilted 24 degrees,
 // whose pattern correlates 0.85 at the truth, under min_ncc).
 TEST(TinyTags, DetectionBySizeBin) {
-    TagSet tags;
-    tags.family = "tag36h11";
-    const auto at = [](double x, double y) {
-        return Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, y, 0));
-    };
-    tags.items.push_back({0, 0.1, at(-0.3, 0.0), 0.04, 0.8});
-    tags.items.push_back({1, 0.1, at(0.3, 0.0), 0.04, 0.8});
+    TagSet tags = twoLargeTags(0.3);
     for (int k = 0; k < 10; ++k) {
         tags.items.push_back({10 + k, 0.02 + 0.006 * k, at(-0.3 + 0.15 * (k % 5), k < 5 ? 0.15 : -0.15), 0.04, 0.8});
     }
