@@ -219,7 +219,7 @@ Result<void> Estimator::solveWith(const std::vector<Eigen::Vector3d>& emission, 
     InfluenceOptions influence = options_.influence;
     influence.max_leaves = options_.radiosity.max_elements;
     d.influence = std::make_unique<VirtualInfluence>(*radiosity_, *rays_, influence);
-    d.face_cache.clear();
+    d.face_builds.clear();
     d.mesh_built = false;
     d.links_from_fit = false;
     d.poses_changed = true;

@@ -95,7 +95,7 @@ struct Estimator::Impl {
     bool force_full = false;
     bool direction_fitted = false;  // a distant light's direction was (re)fitted this full update
     LightingSnapshot last;          // the last full update's snapshot (lights, warnings)
-    std::vector<std::optional<FaceModulation>> face_cache;  // by real face
+    std::vector<FaceBuild> face_builds;  // by real face: the textures and what their next build keeps
     std::unique_ptr<TexelDirectCache> texels;               // the area lights' direct light per texel (null: off)
     std::vector<ProbeLight> probe_lights;
     std::vector<Eigen::Vector3d> solve_emission;  // Le per element of the last full update

@@ -224,9 +224,9 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     // Textures: every face after a full update, then the faces the influence changed.
     const std::size_t faces = rad.realFaceCount();
     std::vector<int> todo;
-    const bool all_faces = d.face_cache.size() != faces;
+    const bool all_faces = d.face_builds.size() != faces;
     if (all_faces) {
-        d.face_cache.assign(faces, std::nullopt);
+        d.face_builds.assign(faces, FaceBuild{});
         for (std::size_t f = 0; f < faces; ++f) todo.push_back(static_cast<int>(f));
     } else {
         todo = inf.changedFaces();
@@ -264,20 +264,39 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
         td.with = &area_with;
         td.threshold = 1e-3 * largest;
         td.oversample = options_.texel_direct_oversample;
+        // With a camera, texels at its resolution: 2 / oversample pixels at each face's nearest
+        // point (the elements' footprint bound is 2 pixels: they need not follow the penumbrae).
+        if (d.viewer) {
+            td.face_texel.resize(faces);
+            for (std::size_t f = 0; f < faces; ++f) {
+                td.face_texel[f] = cameraTexelSize(rad.face(static_cast<int>(f)), d.camera, *d.viewer,
+                                                   2.0 / std::max(1, options_.texel_direct_oversample), options_.influence.min_size);
+            }
+        }
         TexelDirectCache* cache = d.texels.get();
         td.at = [cache, &rad](int face, std::size_t texel, int w, int h, const Eigen::Vector3d& x, Eigen::Vector3d& d0, Eigen::Vector3d& d1) {
             cache->at(face, texel, w, h, x, rad.face(face).normal, d0, d1);
         };
+        td.kept = [cache](int face, std::size_t texel) { return cache->kept(face, texel); };
         texel_direct = std::move(td);
     } else {
         d.texels.reset();
     }
-    std::vector<std::optional<FaceModulation>> built = buildFaceModulations(rad, d.scene, inf.original(), inf.radiance(), inf.reflectance(), todo,
-                                                                            256, texel_direct ? &*texel_direct : nullptr);
-    for (std::size_t i = 0; i < todo.size(); ++i) d.face_cache[static_cast<std::size_t>(todo[i])] = std::move(built[i]);
+    // A texel is kept while its leaves' values move by less than 1e-3 of their B~ (a thousandth of
+    // the ratio; the solver's residual bound is 1e-4 of the largest radiance) and no move reached its
+    // own direct light.
+    buildFaceModulations(rad, d.scene, inf.original(), inf.radiance(), inf.reflectance(), todo, d.face_builds, 1e-3, 256,
+                         texel_direct ? &*texel_direct : nullptr);
+    stats_.texels_built = stats_.texels = 0;
+    for (int f : todo) {
+        const FaceBuild& b = d.face_builds[static_cast<std::size_t>(f)];
+        if (!b.modulation) continue;
+        stats_.texels_built += b.texels_built;
+        stats_.texels += static_cast<long>(b.modulation->ratio.size());
+    }
     snapshot.faces.reserve(faces);
-    for (const auto& f : d.face_cache) {
-        if (f) snapshot.faces.push_back(*f);
+    for (const FaceBuild& f : d.face_builds) {
+        if (f.modulation) snapshot.faces.push_back(*f.modulation);
     }
     snapshot.virtual_objects = buildProbes(rad, d.scene, inf.radiance(), d.probe_lights);
     snapshot.solve = with_.summary;

@@ -750,7 +750,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     snapshot.warnings = warnings_;
     d.last = std::move(snapshot);
     if (d.direction_fitted) d.force_full = true;
-    d.face_cache.clear();
+    d.face_builds.clear();
     return finishUpdate();
 }
 

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <numbers>
 #include <optional>
@@ -54,114 +55,300 @@ Eigen::Vector2d faceCoordinates(const Face& f, const Eigen::Vector3d& p) {
 
 }  // namespace
 
-std::optional<FaceModulation> buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f,
-                                                  const std::vector<Eigen::Vector3d>& without, const std::vector<Eigen::Vector3d>& with,
-                                                  const std::vector<Eigen::Vector3d>& rho, int max_texels, const TexelDirect* texel_direct) {
+double cameraTexelSize(const Face& face, const CameraModel& camera, const Rigid3d& cam_from_world, double pixels, double quantum) {
+    const double f = std::max(camera.fx, camera.fy);
+    if (!(f > 0.0) || camera.width <= 0 || camera.height <= 0 || !(pixels > 0.0) || !(quantum > 0.0)) return 0.0;
+    // In view: a corner in front of the camera, and the projected corners' box meets the image
+    // (a face crossing the camera's plane counts as in view).
+    bool front = false, behind = false;
+    double u0 = 1e300, v0 = 1e300, u1 = -1e300, v1 = -1e300;
+    for (const Eigen::Vector3d& c : face.corners()) {
+        const Eigen::Vector3d q = cam_from_world * c;
+        if (!(q.z() > 1e-3)) {
+            behind = true;
+            continue;
+        }
+        front = true;
+        const double u = camera.fx * q.x() / q.z() + camera.cx, v = camera.fy * q.y() / q.z() + camera.cy;
+        u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+    }
+    if (!front) return 0.0;
+    if (!behind && (u1 < 0.0 || v1 < 0.0 || u0 > camera.width || v0 > camera.height)) return 0.0;
+    // The face's point nearest the camera's centre (its plane's foot, clamped to the face).
+    const Eigen::Vector3d eye = cam_from_world.inverse().translation;
+    Eigen::Vector2d st = faceCoordinates(face, eye).cwiseMax(0.0).cwiseMin(1.0);
+    if (face.triangle && st.sum() > 1.0) st = (st.array() - 0.5 * (st.sum() - 1.0)).cwiseMax(0.0).matrix();
+    const double nearest = std::max(0.05, (face.point(st.x(), st.y()) - eye).norm());
+    const double target = pixels * nearest / f;
+    return quantum * std::exp2(std::round(std::log2(target / quantum)));
+}
+
+namespace {
+
+bool sameLeaves(const std::vector<FaceBuild::Leaf>& a, const std::vector<FaceBuild::Leaf>& b) {
+    if (a.size() != b.size()) return false;
+    for (std::size_t i = 0; i < a.size(); ++i) {
+        if (a[i].element != b[i].element || a[i].buried != b[i].buried || a[i].st != b[i].st || a[i].ds != b[i].ds || a[i].dt != b[i].dt) {
+            return false;
+        }
+    }
+    return true;
+}
+
+// One face into `keep` (buildFaceModulations()).
+void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, const std::vector<Eigen::Vector3d>& without,
+                         const std::vector<Eigen::Vector3d>& with, const std::vector<Eigen::Vector3d>& rho, int max_texels,
+                         const TexelDirect* texel_direct, double tolerance, FaceBuild& keep) {
     const Hierarchy& h = radiosity.hierarchy();
     const Face& face = radiosity.face(f);
-    std::vector<int> leaves;
-    h.leavesUnder(h.root(f), leaves);
+    const bool direct_on = texel_direct != nullptr && !face.triangle;
+    std::vector<int> ids;
+    h.leavesUnder(h.root(f), ids);
+    // The face's leaves (buried ones too: a texel's centre may fall on one) and their fields:
+    // B~, B, the reflectance, the elements' direct light without and with the objects.
+    std::vector<FaceBuild::Leaf> leaves;
+    leaves.reserve(ids.size());
     double finest = 1e300, area = 0.0, lum = 0.0;
     bool any = false;
-    for (int l : leaves) {
+    for (int l : ids) {
         const Element& e = h[l];
+        const std::size_t u = static_cast<std::size_t>(l);
+        FaceBuild::Leaf leaf;
+        leaf.element = l;
+        leaf.buried = e.buried;
+        leaf.st = e.st;
+        leaf.ds = e.ds;
+        leaf.dt = e.dt;
+        leaf.fields = {without[u], with[u], rho[u], direct_on ? (*texel_direct->without)[u] : Eigen::Vector3d::Zero(),
+                       direct_on ? (*texel_direct->with)[u] : Eigen::Vector3d::Zero()};
+        leaves.push_back(leaf);
         if (e.buried) continue;
         any = true;
         finest = std::min(finest, std::min(e.size_s, e.size_t_));
         area += e.area;
-        lum += e.area * luminance(toRgb(without[static_cast<std::size_t>(l)]));
+        lum += e.area * luminance(toRgb(without[u]));
     }
-    if (!any) return std::nullopt;
-    FaceModulation m;
-    m.object_index = face.object_index;
-    m.object = scene.real_objects[static_cast<std::size_t>(face.object_index)].name;
-    m.face = face.face_index;
-    m.corners = face.corners();
-    m.normal = face.normal;
-    // (Texels of per-texel direct light: `oversample` per finest leaf along each side.)
-    const double texel_size = finest / (texel_direct && !face.triangle ? std::max(1, texel_direct->oversample) : 1);
-    m.width = std::clamp(static_cast<int>(std::ceil(face.lengthS() / texel_size)), 2, max_texels);
-    m.height = std::clamp(static_cast<int>(std::ceil(face.lengthT() / texel_size)), 2, max_texels);
+    if (!any) {
+        keep = FaceBuild{};
+        return;
+    }
+    // Texels as fine as the finest leaf; with per-texel direct light the camera's resolution
+    // (TexelDirect::face_texel) or `oversample` per finest leaf along each side.
+    double texel_size = finest;
+    if (direct_on) {
+        const double camera_texel = static_cast<std::size_t>(f) < texel_direct->face_texel.size() ? texel_direct->face_texel[static_cast<std::size_t>(f)] : 0.0;
+        texel_size = camera_texel > 0.0 ? camera_texel : finest / std::max(1, texel_direct->oversample);
+    }
+    const int width = std::clamp(static_cast<int>(std::ceil(face.lengthS() / texel_size)), 2, max_texels);
+    const int height = std::clamp(static_cast<int>(std::ceil(face.lengthT() / texel_size)), 2, max_texels);
+    const std::size_t texels = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
+    // Three cases: a new layout (everything built); the same leaves (the texels whose leaves'
+    // values changed); leaves split or merged (also the texels near them: their leaf and box filter).
+    const bool same_layout = keep.modulation && keep.modulation->width == width && keep.modulation->height == height &&
+                             keep.texel_direct == direct_on;
+    const bool same_leaves = same_layout && sameLeaves(keep.leaves, leaves);
+    if (!same_layout) {
+        keep = FaceBuild{};
+        keep.texel_direct = direct_on;
+        keep.modulation.emplace();
+        FaceModulation& m = *keep.modulation;
+        m.object_index = face.object_index;
+        m.object = scene.real_objects[static_cast<std::size_t>(face.object_index)].name;
+        m.face = face.face_index;
+        m.corners = face.corners();
+        m.normal = face.normal;
+        m.width = width;
+        m.height = height;
+        m.ratio.resize(texels);
+        m.difference.resize(texels);
+        m.original.resize(texels);
+        m.reflectance.resize(texels);
+        keep.leaf_of.assign(texels, -1);
+        keep.stencils.resize(texels);
+        keep.direct.assign(texels, 0);
+    }
+    FaceModulation& m = *keep.modulation;
     m.mean_original = area > 0.0 ? static_cast<float>(lum / area) : 0.0f;
-    const std::size_t texels = static_cast<std::size_t>(m.width) * static_cast<std::size_t>(m.height);
-    m.ratio.resize(texels);
-    m.difference.resize(texels);
-    m.original.resize(texels);
-    m.reflectance.resize(texels);
-    // The leaf under every texel centre: a parallelogram face's leaves are rectangles in (s, t),
-    // rasterised; a triangle's found by descent. Lookups between texel centres take the nearest.
-    std::vector<int> leaf_of(texels, -1);
-    if (!face.triangle) {
-        for (int l : leaves) {
-            const Element& e = h[l];
-            const Eigen::Vector2d a = e.st, b = e.st + e.ds + e.dt;
-            const int i0 = std::max(0, static_cast<int>(std::ceil(std::min(a.x(), b.x()) * m.width - 0.5)));
-            const int i1 = std::min(m.width - 1, static_cast<int>(std::ceil(std::max(a.x(), b.x()) * m.width - 0.5)) - 1);
-            const int j0 = std::max(0, static_cast<int>(std::ceil(std::min(a.y(), b.y()) * m.height - 0.5)));
-            const int j1 = std::min(m.height - 1, static_cast<int>(std::ceil(std::max(a.y(), b.y()) * m.height - 0.5)) - 1);
-            for (int j = j0; j <= j1; ++j) {
-                for (int i = i0; i <= i1; ++i) leaf_of[m.texel(i, j)] = l;
+    // The texels whose leaf and box filter are found again: [i0, i1] x [j0, j1] (empty: i0 > i1).
+    int i0 = 0, i1 = width - 1, j0 = 0, j1 = height - 1;
+    // Leaves new since the last build, by place in `leaves` (every leaf in a new layout).
+    std::vector<char> fresh(leaves.size(), same_leaves ? 0 : 1);
+    if (same_layout && !same_leaves) {
+        // Places of the leaves kept (the same element with the same extent) from the old list to
+        // the new; the texels of the rest are rasterised again, and the box filters within a
+        // quarter of the largest leaf of the texels that changed leaf are found again.
+        std::vector<int> place(h.elements().size(), -1);
+        for (std::size_t q = 0; q < leaves.size(); ++q) place[static_cast<std::size_t>(leaves[q].element)] = static_cast<int>(q);
+        std::vector<int> old_to_new(keep.leaves.size(), -1);
+        for (std::size_t q = 0; q < keep.leaves.size(); ++q) {
+            const FaceBuild::Leaf& o = keep.leaves[q];
+            const int p = place[static_cast<std::size_t>(o.element)];
+            if (p < 0) continue;
+            const FaceBuild::Leaf& n = leaves[static_cast<std::size_t>(p)];
+            if (n.buried == o.buried && n.st == o.st && n.ds == o.ds && n.dt == o.dt) {
+                old_to_new[q] = p;
+                fresh[static_cast<std::size_t>(p)] = 0;
+                leaves[static_cast<std::size_t>(p)].fields = o.fields;  // compared below, as kept
             }
+        }
+        for (int& q : keep.leaf_of) q = q >= 0 ? old_to_new[static_cast<std::size_t>(q)] : -1;
+        for (FaceBuild::Stencil& st : keep.stencils) {
+            for (int q = 0; q < st.n; ++q) {
+                int& leaf = st.leaf[static_cast<std::size_t>(q)];
+                leaf = old_to_new[static_cast<std::size_t>(leaf)];
+            }
+        }
+        i0 = width, i1 = -1, j0 = height, j1 = -1;
+        double reach = 0.0;  // a quarter of the largest leaf, in texels
+        for (const FaceBuild::Leaf& l : leaves) {
+            reach = std::max(reach, 0.25 * std::max(std::max(std::abs(l.ds.x()), std::abs(l.dt.x())) * width,
+                                                    std::max(std::abs(l.ds.y()), std::abs(l.dt.y())) * height));
+        }
+        for (std::size_t k = 0; k < texels; ++k) {
+            if (keep.leaf_of[k] >= 0) continue;
+            const int i = static_cast<int>(k % static_cast<std::size_t>(width)), j = static_cast<int>(k / static_cast<std::size_t>(width));
+            i0 = std::min(i0, i), i1 = std::max(i1, i), j0 = std::min(j0, j), j1 = std::max(j1, j);
+        }
+        if (i0 <= i1) {
+            const int r = static_cast<int>(std::ceil(reach)) + 1;
+            i0 = std::max(0, i0 - r), i1 = std::min(width - 1, i1 + r), j0 = std::max(0, j0 - r), j1 = std::min(height - 1, j1 + r);
         }
     }
     const auto leafAt = [&](double s, double t) {
-        const int i = std::clamp(static_cast<int>(s * m.width), 0, m.width - 1);
-        const int j = std::clamp(static_cast<int>(t * m.height), 0, m.height - 1);
-        int& l = leaf_of[m.texel(i, j)];
-        return l >= 0 ? l : h.leafAt(f, Eigen::Vector2d((i + 0.5) / m.width, (j + 0.5) / m.height));
+        const int i = std::clamp(static_cast<int>(s * width), 0, width - 1);
+        const int j = std::clamp(static_cast<int>(t * height), 0, height - 1);
+        return keep.leaf_of[m.texel(i, j)];
     };
-    if (face.triangle) {
-        for (int j = 0; j < m.height; ++j) {
-            for (int i = 0; i < m.width; ++i) leaf_of[m.texel(i, j)] = h.leafAt(f, Eigen::Vector2d((i + 0.5) / m.width, (j + 0.5) / m.height));
-        }
-    }
-    // Box filter of the piecewise-constant leaf field around (s, t), over the local leaf's extent:
-    // linear between element centres, no steps at element borders. The leaves it averages (the
-    // four corners of the box, those not buried; the centre's when all are) are found once per
-    // texel and read for every field.
-    struct Stencil {
-        std::array<int, 4> leaf{};
-        int n = 0;
-    };
-    const auto stencil = [&](double s, double t) {
+    // Box filter of the piecewise-constant leaf field around (s, t), over the local leaf's
+    // extent: linear between element centres, no steps at element borders. The leaves it averages
+    // (the four corners of the box, those not buried; the centre's when all are) are found once
+    // per texel and kept.
+    const auto stencilAt = [&](const std::vector<FaceBuild::Leaf>& list, int i, int j) {
+        const double s = (i + 0.5) / width, t = (j + 0.5) / height;
         const int centre = leafAt(s, t);
-        const Element& e = h[centre];
+        const FaceBuild::Leaf& e = list[static_cast<std::size_t>(centre)];
         const double hs = 0.5 * std::max(std::abs(e.ds.x()), std::abs(e.dt.x()));
         const double ht = 0.5 * std::max(std::abs(e.ds.y()), std::abs(e.dt.y()));
-        Stencil st;
+        FaceBuild::Stencil st;
         for (int dj = -1; dj <= 1; dj += 2) {
             for (int di = -1; di <= 1; di += 2) {
-                const int leaf = leafAt(std::clamp(s + 0.5 * di * hs, 0.0, 1.0), std::clamp(t + 0.5 * dj * ht, 0.0, 1.0));
-                if (h[leaf].buried) continue;
-                st.leaf[static_cast<std::size_t>(st.n++)] = leaf;
+                const int q = leafAt(std::clamp(s + 0.5 * di * hs, 0.0, 1.0), std::clamp(t + 0.5 * dj * ht, 0.0, 1.0));
+                if (list[static_cast<std::size_t>(q)].buried) continue;
+                st.leaf[static_cast<std::size_t>(st.n++)] = q;
             }
         }
         if (st.n == 0) st.leaf[static_cast<std::size_t>(st.n++)] = centre;
         return st;
     };
-    const auto filtered = [](const Stencil& st, const std::vector<Eigen::Vector3d>& field) {
+    if (!same_leaves) {
+        m.elements.clear();
+        for (const FaceBuild::Leaf& l : leaves) {
+            if (l.buried) continue;
+            const Eigen::Vector2d a = l.st, b = l.st + l.ds + l.dt;
+            m.elements.emplace_back(static_cast<float>(std::min(a.x(), b.x())), static_cast<float>(std::min(a.y(), b.y())),
+                                    static_cast<float>(std::max(a.x(), b.x())), static_cast<float>(std::max(a.y(), b.y())));
+        }
+        // The leaf under every texel centre not known (its place in `leaves`): a parallelogram
+        // face's leaves are rectangles in (s, t), rasterised; a triangle's found by descent.
+        if (!face.triangle) {
+            for (std::size_t q = 0; q < leaves.size(); ++q) {
+                if (!fresh[q]) continue;
+                const Eigen::Vector2d a = leaves[q].st, b = leaves[q].st + leaves[q].ds + leaves[q].dt;
+                const int a0 = std::max(0, static_cast<int>(std::ceil(std::min(a.x(), b.x()) * width - 0.5)));
+                const int a1 = std::min(width - 1, static_cast<int>(std::ceil(std::max(a.x(), b.x()) * width - 0.5)) - 1);
+                const int b0 = std::max(0, static_cast<int>(std::ceil(std::min(a.y(), b.y()) * height - 0.5)));
+                const int b1 = std::min(height - 1, static_cast<int>(std::ceil(std::max(a.y(), b.y()) * height - 0.5)) - 1);
+                for (int j = b0; j <= b1; ++j) {
+                    for (int i = a0; i <= a1; ++i) keep.leaf_of[m.texel(i, j)] = static_cast<int>(q);
+                }
+            }
+        }
+        std::vector<int> place;  // by element, for lookups by descent
+        const auto placeOf = [&](int element) {
+            if (place.empty()) {
+                place.assign(h.elements().size(), -1);
+                for (std::size_t q = 0; q < leaves.size(); ++q) place[static_cast<std::size_t>(leaves[q].element)] = static_cast<int>(q);
+            }
+            return place[static_cast<std::size_t>(element)];
+        };
+        for (std::size_t k = 0; k < texels; ++k) {
+            if (keep.leaf_of[k] >= 0) continue;
+            const int i = static_cast<int>(k % static_cast<std::size_t>(width)), j = static_cast<int>(k / static_cast<std::size_t>(width));
+            keep.leaf_of[k] = placeOf(h.leafAt(f, Eigen::Vector2d((i + 0.5) / width, (j + 0.5) / height)));
+        }
+        if (i0 <= i1) {
+            tbb::parallel_for(j0, j1 + 1, [&](int j) {
+                for (int i = i0; i <= i1; ++i) keep.stencils[m.texel(i, j)] = stencilAt(leaves, i, j);
+            });
+        }
+    } else {
+        i0 = width, i1 = -1;
+        for (std::size_t q = 0; q < leaves.size(); ++q) leaves[q].fields = keep.leaves[q].fields;  // compared below, as kept
+    }
+    // What changed since the last build: new leaves, the leaves whose fields moved by more than
+    // `tolerance` of their B~ from the values kept (kept only where they moved: drift cannot build
+    // up unseen) and the texels whose own direct light a move reached.
+    std::vector<char> changed(fresh);
+    {
+        const double mean = area > 0.0 ? lum / area : 0.0;
+        for (std::size_t q = 0; q < leaves.size(); ++q) {
+            if (fresh[q]) continue;
+            FaceBuild::Leaf& l = leaves[q];
+            // Relative to the leaf's B~ (floored at a twentieth of the face's mean): the ratio's
+            // change. (The direct light is irradiance, pi / rho times the radiance: stricter.)
+            const double bound = tolerance * std::max(static_cast<double>(luminance(toRgb(l.fields[0]))), 0.05 * mean);
+            const std::size_t u = static_cast<std::size_t>(l.element);
+            const std::array<Eigen::Vector3d, 5> now{without[u], with[u], rho[u], direct_on ? (*texel_direct->without)[u] : Eigen::Vector3d::Zero(),
+                                                     direct_on ? (*texel_direct->with)[u] : Eigen::Vector3d::Zero()};
+            for (std::size_t k = 0; k < 5; ++k) {
+                if ((now[k] - l.fields[k]).cwiseAbs().maxCoeff() > bound) {
+                    changed[q] = 1;
+                    l.fields = now;
+                    break;
+                }
+            }
+        }
+    }
+    keep.leaves = std::move(leaves);
+    const bool all = !same_layout;
+    const std::vector<FaceBuild::Leaf>& kept = keep.leaves;
+    const auto filtered = [&](const FaceBuild::Stencil& st, std::size_t field) {
         Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-        for (int q = 0; q < st.n; ++q) sum += field[static_cast<std::size_t>(st.leaf[static_cast<std::size_t>(q)])];
+        for (int q = 0; q < st.n; ++q) sum += kept[static_cast<std::size_t>(st.leaf[static_cast<std::size_t>(q)])].fields[field];
         return Eigen::Vector3d(sum / st.n);
     };
+    std::atomic<long> built{0};
     tbb::parallel_for(0, m.height, [&](int j) {
+        long count = 0;
         for (int i = 0; i < m.width; ++i) {
-            const double s = (i + 0.5) / m.width, t = (j + 0.5) / m.height;
             const std::size_t k = m.texel(i, j);
-            const Stencil st = stencil(s, t);
-            Eigen::Vector3d b0 = filtered(st, without);
-            Eigen::Vector3d b1 = filtered(st, with);
-            const Eigen::Vector3d r = filtered(st, rho);
-            if (texel_direct && !face.triangle) {
+            FaceBuild::Stencil& st = keep.stencils[k];
+            bool dirty = all || (i >= i0 && i <= i1 && j >= j0 && j <= j1);
+            if (std::any_of(st.leaf.begin(), st.leaf.begin() + st.n, [](int q) { return q < 0; })) {
+                // (A leaf it averaged has gone and the region above missed it: found again.)
+                st = stencilAt(kept, i, j);
+                dirty = true;
+            }
+            for (int q = 0; q < st.n && !dirty; ++q) dirty = changed[static_cast<std::size_t>(st.leaf[static_cast<std::size_t>(q)])] != 0;
+            if (!dirty && keep.direct[k] && !(texel_direct->kept && texel_direct->kept(f, k))) dirty = true;
+            if (!dirty) continue;
+            ++count;
+            const double s = (i + 0.5) / m.width, t = (j + 0.5) / m.height;
+            Eigen::Vector3d b0 = filtered(st, 0);
+            Eigen::Vector3d b1 = filtered(st, 1);
+            const Eigen::Vector3d r = filtered(st, 2);
+            keep.direct[k] = 0;
+            if (direct_on) {
                 // The area lights' direct light at the texel's point instead of the elements' where
                 // the objects change it.
-                const Eigen::Vector3d e0 = filtered(st, *texel_direct->without);
-                const Eigen::Vector3d e1 = filtered(st, *texel_direct->with);
+                const Eigen::Vector3d e0 = filtered(st, 3);
+                const Eigen::Vector3d e1 = filtered(st, 4);
                 if ((e1 - e0).cwiseAbs().maxCoeff() > texel_direct->threshold) {
                     Eigen::Vector3d d0 = Eigen::Vector3d::Zero(), d1 = Eigen::Vector3d::Zero();
                     texel_direct->at(f, k, m.width, m.height, face.origin + s * face.edge_s + t * face.edge_t, d0, d1);
                     b0 += r.cwiseProduct(d0 - e0) / kPi;
                     b1 += r.cwiseProduct(d1 - e1) / kPi;
+                    keep.direct[k] = 1;
                 }
             }
             Rgb ratio;
@@ -177,25 +364,20 @@ std::optional<FaceModulation> buildFaceModulation(const Radiosity& radiosity, co
             m.original[k] = toRgb(b0);
             m.reflectance[k] = toRgb(r.cwiseMax(0.0).cwiseMin(1.0));
         }
+        built += count;
     });
-    for (int l : leaves) {
-        const Element& e = h[l];
-        if (e.buried) continue;
-        const Eigen::Vector2d a = e.st, b = e.st + e.ds + e.dt;
-        m.elements.emplace_back(static_cast<float>(std::min(a.x(), b.x())), static_cast<float>(std::min(a.y(), b.y())),
-                                static_cast<float>(std::max(a.x(), b.x())), static_cast<float>(std::max(a.y(), b.y())));
-    }
-    return m;
+    keep.texels_built = built.load();
 }
 
-std::vector<std::optional<FaceModulation>> buildFaceModulations(const Radiosity& radiosity, const Scene& scene,
-                                                                const std::vector<Eigen::Vector3d>& without,
-                                                                const std::vector<Eigen::Vector3d>& with,
-                                                                const std::vector<Eigen::Vector3d>& rho, const std::vector<int>& faces,
-                                                                int max_texels, const TexelDirect* texel_direct) {
-    std::vector<std::optional<FaceModulation>> out(faces.size());
-    for (std::size_t i = 0; i < faces.size(); ++i) out[i] = buildFaceModulation(radiosity, scene, faces[i], without, with, rho, max_texels, texel_direct);
-    return out;
+}  // namespace
+
+void buildFaceModulations(const Radiosity& radiosity, const Scene& scene, const std::vector<Eigen::Vector3d>& without,
+                          const std::vector<Eigen::Vector3d>& with, const std::vector<Eigen::Vector3d>& rho, const std::vector<int>& faces,
+                          std::vector<FaceBuild>& builds, double tolerance, int max_texels, const TexelDirect* texel_direct) {
+    builds.resize(radiosity.realFaceCount());
+    for (int f : faces) {
+        buildFaceModulation(radiosity, scene, f, without, with, rho, max_texels, texel_direct, tolerance, builds[static_cast<std::size_t>(f)]);
+    }
 }
 
 ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3d& p, int object,

@@ -2,22 +2,25 @@
 // modulation textures, per virtual object the irradiance probes.
 #pragma once
 
+#include <array>
 #include <functional>
 #include <optional>
 #include <vector>
 
 #include <Eigen/Core>
 
+#include "core/camera_model.h"
+#include "core/pose.h"
 #include "lighting/direct.h"
 #include "lighting/radiosity.h"
 #include "lighting/snapshot.h"
 
 namespace commonlight::lighting {
 
-// Modulation textures of the real faces `faces` (real face indices), in that order; nullopt for a
-// face that takes no part in transport (every leaf buried). `without` is B~ (real scene alone),
-// `with` is B, `rho` the reflectance, all by element. Texels are as fine as the face's finest leaf
-// (at most `max_texels` per side); values are box-filtered over the local leaf size, which
+// Modulation textures of the real faces (buildFaceModulations() below): none for a face that takes
+// no part in transport (every leaf buried). `without` is B~ (real scene alone), `with` is B, `rho`
+// the reflectance, all by element. Texels are as fine as the face's finest leaf, or the camera's
+// resolution where the direct light is drawn per texel (at most `max_texels` per side); values are box-filtered over the local leaf size, which
 // interpolates linearly between element centres (smooth across element borders).
 //
 // `texel_direct` (optional): the direct light of the area lights per texel where the virtual
@@ -30,14 +33,51 @@ struct TexelDirect {
     const std::vector<Eigen::Vector3d>* with = nullptr;
     // (face, texel, layout width x height, point) -> direct without, direct with. Called in parallel.
     std::function<void(int, std::size_t, int, int, const Eigen::Vector3d&, Eigen::Vector3d&, Eigen::Vector3d&)> at;
+    // (face, texel) -> its answer of the last build stands (no move reached it); empty: never.
+    std::function<bool(int, std::size_t)> kept;
     double threshold = 0.0;  // |with - without| (irradiance, largest channel) below this: no change
     int oversample = 1;      // texels per finest leaf along each side (the faces of a parallelogram)
+    // By face: the texel size (metres) the camera asks for (cameraTexelSize()); 0 or missing: the
+    // finest leaf / `oversample`. The elements then need not follow the direct light's penumbrae.
+    std::vector<double> face_texel;
 };
-std::vector<std::optional<FaceModulation>> buildFaceModulations(const Radiosity& radiosity, const Scene& scene,
-                                                                const std::vector<Eigen::Vector3d>& without,
-                                                                const std::vector<Eigen::Vector3d>& with,
-                                                                const std::vector<Eigen::Vector3d>& rho, const std::vector<int>& faces,
-                                                                int max_texels = 256, const TexelDirect* texel_direct = nullptr);
+// The texel size of a face's per-texel direct light for a camera: `pixels` camera pixels at the
+// face's nearest point (metres), rounded to a power of two times `quantum` so that the layout (and
+// the texels' kept answers) change only when the camera's distance does by a factor; 0 when no part
+// of the face is in view.
+double cameraTexelSize(const Face& face, const CameraModel& camera, const Rigid3d& cam_from_world, double pixels, double quantum);
+// What a face's last build keeps, so that the next one computes only the texels that changed: a
+// move changes a few hundred texels of a face, and the propagation nudges all its leaves a little.
+struct FaceBuild {
+    std::optional<FaceModulation> modulation;  // nullopt: the face takes no part in transport
+    struct Leaf {
+        int element = -1;
+        bool buried = false;
+        Eigen::Vector2d st = Eigen::Vector2d::Zero(), ds = Eigen::Vector2d::Zero(), dt = Eigen::Vector2d::Zero();
+        // B~, B, the reflectance, the elements' direct light without and with the objects (zero
+        // without per-texel direct light), as the texels last read them.
+        std::array<Eigen::Vector3d, 5> fields{};
+    };
+    std::vector<Leaf> leaves;  // the face's leaves (buried ones too), in the hierarchy's order
+    struct Stencil {
+        std::array<int, 4> leaf{};  // places in `leaves` the box filter averages
+        int n = 0;
+    };
+    std::vector<int> leaf_of;       // by texel: the place in `leaves` of the leaf under its centre
+    std::vector<Stencil> stencils;  // by texel
+    std::vector<char> direct;       // by texel: drawn with its own direct light (TexelDirect)
+    bool texel_direct = false;
+    long texels_built = 0;  // texels computed by the last build (statistics)
+};
+// Builds the faces `faces` (real face indices) into `builds` (by real face; resized to them). A
+// face whose leaves and texel layout are those of its last build keeps every texel whose leaves'
+// fields moved by at most `tolerance` (radiance; drift is measured from the values the texels
+// read, so a texel stays within twice it) and whose own direct light no move reached
+// (TexelDirect::kept); every other face is built in full. `tolerance` 0: every texel whose leaves
+// changed at all.
+void buildFaceModulations(const Radiosity& radiosity, const Scene& scene, const std::vector<Eigen::Vector3d>& without,
+                          const std::vector<Eigen::Vector3d>& with, const std::vector<Eigen::Vector3d>& rho, const std::vector<int>& faces,
+                          std::vector<FaceBuild>& builds, double tolerance, int max_texels = 256, const TexelDirect* texel_direct = nullptr);
 
 // A light as the probes see it: its unit-emission source and its emission (relative units, RGB).
 // `indirect`: counted in the probes' indirect part (an unknown environment's residual, which the

@@ -43,6 +43,11 @@ public:
     void at(int face, std::size_t texel, int width, int height, const Eigen::Vector3d& x, const Eigen::Vector3d& normal,
             Eigen::Vector3d& without, Eigen::Vector3d& with);
 
+    // The answer of texel `texel` of face `face` stands (made, and no move reached it since).
+    bool kept(int face, std::size_t texel) const {
+        const Face& f = faces_[static_cast<std::size_t>(face)];
+        return texel < f.entries.size() && f.entries[texel].valid && f.entries[texel].real;
+    }
     long traced() const noexcept { return traced_; }  // texels traced since the last reset() (statistics)
 
 private:

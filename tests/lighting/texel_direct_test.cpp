@@ -55,7 +55,8 @@ std::unique_ptr<Estimator> makeEstimator(const Scene& scene, int texel_pairs) {
     if (!est) return nullptr;
     (*est)->setViewer(Rigid3d::fromRpyDeg(Eigen::Vector3d(0.0, 0.0, 1.0), Eigen::Vector3d(180, 0, 0)).inverse());
     const std::vector<Rigid3d> poses = SceneLighting::scenePoses(scene, 0.0);
-    EXPECT_TRUE((*est)->solveWith({*scene.lights[0].emission.value}, {Eigen::Vector3d::Constant(0.5)}, poses));
+    EXPECT_TRUE((*est)->solveWith({*scene.lights[0].emission.value},
+                                  std::vector<Eigen::Vector3d>(scene.real_objects.size(), Eigen::Vector3d::Constant(0.5)), poses));
     return std::move(*est);
 }
 
@@ -154,6 +155,53 @@ TEST(TexelDirect, KeptAnswersAfterMovesEqualAFreshEstimate) {
     }
     EXPECT_GT(moved, 50) << "the shadow moved";
     EXPECT_LT(worst, 0.01) << "largest ratio difference against a fresh estimate";
+}
+
+// The textures of an update keep the texels whose leaves and own direct light did not change
+// (lighting/snapshot_builder.h FaceBuild), find again the leaves and box filters where elements
+// split or merged, and build a face whose layout changed in full. After the ball has moved over a
+// box and off it again (elements split and merged under it, its shadow crossing the box's top and
+// side), every face's texture is the one a fresh estimator builds with the ball where it ended.
+TEST(TexelDirect, TexturesKeptBetweenMovesEqualAFreshBuild) {
+    std::string yaml = kScene;
+    yaml.replace(yaml.find("lights:"), 0, "  - {name: crate, box: {size: [0.2, 0.2, 0.1]}, world_from_object: {t: [0.1, 0.05, 0.05]}, albedo: [0.6, 0.5, 0.4]}\n");
+    auto scene = parseScene(yaml, "texel_direct_box.yaml");
+    ASSERT_TRUE(scene) << scene.error().message;
+    auto moving = makeEstimator(*scene, 16);
+    ASSERT_TRUE(moving);
+    std::vector<Rigid3d> poses = SceneLighting::scenePoses(*scene, 0.0);
+    auto first = moving->update(poses);
+    ASSERT_TRUE(first) << first.error().message;
+    for (double x : {-0.05, 0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.2}) {
+        poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(x, 0.05, 0.22), Eigen::Vector3d::Zero());
+        ASSERT_TRUE(moving->update(poses));
+    }
+    auto last = moving->update(poses);
+    ASSERT_TRUE(last) << last.error().message;
+    auto fresh_est = makeEstimator(*scene, 16);
+    ASSERT_TRUE(fresh_est);
+    auto fresh = fresh_est->update(poses);
+    ASSERT_TRUE(fresh) << fresh.error().message;
+    ASSERT_EQ(last->faces.size(), fresh->faces.size());
+    ASSERT_GE(last->faces.size(), 6u) << "the floor and the box's faces";
+    double worst_ratio = 0.0, worst_original = 0.0;
+    int changed = 0;
+    for (const FaceModulation& a : last->faces) {
+        const FaceModulation* b = fresh->findFace(a.object_index, a.face);
+        ASSERT_NE(b, nullptr) << a.object << " face " << a.face;
+        ASSERT_EQ(a.width, b->width) << a.object << " face " << a.face;
+        ASSERT_EQ(a.height, b->height) << a.object << " face " << a.face;
+        ASSERT_EQ(a.elements.size(), b->elements.size()) << a.object << " face " << a.face;
+        for (std::size_t k = 0; k < a.ratio.size(); ++k) {
+            worst_ratio = std::max(worst_ratio, static_cast<double>((a.ratio[k] - b->ratio[k]).cwiseAbs().maxCoeff()));
+            const double scale = std::max(1e-6f, b->original[k].maxCoeff());
+            worst_original = std::max(worst_original, static_cast<double>((a.original[k] - b->original[k]).cwiseAbs().maxCoeff()) / scale);
+            if (b->ratio[k].y() < 0.9f) ++changed;
+        }
+    }
+    EXPECT_GT(changed, 50) << "the ball's shadow is in the textures";
+    EXPECT_LT(worst_ratio, 0.01) << "largest ratio difference against a fresh build";
+    EXPECT_LT(worst_original, 0.01) << "largest relative B~ difference against a fresh build";
 }
 
 }  // namespace
