@@ -94,7 +94,12 @@ Result<std::unique_ptr<Estimator>> makeEstimator(const Setup& s, const PathScene
     eo.refine_unobserved = true;
     eo.initial_element_size = ps.element_size;
     eo.light_refinement_size = 0.08;
-    if (influence) eo.influence = *influence;
+    if (influence) {
+        // (The scenes' lights are area lights: the direct light per texel, and these the elements'.)
+        eo.influence = *influence;
+        eo.texel_refine_epsilon = influence->refine_epsilon;
+        eo.texel_footprint_pixels = influence->footprint_pixels;
+    }
     CL_TRY(std::unique_ptr<Estimator> est, Estimator::create(s.truth, s.camera, {}, eo));
     est->setViewer(s.world_from_cam.inverse());
     std::vector<Eigen::Vector3d> emission, albedo;
@@ -487,12 +492,14 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
         nlohmann::json rows = nlohmann::json::array();
         std::printf("        refine_epsilon footprint_px link_size  update ms p50/p95   ratio RMS  leaves max\n");
         // refine_epsilon x link_size at the default footprint, then the footprint at the defaults.
-        const lighting::InfluenceOptions defaults;
+        lighting::InfluenceOptions defaults;
+        defaults.refine_epsilon = EstimatorOptions{}.texel_refine_epsilon;
+        defaults.footprint_pixels = EstimatorOptions{}.texel_footprint_pixels;
         std::vector<std::tuple<double, double, double>> configs;
         for (double eps : {0.005, 0.01, 0.02, 0.05, 0.1}) {
             for (double link : {0.04, 0.08, 0.16}) configs.emplace_back(eps, defaults.footprint_pixels, link);
         }
-        for (double fp : {1.0, 4.0, 8.0}) configs.emplace_back(defaults.refine_epsilon, fp, defaults.link_size);
+        for (double fp : {1.0, 2.0, 8.0}) configs.emplace_back(defaults.refine_epsilon, fp, defaults.link_size);
         for (const auto& [eps, fp, link] : configs) {
             {
                 lighting::InfluenceOptions io;
@@ -601,7 +608,7 @@ void drawPlot(const std::vector<SweepPoint>& sweep, const std::vector<Series>& s
             const cv::Point at(X(p.p50), Y(p.rms));
             if (p.full) {
                 cv::rectangle(img, at - cv::Point(5, 5), at + cv::Point(5, 5), c, cv::FILLED);
-            } else if (p.refine_epsilon == lighting::InfluenceOptions{}.refine_epsilon && p.footprint == lighting::InfluenceOptions{}.footprint_pixels &&
+            } else if (p.refine_epsilon == EstimatorOptions{}.texel_refine_epsilon && p.footprint == EstimatorOptions{}.texel_footprint_pixels &&
                        p.link_size == lighting::InfluenceOptions{}.link_size) {
                 cv::circle(img, at, 7, c, 2);
             } else {

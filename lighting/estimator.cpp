@@ -40,6 +40,26 @@ const tbb::global_control kTsanParallelism(tbb::global_control::max_allowed_para
 }  // namespace
 #endif
 
+namespace {
+
+// The influence's options. When the area lights' direct light is drawn per texel (every light an
+// area or disc light: lighting/texel_direct.h), the elements follow only what they draw themselves
+// (the indirect light, the objects' own light, the direct light's share of D) and need not follow
+// the penumbrae to the pixel: EstimatorOptions::texel_refine_epsilon and texel_footprint_pixels.
+InfluenceOptions influenceOptions(const EstimatorOptions& o, const Scene& scene) {
+    InfluenceOptions io = o.influence;
+    io.max_leaves = o.radiosity.max_elements;
+    const bool per_texel = o.texel_direct_pairs > 0 && !scene.lights.empty() && std::all_of(scene.lights.begin(), scene.lights.end(), [](const Light& l) {
+                               return std::holds_alternative<AreaLightShape>(l.shape) || std::holds_alternative<DiscLightShape>(l.shape);
+                           });
+    if (per_texel) {
+        io.refine_epsilon = o.texel_refine_epsilon;
+        io.footprint_pixels = o.texel_footprint_pixels;
+    }
+    return io;
+}
+
+}  // namespace
 
 Estimator::Estimator(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 Estimator::~Estimator() = default;
@@ -86,9 +106,7 @@ Result<std::unique_ptr<Estimator>> Estimator::create(const Scene& scene, const C
     CL_TRY(out->rays_, RayScene::build(d.real_faces, d.light_geometry, shapes));
     out->radiosity_ = std::make_unique<Radiosity>(d.real_faces, d.virtual_faces, d.sphere_radius, *out->rays_,
                                                   out->options_.radiosity);
-    InfluenceOptions influence = out->options_.influence;
-    influence.max_leaves = out->options_.radiosity.max_elements;
-    d.influence = std::make_unique<VirtualInfluence>(*out->radiosity_, *out->rays_, influence);
+    d.influence = std::make_unique<VirtualInfluence>(*out->radiosity_, *out->rays_, influenceOptions(out->options_, scene));
     d.present.assign(scene.virtual_objects.size(), true);
     d.emission.assign(scene.virtual_objects.size(), std::nullopt);
     out->observations_ = std::make_unique<Observations>(d.real_faces, scene, camera, options.response,
@@ -216,9 +234,7 @@ Result<void> Estimator::solveWith(const std::vector<Eigen::Vector3d>& emission, 
     }
     // The radiosity system reads albedos from its own faces: rebuild it with the new ones.
     radiosity_ = std::make_unique<Radiosity>(d.real_faces, d.virtual_faces, d.sphere_radius, *rays_, options_.radiosity);
-    InfluenceOptions influence = options_.influence;
-    influence.max_leaves = options_.radiosity.max_elements;
-    d.influence = std::make_unique<VirtualInfluence>(*radiosity_, *rays_, influence);
+    d.influence = std::make_unique<VirtualInfluence>(*radiosity_, *rays_, influenceOptions(options_, d.scene));
     d.face_builds.clear();
     d.mesh_built = false;
     d.links_from_fit = false;

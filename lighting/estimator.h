@@ -48,8 +48,13 @@ struct EstimatorOptions {
     // The area lights' direct light per texel where the virtual objects change it, from this many
     // visibility pairs per texel and light (lighting/texel_direct.h); 0: the elements' (box-filtered).
     int texel_direct_pairs = 16;  // at most 64 (a bit mask per texel and light)
-    int texel_direct_oversample = 1;  // texels per finest leaf along a side on those faces (2: the desk's ratio
-                                      // RMS 0.0328 -> 0.0300, twice the update's CPU time)
+    int texel_direct_oversample = 1;  // texels per 2 camera pixels along a side on those faces (without a camera:
+                                      // per finest leaf)
+    // With the direct light drawn per texel, the influence's elements follow only what they draw
+    // themselves (InfluenceOptions::refine_epsilon and footprint_pixels for them; measured by
+    // `commonlight bench lighting --incremental`: the same ratio with a third fewer answers per move).
+    double texel_refine_epsilon = 0.05;
+    double texel_footprint_pixels = 4.0;
 };
 
 // One light's estimate, in relative units (multiply by 1 / radiance_scale for scene units).

