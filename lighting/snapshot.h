@@ -76,6 +76,9 @@ struct FaceModulation {
     // "proxies as elements" debug view draws their outlines).
     std::vector<Eigen::Vector4f> elements;
     float mean_original = 0.0f;  // area-weighted mean of `original` over the face, luminance
+    // Changes whenever the face's texels or elements do (a renderer uploads again only the faces
+    // whose revision changed); 0: unknown (always uploaded).
+    std::uint64_t revision = 0;
 
     std::size_t texel(int i, int j) const { return static_cast<std::size_t>(j) * static_cast<std::size_t>(width) + i; }
     bool isTriangle() const { return corners.size() == 3; }

@@ -43,8 +43,8 @@ struct TexelDirect {
 };
 // The texel size of a face's per-texel direct light for a camera: `pixels` camera pixels at the
 // face's nearest point (metres), rounded to a power of two times `quantum` so that the layout (and
-// the texels' kept answers) change only when the camera's distance does by a factor; 0 when no part
-// of the face is in view.
+// the texels' kept answers) change only when the camera's distance does by a factor, and never below
+// half of `quantum`; 0 when no part of the face is in view.
 double cameraTexelSize(const Face& face, const CameraModel& camera, const Rigid3d& cam_from_world, double pixels, double quantum);
 // What a face's last build keeps, so that the next one computes only the texels that changed: a
 // move changes a few hundred texels of a face, and the propagation nudges all its leaves a little.

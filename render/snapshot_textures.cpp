@@ -1,6 +1,7 @@
 #include "render/snapshot_textures.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numeric>
 #include <string>
@@ -23,6 +24,90 @@ GLuint atlasTexture(int width, int height, const std::vector<float>& rgba, GLenu
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
     return t;
+}
+
+// One face's texels as the atlas holds them: M, D and B~ (element outlines darkened) as RGBA
+// blocks of (width + 2) x (height + 2), the frame copying the edge texels; and where the face is
+// influenced (FaceInAtlas::influence).
+struct FaceBlock {
+    std::vector<float> m, d, o;
+    Eigen::Vector4f influence = Eigen::Vector4f(1.0f, 1.0f, 0.0f, 0.0f);
+};
+
+FaceBlock faceBlock(const lighting::FaceModulation& f) {
+    const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
+    std::vector<float> fm(3 * n), fd(3 * n), fo(3 * n);
+    int in_i0 = f.width, in_j0 = f.height, in_i1 = -1, in_j1 = -1;  // the influenced texels' bounds
+    for (std::size_t k = 0; k < n; ++k) {
+        const float w = lighting::ratioWeight(lighting::luminance(f.original[k]), f.mean_original);
+        for (std::size_t c = 0; c < 3; ++c) {
+            const float ratio = std::isfinite(f.ratio[k][static_cast<int>(c)]) ? f.ratio[k][static_cast<int>(c)] : 1.0f;
+            const float diff = std::isfinite(f.difference[k][static_cast<int>(c)]) ? f.difference[k][static_cast<int>(c)] : 0.0f;
+            const float orig = f.original[k][static_cast<int>(c)];
+            fm[3 * k + c] = w * ratio + (1.0f - w);
+            fd[3 * k + c] = (1.0f - w) * diff;
+            fo[3 * k + c] = std::isfinite(orig) ? orig : 0.0f;
+        }
+        bool influenced = false;
+        for (std::size_t c = 0; c < 3; ++c) {
+            influenced = influenced || std::abs(fm[3 * k + c] - 1.0f) > kModulationEpsilon || fd[3 * k + c] != 0.0f;
+        }
+        if (influenced) {
+            const int i = static_cast<int>(k % static_cast<std::size_t>(f.width)), j = static_cast<int>(k / static_cast<std::size_t>(f.width));
+            in_i0 = std::min(in_i0, i);
+            in_j0 = std::min(in_j0, j);
+            in_i1 = std::max(in_i1, i);
+            in_j1 = std::max(in_j1, j);
+        }
+    }
+    FaceBlock out;
+    if (in_i1 >= 0) {
+        const float fw = static_cast<float>(f.width), fh = static_cast<float>(f.height);
+        out.influence = Eigen::Vector4f(std::max(0.0f, static_cast<float>(in_i0 - 1) / fw), std::max(0.0f, static_cast<float>(in_j0 - 1) / fh),
+                                        std::min(1.0f, static_cast<float>(in_i1 + 2) / fw), std::min(1.0f, static_cast<float>(in_j1 + 2) / fh));
+    }
+    // Element outlines in the debug view of B~: a darker rim on the texels at element borders.
+    const auto darken = [&](int i, int j) {
+        for (std::size_t c = 0; c < 3; ++c) fo[3 * f.texel(i, j) + c] *= 0.6f;
+    };
+    for (const Eigen::Vector4f& e : f.elements) {
+        const int i0 = std::clamp(static_cast<int>(e[0] * static_cast<float>(f.width)), 0, f.width - 1);
+        const int j0 = std::clamp(static_cast<int>(e[1] * static_cast<float>(f.height)), 0, f.height - 1);
+        const int i1 = std::clamp(static_cast<int>(std::ceil(e[2] * static_cast<float>(f.width))) - 1, 0, f.width - 1);
+        const int j1 = std::clamp(static_cast<int>(std::ceil(e[3] * static_cast<float>(f.height))) - 1, 0, f.height - 1);
+        for (int i = i0; i <= i1; ++i) {
+            darken(i, j0);
+            if (j1 != j0) darken(i, j1);
+        }
+        for (int j = j0 + 1; j < j1; ++j) {
+            darken(i0, j);
+            if (i1 != i0) darken(i1, j);
+        }
+    }
+    const std::size_t bw = static_cast<std::size_t>(f.width + 2), bh = static_cast<std::size_t>(f.height + 2);
+    out.m.assign(4 * bw * bh, 1.0f);
+    out.d.assign(4 * bw * bh, 0.0f);
+    out.o.assign(4 * bw * bh, 0.0f);
+    for (std::size_t j = 0; j < bh; ++j) {
+        for (std::size_t i = 0; i < bw; ++i) {
+            const std::size_t src = f.texel(std::clamp(static_cast<int>(i) - 1, 0, f.width - 1), std::clamp(static_cast<int>(j) - 1, 0, f.height - 1));
+            const std::size_t dst = j * bw + i;
+            for (std::size_t c = 0; c < 3; ++c) {
+                out.m[4 * dst + c] = fm[3 * src + c];
+                out.d[4 * dst + c] = fd[3 * src + c];
+                out.o[4 * dst + c] = fo[3 * src + c];
+            }
+        }
+    }
+    return out;
+}
+
+// The atlas layout a snapshot's faces need again: which faces, in order, at what size.
+std::vector<std::array<int, 4>> layoutKey(const lighting::LightingSnapshot& snapshot) {
+    std::vector<std::array<int, 4>> key;
+    key.reserve(snapshot.faces.size());
+    for (const lighting::FaceModulation& f : snapshot.faces) key.push_back({f.object_index, f.face, f.width, f.height});
+    return key;
 }
 
 }  // namespace
@@ -49,7 +134,33 @@ const ProbeGrid* SnapshotTextures::probes(std::size_t virtual_index) const {
 
 void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::size_t virtual_objects, bool lighting) {
     if (snapshot.version == version_ && &snapshot == address_ && lighting == lighting_) return;
+    // The same faces at the same sizes: only the faces whose revision changed are uploaded again,
+    // into their place (a move changes a few faces; the atlas of a desk is 10 MB).
+    if (lighting && lighting_ && atlas_m_ != 0 && layoutKey(snapshot) == layout_key_ && revisions_.size() == snapshot.faces.size()) {
+        for (std::size_t i = 0; i < snapshot.faces.size(); ++i) {
+            const lighting::FaceModulation& f = snapshot.faces[i];
+            if (f.revision != 0 && f.revision == revisions_[i]) continue;
+            revisions_[i] = f.revision;
+            const auto it = faces_.find({f.object_index, f.face});
+            if (it == faces_.end()) continue;  // left out of the atlas (degenerate, or did not fit)
+            const FaceBlock block = faceBlock(f);
+            it->second.influence = block.influence;
+            const int x = static_cast<int>(it->second.rect.x()) - 1, y = static_cast<int>(it->second.rect.y()) - 1;
+            glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+            for (const auto& [texture, data] : {std::pair{atlas_m_, &block.m}, std::pair{atlas_d_, &block.d}, std::pair{atlas_o_, &block.o}}) {
+                glBindTexture(GL_TEXTURE_2D, texture);
+                glTexSubImage2D(GL_TEXTURE_2D, 0, x, y, f.width + 2, f.height + 2, GL_RGBA, GL_FLOAT, data->data());
+            }
+        }
+        version_ = snapshot.version;
+        address_ = &snapshot;
+        updateProbes(snapshot, virtual_objects);
+        return;
+    }
     release();
+    layout_key_ = layoutKey(snapshot);
+    revisions_.clear();
+    for (const lighting::FaceModulation& f : snapshot.faces) revisions_.push_back(f.revision);
     version_ = snapshot.version;
     address_ = &snapshot;
     lighting_ = lighting;
@@ -129,65 +240,15 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
         std::vector<float> m(4 * texels, 1.0f), d(4 * texels, 0.0f), o(4 * texels, 0.0f);
         for (const Item& it : placed) {
             const lighting::FaceModulation& f = *it.face;
-            const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
-            std::vector<float> fm(3 * n), fd(3 * n), fo(3 * n);
-            int in_i0 = f.width, in_j0 = f.height, in_i1 = -1, in_j1 = -1;  // the influenced texels' bounds
-            for (std::size_t k = 0; k < n; ++k) {
-                const float w = lighting::ratioWeight(lighting::luminance(f.original[k]), f.mean_original);
-                for (std::size_t c = 0; c < 3; ++c) {
-                    const float ratio = std::isfinite(f.ratio[k][static_cast<int>(c)]) ? f.ratio[k][static_cast<int>(c)] : 1.0f;
-                    const float diff = std::isfinite(f.difference[k][static_cast<int>(c)]) ? f.difference[k][static_cast<int>(c)] : 0.0f;
-                    const float orig = f.original[k][static_cast<int>(c)];
-                    fm[3 * k + c] = w * ratio + (1.0f - w);
-                    fd[3 * k + c] = (1.0f - w) * diff;
-                    fo[3 * k + c] = std::isfinite(orig) ? orig : 0.0f;
-                }
-                bool influenced = false;
-                for (std::size_t c = 0; c < 3; ++c) {
-                    influenced = influenced || std::abs(fm[3 * k + c] - 1.0f) > kModulationEpsilon || fd[3 * k + c] != 0.0f;
-                }
-                if (influenced) {
-                    const int i = static_cast<int>(k % static_cast<std::size_t>(f.width)), j = static_cast<int>(k / static_cast<std::size_t>(f.width));
-                    in_i0 = std::min(in_i0, i);
-                    in_j0 = std::min(in_j0, j);
-                    in_i1 = std::max(in_i1, i);
-                    in_j1 = std::max(in_j1, j);
-                }
-            }
+            const FaceBlock block = faceBlock(f);
             FaceInAtlas place = it.place;
-            if (in_i1 >= 0) {
-                const float fw = static_cast<float>(f.width), fh = static_cast<float>(f.height);
-                place.influence = Eigen::Vector4f(std::max(0.0f, static_cast<float>(in_i0 - 1) / fw), std::max(0.0f, static_cast<float>(in_j0 - 1) / fh),
-                                                  std::min(1.0f, static_cast<float>(in_i1 + 2) / fw), std::min(1.0f, static_cast<float>(in_j1 + 2) / fh));
-            }
-            // Element outlines in the debug view of B~: a darker rim on the texels at element borders.
-            const auto darken = [&](int i, int j) {
-                for (std::size_t c = 0; c < 3; ++c) fo[3 * f.texel(i, j) + c] *= 0.6f;
-            };
-            for (const Eigen::Vector4f& e : f.elements) {
-                const int i0 = std::clamp(static_cast<int>(e[0] * static_cast<float>(f.width)), 0, f.width - 1);
-                const int j0 = std::clamp(static_cast<int>(e[1] * static_cast<float>(f.height)), 0, f.height - 1);
-                const int i1 = std::clamp(static_cast<int>(std::ceil(e[2] * static_cast<float>(f.width))) - 1, 0, f.width - 1);
-                const int j1 = std::clamp(static_cast<int>(std::ceil(e[3] * static_cast<float>(f.height))) - 1, 0, f.height - 1);
-                for (int i = i0; i <= i1; ++i) {
-                    darken(i, j0);
-                    if (j1 != j0) darken(i, j1);
-                }
-                for (int j = j0 + 1; j < j1; ++j) {
-                    darken(i0, j);
-                    if (i1 != i0) darken(i1, j);
-                }
-            }
-            for (int j = 0; j < f.height + 2; ++j) {
-                for (int i = 0; i < f.width + 2; ++i) {
-                    const std::size_t src = f.texel(std::clamp(i - 1, 0, f.width - 1), std::clamp(j - 1, 0, f.height - 1));
-                    const std::size_t dst = static_cast<std::size_t>(it.y + j) * static_cast<std::size_t>(width) + static_cast<std::size_t>(it.x + i);
-                    for (std::size_t c = 0; c < 3; ++c) {
-                        m[4 * dst + c] = fm[3 * src + c];
-                        d[4 * dst + c] = fd[3 * src + c];
-                        o[4 * dst + c] = fo[3 * src + c];
-                    }
-                }
+            place.influence = block.influence;
+            const std::size_t bw = static_cast<std::size_t>(f.width + 2);
+            for (std::size_t j = 0; j < static_cast<std::size_t>(f.height + 2); ++j) {
+                const std::size_t dst = (static_cast<std::size_t>(it.y) + j) * static_cast<std::size_t>(width) + static_cast<std::size_t>(it.x);
+                std::copy_n(block.m.begin() + static_cast<std::ptrdiff_t>(4 * j * bw), 4 * bw, m.begin() + static_cast<std::ptrdiff_t>(4 * dst));
+                std::copy_n(block.d.begin() + static_cast<std::ptrdiff_t>(4 * j * bw), 4 * bw, d.begin() + static_cast<std::ptrdiff_t>(4 * dst));
+                std::copy_n(block.o.begin() + static_cast<std::ptrdiff_t>(4 * j * bw), 4 * bw, o.begin() + static_cast<std::ptrdiff_t>(4 * dst));
             }
             faces_[{f.object_index, f.face}] = place;
         }
@@ -197,7 +258,12 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
         atlas_size_ = Eigen::Vector2f(static_cast<float>(width), static_cast<float>(height));
     }
 
+    updateProbes(snapshot, virtual_objects);
+}
+
+void SnapshotTextures::updateProbes(const lighting::LightingSnapshot& snapshot, std::size_t virtual_objects) {
     // Step 4: the probe grids.
+    for (ProbeGrid& p : probes_) gl::deleteTexture(p.texture);
     probes_.assign(virtual_objects, ProbeGrid{});
     for (const lighting::VirtualIrradiance& v : snapshot.virtual_objects) {
         if (v.object_index < 0 || static_cast<std::size_t>(v.object_index) >= probes_.size()) continue;

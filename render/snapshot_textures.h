@@ -4,6 +4,7 @@
 // to render/.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <map>
 #include <utility>
@@ -47,7 +48,9 @@ struct ProbeGrid {
 
 class SnapshotTextures {
 public:
-    // Rebuilds the textures when the snapshot (its address or version) or `lighting` changed:
+    // Rebuilds the textures when the snapshot (its address or version) or `lighting` changed (when
+    // its faces and their sizes are those of the atlas, only the faces whose
+    // FaceModulation::revision changed are uploaded again, into their place):
     // without lighting nothing is modulated and no probe is used. Non-finite values count as no
     // change (ratio 1, difference 0, irradiance 0); degenerate faces are left out. The GL context
     // must be current.
@@ -65,7 +68,10 @@ public:
     const ProbeGrid* probes(std::size_t virtual_index) const;
 
 private:
+    void updateProbes(const lighting::LightingSnapshot& snapshot, std::size_t virtual_objects);
     std::uint64_t version_ = ~0ull;
+    std::vector<std::array<int, 4>> layout_key_;  // the atlas's faces: object, face, width, height
+    std::vector<std::uint64_t> revisions_;        // their revisions uploaded, in the snapshot's order
     const void* address_ = nullptr;
     bool lighting_ = true;
     std::map<std::pair<int, int>, FaceInAtlas> faces_;

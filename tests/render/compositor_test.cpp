@@ -269,6 +269,57 @@ TEST_F(CompositorTest, TheRatioDarkensAndTheDifferenceBrightensTheBackground) {
     EXPECT_NEAR(at(0.6, 0.75), in_linear + 0.1, 0.02 * (in_linear + 0.1));  // B~ = 0: + (B - B~)
 }
 
+// A new snapshot whose faces keep their sizes uploads only the faces whose revision changed, into
+// their place in the atlas: after a snapshot that darkens the left half, one that darkens the right
+// half (a new revision) draws what a fresh compositor draws from it; the same revision again keeps
+// what was uploaded (the renderer trusts it).
+TEST_F(CompositorTest, AFaceWithANewRevisionIsUploadedAgainInItsPlace) {
+    Scene scene;
+    scene.real_objects.push_back(floorPlane(4.0));
+    const CameraModel camera = smallCamera();
+    const ResponseCurve response = ResponseCurve::srgb();
+    const auto snapshotWith = [](bool left_dark, std::uint64_t version, std::uint64_t revision) {
+        lighting::LightingSnapshot snapshot;
+        snapshot.version = version;
+        lighting::FaceModulation f;
+        f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
+        f.width = 8;
+        f.height = 8;
+        for (int j = 0; j < 8; ++j) {
+            for (int i = 0; i < 8; ++i) {
+                const bool dark = (i < 4) == left_dark;
+                f.ratio.push_back(lighting::Rgb::Constant(dark ? 0.5f : 1.0f));
+                f.original.push_back(lighting::Rgb::Constant(1.0f));
+                f.difference.push_back(lighting::Rgb::Constant(dark ? -0.5f : 0.0f));
+                f.reflectance.push_back(lighting::Rgb::Constant(0.5f));
+            }
+        }
+        f.mean_original = 1.0f;
+        f.revision = revision;
+        snapshot.faces.push_back(f);
+        return snapshot;
+    };
+    const auto maxAbsDiff = [&](const ImageView& a, const ImageView& b) {
+        int worst = 0;
+        for (int y = 0; y < camera.height; ++y) {
+            for (int x = 0; x < 3 * camera.width; ++x) worst = std::max(worst, std::abs(int{a.row(y)[x]} - int{b.row(y)[x]}));
+        }
+        return worst;
+    };
+    auto c = make(scene, camera, response);
+    ASSERT_TRUE(c);
+    auto fresh = make(scene, camera, response);
+    ASSERT_TRUE(fresh);
+    const Image frame = constantFrame(camera.width, camera.height, 180);
+    const Image left = render(*c, frame.view(), lookingDown(), snapshotWith(true, 1, 1));
+    const Image right = render(*c, frame.view(), lookingDown(), snapshotWith(false, 2, 2));
+    const Image expected = render(*fresh, frame.view(), lookingDown(), snapshotWith(false, 1, 2));
+    EXPECT_EQ(maxAbsDiff(right.view(), expected.view()), 0) << "uploaded again in place";
+    EXPECT_GT(maxAbsDiff(left.view(), right.view()), 40) << "the shadow moved";
+    const Image kept = render(*c, frame.view(), lookingDown(), snapshotWith(true, 3, 2));
+    EXPECT_EQ(maxAbsDiff(kept.view(), right.view()), 0) << "an unchanged revision is not uploaded";
+}
+
 // A closed proxy is drawn without its back faces only when the camera is outside it: a room
 // modelled as a box around the camera still gets its floor modulated (seen from inside, the floor
 // turns its back to the camera), and a box seen from outside hides what is behind its front.
