@@ -160,7 +160,8 @@ struct LightingOptions {
     double error = 0.01;      // refinement threshold (relative radiance error)
     // The area lights' direct light per texel where the virtual objects change it (lighting/
     // texel_direct.h): visibility pairs per texel and light (0: the elements' direct light), and
-    // texels per finest element along a side. Unset: the estimator's defaults (16, 1).
+    // texels per two camera pixels along a side (no camera: per finest element). Unset: the
+    // estimator's defaults (16, 1).
     std::optional<int> texel_pairs;
     std::optional<int> texel_oversample;
     bool operator==(const LightingOptions&) const = default;
