@@ -223,8 +223,10 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
         toRvecTvec(start, rvec, tvec);
         Rigid3d refined = start;
         try {
+            // Stops when a step changes the parameters by under 1e-9 relative (1 nm at 1 m):
+            // 1e-12 bought nothing but iterations (wide's solve step 0.64 -> 0.54 ms per frame).
             cv::solvePnPRefineLM(object, distorted, k_mat, dist, rvec, tvec,
-                                 cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 30, 1e-12));
+                                 cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 30, 1e-9));
             if (!finiteMat(rvec) || !finiteMat(tvec)) return;  // never an unrefined pose as a result
             refined = fromRvecTvec(rvec, tvec);
         } catch (const cv::Exception&) {
