@@ -337,6 +337,18 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             }
             if (!pose) pattern = nullptr;
         }
+        // A single candidate (the other failed the plausibility cut) that the prediction confirms,
+        // within half the gate, while its planar mirror is beyond twice the gate: the prediction
+        // chooses, as between two such candidates, and the mirror is not aligned as well
+        // (docs/tracking.md, "Speed (issue 13)"). A mirror near the candidate (a tag seen nearly
+        // head-on) is still aligned: the better of the two alignments is the more accurate one.
+        const double gate = s.options.tag_pose.prediction_gate_deg;
+        if (!tag.aligned && pattern && pose->choice == PoseChoice::kOnlyCandidate && predicted_cam_from_tag &&
+            rotationErrorDeg(pose->cam_from_tag, *predicted_cam_from_tag) < 0.5 * gate &&
+            rotationErrorDeg(planarMirror(pose->cam_from_tag), *predicted_cam_from_tag) > 2.0 * gate) {
+            pose->choice = PoseChoice::kPrediction;
+            pose->ambiguous = false;
+        }
         if (tag.aligned) {
             // Done above.
         } else if (pattern && pose->choice == PoseChoice::kPrediction) {
