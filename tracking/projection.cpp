@@ -34,7 +34,8 @@ std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& cam
         p.y(), -p.x(), 0, 0, 0, 1;
     ProjectionWithJacobian out;
     out.pixel = *pixel;
-    out.d_pixel_d_xi = d_pix_d_dist * d_dist * d_xy_d_p * d_p_d_xi;
+    out.d_pixel_d_p = d_pix_d_dist * d_dist * d_xy_d_p;
+    out.d_pixel_d_xi = out.d_pixel_d_p * d_p_d_xi;
     return out;
 }
 

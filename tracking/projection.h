@@ -15,6 +15,7 @@ using Matrix26d = Eigen::Matrix<double, 2, 6>;
 struct ProjectionWithJacobian {
     Eigen::Vector2d pixel;  // distorted, OpenCV convention
     Matrix26d d_pixel_d_xi;
+    Eigen::Matrix<double, 2, 3> d_pixel_d_p;  // d(pixel) / d(p_in_cam)
 };
 
 // nullopt when the point is behind the camera (z <= 1e-9 m) or beyond the lens model's valid

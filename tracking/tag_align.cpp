@@ -120,14 +120,14 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
                 const Eigen::Vector3d p_cam = pose * p_tag;
                 const auto proj = projectWithJacobian(camera, p_cam);
                 if (!proj) continue;
-                // Image directions of the boundary and of its dark-to-bright normal.
+                // Image directions of the boundary and of its dark-to-bright normal: the tag's
+                // directions through the projection's Jacobian (one cell of the bright direction).
                 const Eigen::Vector3d along_tag(size * (e.b - e.a).x(), size * (e.b - e.a).y(), 0.0);
-                const auto pa = camera.project(pose * (p_tag + 0.05 * along_tag));
-                const auto pb = camera.project(pose * (p_tag + 0.05 * size * pattern.cell() * bright_tag));
-                if (!pa || !pb) continue;
-                const Eigen::Vector2d along = (*pa - proj->pixel).normalized();
+                const Eigen::Vector2d along = (proj->d_pixel_d_p * (pose.rotation * along_tag)).normalized();
+                const Eigen::Vector2d bright_px =
+                    proj->d_pixel_d_p * (pose.rotation * (size * pattern.cell() * bright_tag));
                 Eigen::Vector2d n(-along.y(), along.x());
-                if (n.dot(*pb - proj->pixel) < 0) n = -n;
+                if (n.dot(bright_px) < 0) n = -n;
                 if (!n.allFinite()) continue;
                 const auto s = edgeOffset(gray8, lin, proj->pixel, n, along, range);
                 if (!s) continue;
@@ -136,7 +136,7 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
                 Eigen::Matrix<double, 1, 7> j;
                 j.head<6>() = n.transpose() * proj->d_pixel_d_xi;
                 // d r / d dilation: pixels per cell along the normal here.
-                const double cell_here = n.dot(*pb - proj->pixel) / 0.05;
+                const double cell_here = n.dot(bright_px);
                 j(6) = options.estimate_dilation ? cell_here : 0.0;
                 const double w = std::abs(r) <= options.huber_px ? 1.0 : options.huber_px / std::abs(r);
                 h += w * j.transpose() * j;

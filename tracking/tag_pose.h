@@ -44,6 +44,12 @@ struct TagPoseOptions {
     // Likewise when the chosen pose's rotation is this uncertain (1 sigma along its worst axis,
     // from its covariance): a small tag seen nearly head-on, whose tilt the image hardly fixes.
     double ambiguous_rotation_sigma_deg = 2.0;
+    // With a prediction that clearly tells the two IPPE starts apart (solveTagPose's shortcut:
+    // one within half the gate, the other beyond twice it), false returns the near start as IPPE
+    // gave it instead of refining it with Levenberg-Marquardt (TagPose::refined is then false):
+    // for a caller that refines the pose itself from there (the tracker's pattern alignment),
+    // and solves again with this on when its own refinement fails.
+    bool refine_predicted_start = true;
     Result<void> validate() const;
 };
 
@@ -77,12 +83,16 @@ struct TagPose {
     bool ambiguous = false;
     std::vector<TagPoseCandidate> candidates;  // 1 or 2, refined; candidates[0] is the chosen one
     Matrix6d covariance = Matrix6d::Identity();  // of cam_from_tag (pose_types.h convention)
+    // False only with TagPoseOptions::refine_predicted_start off, when the shortcut applied:
+    // cam_from_tag (candidates[0]) is IPPE's pose from the undistorted corners, unrefined.
+    bool refined = true;
 };
 
 // `corners` are distorted pixels (OpenCV convention) in libapriltag's order; `size` is the black
 // square's edge in metres. `predicted_cam_from_tag` is the filter's prediction for this frame.
 // Fails with kBadInput for degenerate corners, a non-positive size, or corners the lens model
-// cannot undistort; never returns a non-finite or unrefined pose.
+// cannot undistort; never returns a non-finite pose, nor an unrefined one unless
+// TagPoseOptions::refine_predicted_start is off (see there).
 Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corners, double size,
                              const CameraModel& camera, const std::optional<Rigid3d>& predicted_cam_from_tag = std::nullopt,
                              const TagPoseOptions& options = {});

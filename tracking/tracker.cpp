@@ -302,8 +302,13 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         } else if (auto it = s.last_cam_from_tag.find(d.id); !s.options.independent_frames && it != s.last_cam_from_tag.end()) {
             predicted_cam_from_tag = it->second;
         }
-        auto pose = solveTagPose(d.id, tag.detection.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
-        const TagPattern* pattern = pose && s.options.align_tags ? s.patterns.get(d.id) : nullptr;
+        // A tag whose pattern will be aligned from the pose the prediction chooses is not first
+        // refined on its corners (the alignment moves it anyway; docs/tracking.md, "Speed (issue 13)").
+        const TagPattern* pattern = s.options.align_tags ? s.patterns.get(d.id) : nullptr;
+        TagPoseOptions pose_options = s.options.tag_pose;
+        pose_options.refine_predicted_start = !pattern;
+        auto pose = solveTagPose(d.id, tag.detection.corners, size, s.camera, predicted_cam_from_tag, pose_options);
+        if (!pose) pattern = nullptr;
         // The aligned pose becomes the tag's: its corners are where the aligned pose puts them.
         const auto adopt = [&](const TagAlignResult& a) {
             std::array<Eigen::Vector2d, 4> corners;
@@ -320,7 +325,33 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             if (measured_dilation_cells) *measured_dilation_cells = a.dilation_cells;
             return true;
         };
-        if (pattern && pose->choice == PoseChoice::kPrediction) {
+        if (pose && !pose->refined) {
+            // Aligned from IPPE's pose; where that fails (or the prediction did not choose), the
+            // tag is solved again with the near start refined and goes on as it would have.
+            if (pose->choice == PoseChoice::kPrediction) {
+                const TagAlignResult a = align(*pattern, size, pose->cam_from_tag);
+                if (a.ok && adopt(a)) pose->candidates[0] = {a.cam_from_tag, a.rms_px};
+            }
+            if (!tag.aligned) {
+                pose = solveTagPose(d.id, tag.detection.corners, size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+            }
+            if (!pose) pattern = nullptr;
+        }
+        // A single candidate (the other failed the plausibility cut) that the prediction confirms,
+        // within half the gate, while its planar mirror is beyond twice the gate: the prediction
+        // chooses, as between two such candidates, and the mirror is not aligned as well
+        // (docs/tracking.md, "Speed (issue 13)"). A mirror near the candidate (a tag seen nearly
+        // head-on) is still aligned: the better of the two alignments is the more accurate one.
+        const double gate = s.options.tag_pose.prediction_gate_deg;
+        if (!tag.aligned && pattern && pose->choice == PoseChoice::kOnlyCandidate && predicted_cam_from_tag &&
+            rotationErrorDeg(pose->cam_from_tag, *predicted_cam_from_tag) < 0.5 * gate &&
+            rotationErrorDeg(planarMirror(pose->cam_from_tag), *predicted_cam_from_tag) > 2.0 * gate) {
+            pose->choice = PoseChoice::kPrediction;
+            pose->ambiguous = false;
+        }
+        if (tag.aligned) {
+            // Done above.
+        } else if (pattern && pose->choice == PoseChoice::kPrediction) {
             const TagAlignResult a = align(*pattern, size, pose->cam_from_tag);
             if (a.ok && adopt(a)) pose->candidates[0] = {a.cam_from_tag, a.rms_px};
         } else if (pattern) {

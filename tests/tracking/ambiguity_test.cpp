@@ -155,6 +155,40 @@ TEST(Ambiguity, ASecondTagInViewChoosesTheCandidate) {
     }
 }
 
+// A steeply tilted tag alone in a sequence: its corners leave one plausible candidate, and once
+// the filter predicts, the prediction confirms it (its planar mirror is over 40 degrees away) and
+// chooses it without aligning the mirror too; the pose is the one the same image gives alone
+// (where the mirror's alignment is tried and loses).
+TEST(Ambiguity, APredictedSingleCandidateFarFromItsMirrorIsChosenByThePrediction) {
+    const TagSet tags = board(false);
+    Tracker sequence = makeTracker(tags, false);
+    int predicted = 0;
+    for (int frame = 0; frame < 4; ++frame) {
+        const Rigid3d truth = camFromWorld(70.0, 65.0 + 0.3 * frame, 20.0, -0.2 + 0.01 * frame);
+        const Image image = render(tags, truth, 40 + static_cast<std::uint64_t>(frame));
+        Tracker alone = makeTracker(tags, true);
+        auto single = alone.process(image.view(), std::int64_t{0});
+        auto track = sequence.process(image.view(), std::int64_t{frame} * 33'000'000);
+        ASSERT_TRUE(single && track);
+        ASSERT_EQ(track->tags.size(), 1u) << "frame " << frame;
+        ASSERT_EQ(single->tags.size(), 1u) << "frame " << frame;
+        const TrackedTag& t = track->tags[0];
+        ASSERT_TRUE(t.pose && single->tags[0].pose);
+        EXPECT_TRUE(t.aligned);
+        EXPECT_LT(rotationErrorDeg(t.pose->cam_from_tag, truth), 1.0) << "frame " << frame;
+        std::printf("  frame %d: %s, %zu candidate(s); alone: %s\n", frame, poseChoiceName(t.pose->choice),
+                    t.pose->candidates.size(), poseChoiceName(single->tags[0].pose->choice));
+        if (frame == 0) continue;  // nothing to predict from yet
+        ++predicted;
+        EXPECT_EQ(t.pose->choice, PoseChoice::kPrediction) << "frame " << frame;
+        EXPECT_FALSE(t.pose->ambiguous);
+        EXPECT_EQ(single->tags[0].pose->choice, PoseChoice::kPattern);
+        EXPECT_LT(rotationErrorDeg(t.pose->cam_from_tag, single->tags[0].pose->cam_from_tag), 1e-6);
+        EXPECT_LT(translationError(t.pose->cam_from_tag, single->tags[0].pose->cam_from_tag), 1e-9);
+    }
+    EXPECT_EQ(predicted, 3);
+}
+
 // The measurement behind the thresholds (TagPoseOptions::ambiguous_*; docs/tracking.md): single
 // tags of 12-42 px at random poses (a quarter head-on, the rest tilted up to 40 degrees), each
 // alone in an independent frame. Not run by default (about 30 s for 600 views):

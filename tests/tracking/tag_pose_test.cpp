@@ -1,14 +1,14 @@
 // Single-tag pose: both planar candidates, LM refinement, the choice, and the hard cases of
 // issue 4 (fronto-parallel noise-free, 80 degrees, 12 px, strong distortion, degenerate corners).
 // Ground truth: corners projected from known poses with CameraModel::project.
+#include "tracking/tag_pose.h"
+
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <random>
-
-#include <gtest/gtest.h>
-
-#include "tracking/tag_pose.h"
 
 namespace commonlight::tracking {
 namespace {
@@ -149,10 +149,54 @@ TEST(TagPose, PredictionLeavesTheFarCandidateUnrefined) {
         ASSERT_TRUE(both) << both.error().message;
         ASSERT_EQ(both->candidates.size(), 2u);
         for (const TagPoseCandidate& c : both->candidates) {
-            const bool found = std::any_of(alone->candidates.begin(), alone->candidates.end(), [&](const TagPoseCandidate& a) {
-                return a.cam_from_tag.translation == c.cam_from_tag.translation && a.rms_px == c.rms_px;
-            });
+            const bool found =
+                std::any_of(alone->candidates.begin(), alone->candidates.end(), [&](const TagPoseCandidate& a) {
+                    return a.cam_from_tag.translation == c.cam_from_tag.translation && a.rms_px == c.rms_px;
+                });
             EXPECT_TRUE(found) << "trial " << trial;
+        }
+    }
+}
+
+TEST(TagPose, UnrefinedPredictedStartIsIppesPoseAndTheRestIsUnchanged) {
+    // refine_predicted_start = false (the tracker, which aligns the tag's pattern from there):
+    // where the prediction clearly chooses, the chosen pose is the near IPPE start, not refined
+    // (its corner residual above the refined one's, still close to the truth) and flagged as such;
+    // the alternative is the same unrefined far start. Without a prediction, or with one near
+    // neither start, the result is bit for bit the default's.
+    const CameraModel cam = camera(-0.2);
+    const Rigid3d truth = tagPose(2.5, 30.0, 10.0, Vector3d(0.3, -0.2, 0.0));
+    const Corners clean = project(cam, truth, 0.1);
+    std::mt19937 rng(7);
+    std::normal_distribution<double> noise(0.0, 0.3);
+    TagPoseOptions fast;
+    fast.refine_predicted_start = false;
+    for (int trial = 0; trial < 30; ++trial) {
+        Corners noisy = clean;
+        for (auto& c : noisy) c += Vector2d(noise(rng), noise(rng));
+        const Rigid3d predicted = expSe3((Vector6d() << 0.03, -0.02, 0.0, 0.005, 0.0, 0.0).finished()) * truth;
+        auto refined = solveTagPose(0, noisy, 0.1, cam, predicted);
+        auto unrefined = solveTagPose(0, noisy, 0.1, cam, predicted, fast);
+        ASSERT_TRUE(refined && unrefined);
+        EXPECT_TRUE(refined->refined);
+        EXPECT_FALSE(unrefined->refined);
+        EXPECT_EQ(unrefined->choice, PoseChoice::kPrediction);
+        ASSERT_EQ(unrefined->candidates.size(), 2u);
+        EXPECT_GE(unrefined->rms_px, refined->rms_px - 1e-9);  // LM lowers the corner residual
+        EXPECT_LT(rotationErrorDeg(unrefined->cam_from_tag, refined->cam_from_tag), 2.0);
+        EXPECT_LT(translationError(unrefined->cam_from_tag, refined->cam_from_tag), 0.02);
+        EXPECT_EQ(unrefined->candidates[1].rms_px, refined->candidates[1].rms_px);  // the same far start
+        EXPECT_TRUE(unrefined->covariance.allFinite());
+        for (const std::optional<Rigid3d>& other :
+             {std::optional<Rigid3d>{},
+              std::optional<Rigid3d>{expSe3((Vector6d() << 0.0, 0.0, 0.44, 0.0, 0.0, 0.0).finished()) * truth}}) {
+            auto a = solveTagPose(0, noisy, 0.1, cam, other);
+            auto b = solveTagPose(0, noisy, 0.1, cam, other, fast);
+            ASSERT_TRUE(a && b);
+            EXPECT_TRUE(b->refined);
+            EXPECT_EQ(a->cam_from_tag.translation, b->cam_from_tag.translation);
+            EXPECT_EQ(a->cam_from_tag.rotation.coeffs(), b->cam_from_tag.rotation.coeffs());
+            EXPECT_EQ(a->rms_px, b->rms_px);
         }
     }
 }
@@ -176,8 +220,8 @@ TEST(TagPose, PredictionResolvesTheAmbiguity) {
         if (rotationErrorDeg(guided->cam_from_tag, truth) > 20) {
             ++wrong_with_prediction;
             for (const auto& c : guided->candidates) {
-                std::printf("    candidate: %.2f deg from the truth, rms %.3f px\n", rotationErrorDeg(c.cam_from_tag, truth),
-                            c.rms_px);
+                std::printf("    candidate: %.2f deg from the truth, rms %.3f px\n",
+                            rotationErrorDeg(c.cam_from_tag, truth), c.rms_px);
             }
         }
         if (guided->candidates.size() == 2) {
