@@ -413,7 +413,7 @@ std::optional<Matrix6d> edgeCovariance(const LinearSystem& sys, const std::vecto
     }
     const double correction = clusters > 6 ? clusters / (clusters - 6.0) : 1.0;
     Matrix6d c = h_inv * b * h_inv * correction + sigma2 * h_inv;
-    c = 0.5 * (c + c.transpose());
+    c = (0.5 * (c + c.transpose())).eval();  // eval: the transpose aliases c
     if (!c.allFinite()) return std::nullopt;
     return c;
 }
@@ -758,7 +758,7 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
     } else {
         result.covariance = *edge_covariance;
     }
-    result.covariance = 0.5 * (result.covariance + result.covariance.transpose());
+    result.covariance = (0.5 * (result.covariance + result.covariance.transpose())).eval();  // eval: aliasing
     result.step_seconds.solve += since(t0);
     result.ok = true;
     return finish(result, {});
