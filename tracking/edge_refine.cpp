@@ -759,6 +759,12 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
         result.covariance = *edge_covariance;
     }
     result.covariance = (0.5 * (result.covariance + result.covariance.transpose())).eval();  // eval: aliasing
+    // Hard case: a nearly degenerate system (a wall seen 75-80 degrees off its normal) whose
+    // inverted covariance comes out indefinite by rounding; the filter would refuse it and stop
+    // the frame's tracking. Not ok: the tags' pose stands.
+    if (result.covariance.llt().info() != Eigen::Success || !result.covariance.allFinite()) {
+        return finish(result, "poorly constrained: the covariance is not positive definite");
+    }
     result.step_seconds.solve += since(t0);
     result.ok = true;
     return finish(result, {});
