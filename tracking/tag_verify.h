@@ -44,6 +44,15 @@ struct TagVerifyOptions {
     double min_margin_other = 0.05;   // over every other id's
     int other_ids = 8;                // other ids of the family compared (the ids after the tag's)
     double min_contrast = 0.03;       // the image's standard deviation over the tag, linear [0, 1]
+    // The optics' blur is not known: the expected image is blurred by each of these Gaussians
+    // (sigma, pixels, on top of the pixel's own area; 0: none) and each template's NCC is its
+    // best over them. At 1 px cells the blur decides the correlation: a path-traced frame (a box
+    // pixel, no optics) correlates 0.44-0.83 at the truth under a fixed 0.7 px blur, 0.90-0.98
+    // with none.
+    std::vector<double> blur_sigma_px = {0.0, 0.5, 0.75, 1.0};
+    // The tracker (step 3b) tries a tag again, once the tags it accepted have joined the bundle,
+    // when its pattern correlated at least this much (but under min_ncc) the first time.
+    double retry_min_ncc = 0.7;
     bool srgb = true;                 // pixels are sRGB-encoded (as TagAlignOptions::srgb)
 };
 

@@ -114,8 +114,10 @@ Result<void> TrackerOptions::validate() const {
         const TagVerifyOptions& v = verify;
         if (!(v.min_side_px > 0) || !(v.max_side_px >= v.min_side_px) || !(v.search_px >= 0 && v.search_px <= 3) ||
             !(v.min_ncc > 0 && v.min_ncc <= 1) || !(v.min_margin_square >= 0) || !(v.min_margin_other >= 0) ||
-            v.other_ids < 0 || !(v.edge_margin_px >= 0) || !(v.min_contrast >= 0)) {
-            return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px, min_ncc in (0, 1], margins >= 0)");
+            v.other_ids < 0 || !(v.edge_margin_px >= 0) || !(v.min_contrast >= 0) || v.blur_sigma_px.empty() ||
+            std::any_of(v.blur_sigma_px.begin(), v.blur_sigma_px.end(), [](double b) { return !(b >= 0 && b <= 2); })) {
+            return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px, min_ncc in (0, 1], "
+                                           "margins >= 0, blur_sigma_px: one or more in [0, 2])");
         }
     }
     if (filter) CL_TRY_VOID(filter_options.validate());
@@ -433,43 +435,59 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
     t0 = Clock::now();
     c0 = threadCpuMs();
     if (s.options.verify_predicted) {
-        std::optional<Rigid3d> basis;
-        if (measurement && !alone_ambiguous) {
-            basis = measurement->cam_from_world;
-        } else if (!measurement && predicted) {
-            basis = predicted;
-        }
-        bool added = false;
-        for (const TagItem& item : basis ? s.tags.items : std::vector<TagItem>{}) {
-            const bool seen = std::any_of(out.tags.begin(), out.tags.end(),
-                                          [&](const TrackedTag& t) { return t.detection.id == item.id; });
-            const TagPattern* pattern = seen ? nullptr : s.patterns.get(item.id);
-            if (!pattern) continue;
-            std::vector<const TagPattern*> others;
-            const int family_size = tagFamilySize(s.tags.family);
-            for (int k = 1; k <= s.options.verify.other_ids && family_size > 1; ++k) {
-                const int other = (item.id + k) % family_size;
-                if (other != item.id) others.push_back(s.patterns.get(other));
+        // Two passes: the tags the first accepts join the bundle, whose pose then errs less in
+        // rotation and scale than the big tags' alone; the second tries again, under it, the tags
+        // whose pattern correlated closely but under min_ncc (verify.retry_min_ncc).
+        std::vector<int> retry;
+        for (int pass = 0; pass < 2; ++pass) {
+            std::optional<Rigid3d> basis;
+            if (measurement && !alone_ambiguous) {
+                basis = measurement->cam_from_world;
+            } else if (!measurement && predicted) {
+                basis = predicted;
             }
-            const Rigid3d predicted_cam_from_tag = *basis * item.world_from_tag;
-            const TagVerifyResult v =
-                verifyPredictedTag(gray8, s.camera, *pattern, others, item.size, predicted_cam_from_tag, s.options.verify);
-            if (!v.ok) continue;
-            TrackedTag tag;
-            tag.detection.id = item.id;
-            tag.detection.corners = v.corners;
-            tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
-            tag.verified = true;
-            auto pose = solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
-            if (pose) {
-                tag.pose = std::move(*pose);
-            } else {
-                tag.error = pose.error().message;
+            if (!basis) break;
+            bool added = false;
+            std::vector<int> close;
+            for (const TagItem& item : s.tags.items) {
+                if (pass == 1 && std::find(retry.begin(), retry.end(), item.id) == retry.end()) continue;
+                const bool seen = std::any_of(out.tags.begin(), out.tags.end(),
+                                              [&](const TrackedTag& t) { return t.detection.id == item.id; });
+                const TagPattern* pattern = seen ? nullptr : s.patterns.get(item.id);
+                if (!pattern) continue;
+                std::vector<const TagPattern*> others;
+                const int family_size = tagFamilySize(s.tags.family);
+                for (int k = 1; k <= s.options.verify.other_ids && family_size > 1; ++k) {
+                    const int other = (item.id + k) % family_size;
+                    if (other != item.id) others.push_back(s.patterns.get(other));
+                }
+                const Rigid3d predicted_cam_from_tag = *basis * item.world_from_tag;
+                const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *pattern, others, item.size,
+                                                             predicted_cam_from_tag, s.options.verify);
+                if (!v.ok) {
+                    if (v.ncc >= s.options.verify.retry_min_ncc && v.ncc < s.options.verify.min_ncc) close.push_back(item.id);
+                    continue;
+                }
+                TrackedTag tag;
+                tag.detection.id = item.id;
+                tag.detection.corners = v.corners;
+                tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
+                tag.verified = true;
+                auto pose =
+                    solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+                if (pose) {
+                    tag.pose = std::move(*pose);
+                } else {
+                    tag.error = pose.error().message;
+                }
+                out.tags.push_back(std::move(tag));
+                added = true;
             }
-            out.tags.push_back(std::move(tag));
-            added = true;
+            if (added) runBundle();
+            // A second pass only when the first moved the bundle and left close ones.
+            if (!added || close.empty()) break;
+            retry = std::move(close);
         }
-        if (added) runBundle();
     }
     out.times.verify_ms = msSince(t0);
     out.times.verify_cpu_ms = threadCpuMs() - c0;
