@@ -101,6 +101,8 @@ public:
         }
         return {best_ncc, best_shift};
     }
+    // The NCC at one shift.
+    double at(const Cells& white, const Eigen::Vector2d& shift_px) const { return ncc(white, shift_px); }
     // The best NCC on a 3 x 3 grid of 0.5 px around `centre`.
     double bestAround(const Cells& white, const Eigen::Vector2d& centre) const {
         double best_ncc = -2.0;
@@ -201,7 +203,13 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
         out.side_px +=
             0.25 *
             (out.corners[static_cast<std::size_t>(k)] - out.corners[static_cast<std::size_t>((k + 1) % 4)]).norm();
-    if (out.side_px < options.min_side_px || out.side_px > options.max_side_px) {
+    // The range applies to the shorter span (between the midpoints of opposite sides): a tag seen
+    // 75-80 degrees off its normal is 7-10 px across and 30-45 px along, and the detector misses it.
+    const auto mid = [&](int a, int b) {
+        return 0.5 * (out.corners[static_cast<std::size_t>(a)] + out.corners[static_cast<std::size_t>(b)]);
+    };
+    out.span_px = std::min((mid(0, 1) - mid(2, 3)).norm(), (mid(1, 2) - mid(3, 0)).norm());
+    if (out.span_px < options.min_side_px || out.span_px > options.max_side_px) {
         out.reason = "predicted side outside the tried range";
         return out;
     }
@@ -279,7 +287,7 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
     for (const TagPattern* other : others) {
         if (!other || other->total() != total) continue;
         out.ncc_other = std::max(
-            out.ncc_other, matcher->bestAround(cellsOf(total, [&](int c, int r) { return other->white(c, r); }), shift));
+            out.ncc_other, matcher->at(cellsOf(total, [&](int c, int r) { return other->white(c, r); }), shift));
     }
     if (ncc - out.ncc_other < options.min_margin_other) {
         out.reason = "another id matches as well";

@@ -32,8 +32,10 @@
 namespace commonlight::tracking {
 
 struct TagVerifyOptions {
-    double min_side_px = 5.0;     // predicted black squares with a shorter side: not tried
-    double max_side_px = 20.0;    // with a longer side: not tried (the detector finds those)
+    // Predicted black squares whose shorter span (between the midpoints of opposite sides) is
+    // under min_side_px, or over max_side_px (the detector finds those), are not tried.
+    double min_side_px = 5.0;
+    double max_side_px = 20.0;
     double edge_margin_px = 3.0;  // the drawn square (white border included) this far inside the image
     double search_px = 1.0;       // the prediction's error this verification absorbs, +- pixels
     // The pattern's normalized cross-correlation with the image: measured on synthetic 7-20 px
@@ -65,6 +67,7 @@ struct TagVerifyResult {
     double ncc_square = 0.0;                             // the plain black square at its best shift
     double ncc_other = -1.0;                             // the best of the other ids
     double side_px = 0.0;                                // the predicted black square's mean side
+    double span_px = 0.0;                                // its shorter span (the range's measure)
 };
 
 // `pattern`: the predicted tag's; `others`: patterns of other ids of the family (may be empty).

@@ -391,5 +391,50 @@ TEST(TinyTags, EnlargedSetDetectsNinetyFivePercentWithoutFalseAccepts) {
     EXPECT_EQ(false_accepts, 0);
 }
 
+// Foreshortened: tags turned 75-80 degrees away from the camera about their vertical axis (ids
+// 30-37, 55-76 mm), between two anchor tags that face it; their black squares are 7-10 px across
+// and 25-45 px along, so a mean side is over 20 px, and libapriltag decodes none. The range is
+// on the shorter span: verified.
+TEST(TinyTags, ForeshortenedTagsAreTriedByTheirShorterSpan) {
+    TagSet tags = twoLargeTags(0.3);
+    for (int k = 0; k < 8; ++k) {
+        const double turn = (75.0 + 5.0 * (k % 3) / 2.0) * M_PI / 180;
+        const Eigen::Quaterniond q(Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitY()));
+        tags.items.push_back({30 + k, 0.055 + 0.003 * k,
+                              Rigid3d(q, Eigen::Vector3d(-0.18 + 0.12 * (k % 4), k < 4 ? -0.12 : 0.12, 0)), 0.04, 0.8});
+    }
+    Tracker plain = makeTracker(tags, false);
+    Tracker verifying = makeTracker(tags, true);
+    int in_range = 0, long_sides = 0, before = 0, after = 0, accurate = 0;
+    double worst = 0;
+    for (int v = 0; v < 10; ++v) {
+        const Rigid3d truth = camFromWorld(0.75 + 0.03 * v, 2.0 * v, 90.0, 0.01 * v);
+        const Image image = render(placed(tags, truth), 700 + static_cast<std::uint64_t>(v));
+        auto b = plain.process(image, 0);
+        auto a = verifying.process(image, 0);
+        ASSERT_TRUE(a && b);
+        for (const TagItem& item : tags.items) {
+            if (item.id < 30) continue;
+            const double span = shortSpanPx(item, truth);
+            if (span < 7.0 || span > 10.0) continue;
+            ++in_range;
+            long_sides += sidePx(item, truth) > 20.0 ? 1 : 0;
+            before += findTag(*b, item.id) ? 1 : 0;
+            const TrackedTag* t = findTag(*a, item.id);
+            if (!t) continue;
+            ++after;
+            worst = std::max(worst, cornerError(*t, item, truth));
+            accurate += cornerError(*t, item, truth) <= 1.5 ? 1 : 0;
+        }
+    }
+    std::printf("foreshortened tags 7-10 px across: %d (%d with a mean side over 20 px); detected before %d, after %d, "
+                "%d within 1.5 px (worst corner %.2f px)\n",
+                in_range, long_sides, before, after, accurate, worst);
+    EXPECT_GE(in_range, 20);
+    EXPECT_GE(long_sides, in_range / 2);
+    EXPECT_GE(after, static_cast<int>(std::ceil(0.95 * in_range)));
+    EXPECT_EQ(accurate, after);
+}
+
 }  // namespace
 }  // namespace commonlight::tracking
