@@ -115,9 +115,10 @@ Result<void> TrackerOptions::validate() const {
         if (!(v.min_side_px > 0) || !(v.max_side_px >= v.min_side_px) || !(v.search_px >= 0 && v.search_px <= 3) ||
             !(v.min_ncc > 0 && v.min_ncc <= 1) || !(v.min_margin_square >= 0) || !(v.min_margin_other >= 0) ||
             v.other_ids < 0 || !(v.edge_margin_px >= 0) || !(v.min_contrast >= 0) || v.blur_sigma_px.empty() ||
+            !(verify_bundle_weight > 0 && verify_bundle_weight <= 1) ||
             std::any_of(v.blur_sigma_px.begin(), v.blur_sigma_px.end(), [](double b) { return !(b >= 0 && b <= 2); })) {
             return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px, min_ncc in (0, 1], "
-                                           "margins >= 0, blur_sigma_px: one or more in [0, 2])");
+                                           "margins >= 0, blur_sigma_px: one or more in [0, 2], verify_bundle_weight in (0, 1])");
         }
     }
     if (filter) CL_TRY_VOID(filter_options.validate());
@@ -133,6 +134,9 @@ struct Tracker::State {
     TagPatternCache patterns;
     PoseFilter filter;
     std::optional<EdgeModel> edge_model;
+    // The proxies as occluders for the verification of predicted tags, when edges are off.
+    std::optional<EdgeModel> occluder_model;
+    const EdgeModel* occluders() const { return edge_model ? &*edge_model : (occluder_model ? &*occluder_model : nullptr); }
     std::int64_t frames = 0;
     std::int64_t frames_since_full = 0;
     std::optional<std::int64_t> last_timestamp;
@@ -196,6 +200,10 @@ Result<Tracker> Tracker::create(const CameraModel& camera, const TagSet& scene_t
         if (!proxies) return fail(ErrorCode::kUsage, "edge refinement needs a scene with proxy geometry");
         CL_TRY(EdgeModel model, EdgeModel::fromScene(*proxies));
         state->edge_model.emplace(std::move(model));
+    } else if (options.verify_predicted && options.verify_skip_occluded && proxies && !proxies->real_objects.empty()) {
+        // Only an optimisation of the verification: proxies it cannot model (a mesh that was not
+        // loaded) leave it without the occlusion test rather than fail the tracker.
+        if (auto model = EdgeModel::fromScene(*proxies)) state->occluder_model.emplace(std::move(*model));
     }
     return Tracker(std::move(state));
 }
@@ -405,7 +413,9 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         out.bundle.reset();
         std::vector<BundleTag> bundle_tags;
         for (const TrackedTag& t : out.tags) {
-            if (s.tags.find(t.detection.id) && t.pose) bundle_tags.push_back({&t.detection, &*t.pose});
+            if (s.tags.find(t.detection.id) && t.pose) {
+                bundle_tags.push_back({&t.detection, &*t.pose, t.verified ? s.options.verify_bundle_weight : 1.0});
+            }
         }
         if (bundle_tags.empty()) return;
         auto bundle = solveBundle(bundle_tags, s.tags, s.camera, predicted, s.options.bundle);
@@ -462,6 +472,19 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                     if (other != item.id) others.push_back(s.patterns.get(other));
                 }
                 const Rigid3d predicted_cam_from_tag = *basis * item.world_from_tag;
+                if (s.options.verify_skip_occluded && s.occluders()) {
+                    // 3 x 3 points on the black square, against the proxies from the camera centre.
+                    const Eigen::Vector3d eye = basis->inverse().translation;
+                    int hidden = 0;
+                    for (int j = -1; j <= 1; ++j) {
+                        for (int i = -1; i <= 1; ++i) {
+                            const Eigen::Vector3d p =
+                                item.world_from_tag * Eigen::Vector3d(0.4 * i * item.size, 0.4 * j * item.size, 0.0);
+                            hidden += s.occluders()->occluded(eye, p, 1e-3) ? 1 : 0;
+                        }
+                    }
+                    if (hidden >= 3) continue;
+                }
                 const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *pattern, others, item.size,
                                                              predicted_cam_from_tag, s.options.verify);
                 if (!v.ok) {

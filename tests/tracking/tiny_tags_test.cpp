@@ -210,6 +210,49 @@ TEST(TinyTags, AbsentOccludedOrWrongTagsAreRefused) {
     EXPECT_EQ(printed_verified, printed_in_range);
 }
 
+// A predicted tag the scene's proxies hide from the camera (3 or more of 9 points on its black
+// square) is not tried: a card 1 cm in front of tag 4 in the scene, which the images do not show
+// (so that verifying it would succeed): tag 4 is never accepted with the proxies and is without;
+// every other tag's outcome is the same with and without them.
+TEST(TinyTags, TagsHiddenByProxiesAreNotTried) {
+    const TagSet tags = scene();
+    Scene proxies;
+    proxies.tags = tags;
+    const TagItem* hidden = tags.find(4);
+    proxies.real_objects.push_back({"card", BoxShape{Eigen::Vector3d(0.08, 0.08, 0.002)},
+                                    Rigid3d(Eigen::Quaterniond::Identity(),
+                                            hidden->world_from_tag.translation + Eigen::Vector3d(0, 0, 0.01)),
+                                    {}});
+    TrackerOptions options;
+    options.filter = false;
+    options.independent_frames = true;
+    auto with = Tracker::create(testing::syntheticCamera(), tags, &proxies, options);
+    ASSERT_TRUE(with) << with.error().message;
+    Tracker without = makeTracker(tags, true);
+    int accepted_without = 0, accepted_with = 0, same = 0, others = 0;
+    std::uint64_t seed = 300;
+    for (const View& view : views()) {
+        const Rigid3d truth = camFromWorld(view.distance, view.tilt_deg, view.axis_deg, view.dx);
+        const Image image = render(placed(tags, truth), seed++);
+        auto a = with->process(image, 0);
+        auto b = without.process(image, 0);
+        ASSERT_TRUE(a && b);
+        accepted_with += findTag(*a, 4) ? 1 : 0;
+        accepted_without += findTag(*b, 4) ? 1 : 0;
+        for (const TagItem& item : tags.items) {
+            if (item.id == 4) continue;
+            ++others;
+            same += (findTag(*a, item.id) != nullptr) == (findTag(*b, item.id) != nullptr) ? 1 : 0;
+        }
+    }
+    std::printf("tag 4 behind a proxy card: accepted in %d views without the proxies, %d with; other tags' outcome "
+                "the same in %d of %d\n",
+                accepted_without, accepted_with, same, others);
+    EXPECT_GE(accepted_without, 6);
+    EXPECT_EQ(accepted_with, 0);
+    EXPECT_EQ(same, others);
+}
+
 // Options out of range are refused with a message naming them.
 TEST(TinyTags, BadVerifyOptionsAreRefused) {
     TrackerOptions options;
