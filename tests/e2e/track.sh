@@ -28,6 +28,16 @@ expect_text "pose error against groundtruth/cam_poses.csv ($SAMPLE_FRAMES frames
 rot_p95=$(sed -n 's/.*rotation p50 [0-9.]* p95 \([0-9.]*\) max.*/\1/p' "$TMP/err")
 python3 -c "import sys; sys.exit(0 if float('$rot_p95') < 1.0 else 1)" || fail "rotation p95 $rot_p95 deg"
 
+# 1b. Tags too small to decode are verified where the scene's big tags put them: one rendered
+# frame of data/scenes/tiny (tags 2-13 of 6-10 px), verified 1 on some of them, never on 0 and 1.
+expect_exit 0 "$COMMONLIGHT" sim --scene "$SRC/data/scenes/tiny/scene.yaml" --trajectory "$SRC/data/scenes/tiny/tiny.yaml" \
+    --out "$TMP/tiny" --frames 1 --spp 4 --no-radiance
+expect_exit 0 "$COMMONLIGHT" track "$TMP/tiny" --out "$TMP/tiny.csv"
+verified=$(awk -F, 'NR > 1 && $29 == 1 && $3 >= 2 && $3 <= 13 && $19 == "ok"' "$TMP/tiny.csv" | wc -l)
+(( verified >= 3 )) || fail "expected tiny tags verified, got $verified"
+awk -F, 'NR > 1 && ($3 == 0 || $3 == 1) && $29 != 0 { exit 1 }' "$TMP/tiny.csv" || fail "the anchors are decoded"
+expect_text "$verified verified)" "$TMP/err"
+
 # 2. Standard output when there is no --out; tracking mode gives the same frame rows.
 expect_exit 0 "$COMMONLIGHT" track "$SAMPLE" --tracking-mode
 [[ $(head -1 "$TMP/out") == "$header" ]] || fail "no CSV on stdout"
