@@ -40,7 +40,8 @@ std::optional<TagInView> tagInView(const CameraModel& camera, const TagItem& ite
         int hidden = 0;
         for (int j = -1; j <= 1; ++j) {
             for (int i = -1; i <= 1; ++i) {
-                const Eigen::Vector3d p = item.world_from_tag * Eigen::Vector3d(0.4 * i * item.size, 0.4 * j * item.size, 0);
+                const Eigen::Vector3d p =
+                    item.world_from_tag * Eigen::Vector3d(0.4 * i * item.size, 0.4 * j * item.size, 0);
                 hidden += occluders->occluded(eye, p, 1e-3) ? 1 : 0;
             }
         }
@@ -63,7 +64,8 @@ std::optional<TagInView> tagInView(const CameraModel& camera, const TagItem& ite
     t.span_px = std::min((mid(0, 1) - mid(2, 3)).norm(), (mid(1, 2) - mid(3, 0)).norm());
     t.tilt_deg = std::acos(std::clamp(-normal.dot(cam_from_tag.translation.normalized()), -1.0, 1.0)) * 180.0 / M_PI;
     for (int b = 0; b < kBins; ++b) {
-        if (t.span_px >= kBinEdges[static_cast<std::size_t>(b)] && t.span_px < kBinEdges[static_cast<std::size_t>(b) + 1])
+        if (t.span_px >= kBinEdges[static_cast<std::size_t>(b)] &&
+            t.span_px < kBinEdges[static_cast<std::size_t>(b) + 1])
             t.bin = b;
     }
     return t;
@@ -85,7 +87,7 @@ double mean(const std::vector<double>& v) {
 struct RunCounts {
     std::array<int, kBins> in_view{}, detected{}, verified{}, wrong{};
     std::array<double, kBins> tilt_max{};
-    std::vector<double> corner_err_px;  // verified tags, worst corner, against the truth
+    std::vector<double> corner_err_px;                // verified tags, worst corner, against the truth
     int verified_elsewhere = 0, wrong_elsewhere = 0;  // verified tags outside the bins (span under 5 px)
     std::vector<double> rot_deg, trans_mm, verify_cpu_ms, total_cpu_ms;
     std::vector<std::vector<int>> verified_ids;  // per frame
@@ -120,12 +122,14 @@ Result<RunCounts> run(const DetectionBySizeInput& in, const tracking::TrackerOpt
                     double err = 1e9;
                     if (view) {
                         err = 0;
-                        for (std::size_t k = 0; k < 4; ++k) err = std::max(err, (t.detection.corners[k] - view->corners[k]).norm());
+                        for (std::size_t k = 0; k < 4; ++k)
+                            err = std::max(err, (t.detection.corners[k] - view->corners[k]).norm());
                     } else if (cam_from_tag.translation.z() > 0) {
                         err = 0;
                         for (int k = 0; k < 4; ++k) {
                             const auto px = in.camera->project(cam_from_tag * tracking::tagCornerInTag(k, item.size));
-                            err = px ? std::max(err, (t.detection.corners[static_cast<std::size_t>(k)] - *px).norm()) : 1e9;
+                            err = px ? std::max(err, (t.detection.corners[static_cast<std::size_t>(k)] - *px).norm())
+                                     : 1e9;
                         }
                     }
                     out.corner_err_px.push_back(err);
@@ -141,7 +145,8 @@ Result<RunCounts> run(const DetectionBySizeInput& in, const tracking::TrackerOpt
             if (found == track.tags.end()) continue;
             if (found->verified) {
                 double err = 0;
-                for (std::size_t k = 0; k < 4; ++k) err = std::max(err, (found->detection.corners[k] - view->corners[k]).norm());
+                for (std::size_t k = 0; k < 4; ++k)
+                    err = std::max(err, (found->detection.corners[k] - view->corners[k]).norm());
                 out.corner_err_px.push_back(err);
                 if (err > kWrongPx) {
                     ++out.wrong[b];
@@ -173,21 +178,25 @@ Result<json> benchDetectionBySize(const DetectionBySizeInput& input, const track
     tracking::TrackerOptions no_skip = on;
     no_skip.verify_skip_occluded = false;
     CL_TRY(RunCounts all_tried, run(input, no_skip));
-    std::printf("\ndetection by the black square's shorter span (tags in view by the true pose; bundle + filter, "
-                "decimate 2):\n\n");
-    std::printf("| %-8s | %11s | %18s | %18s | %8s | %6s |\n", "span px", "max tilt", "without verify",
-                "with verify", "verified", "wrong");
+    std::printf(
+        "\ndetection by the black square's shorter span (tags in view by the true pose; bundle + filter, "
+        "decimate 2):\n\n");
+    std::printf("| %-8s | %11s | %18s | %18s | %8s | %6s |\n", "span px", "max tilt", "without verify", "with verify",
+                "verified", "wrong");
     std::printf("|%s|\n", std::string(86, '-').c_str());
     json bins = json::object();
     int total7 = 0, without7 = 0, with7 = 0;
     for (int b = 0; b < kBins; ++b) {
         const auto k = static_cast<std::size_t>(b);
         std::printf("| %-8s | %9.1f d | %18s | %18s | %8d | %6d |\n", kBinNames[k], with.tilt_max[k],
-                    rate(without.detected[k], without.in_view[k]).c_str(), rate(with.detected[k], with.in_view[k]).c_str(),
-                    with.verified[k], with.wrong[k]);
-        bins[kBinNames[k]] = {{"in_view", with.in_view[k]},          {"detected_without_verify", without.detected[k]},
-                              {"detected_with_verify", with.detected[k]}, {"verified", with.verified[k]},
-                              {"wrong_accepts", with.wrong[k]},        {"max_tilt_deg", with.tilt_max[k]}};
+                    rate(without.detected[k], without.in_view[k]).c_str(),
+                    rate(with.detected[k], with.in_view[k]).c_str(), with.verified[k], with.wrong[k]);
+        bins[kBinNames[k]] = {{"in_view", with.in_view[k]},
+                              {"detected_without_verify", without.detected[k]},
+                              {"detected_with_verify", with.detected[k]},
+                              {"verified", with.verified[k]},
+                              {"wrong_accepts", with.wrong[k]},
+                              {"max_tilt_deg", with.tilt_max[k]}};
         if (b >= 1) {
             total7 += with.in_view[k];
             without7 += without.detected[k];
@@ -202,19 +211,22 @@ Result<json> benchDetectionBySize(const DetectionBySizeInput& input, const track
                 with.verified_elsewhere, with.wrong_elsewhere);
     std::printf("verified corners against the truth: p50 %.3f, max %.3f px (over %.1f px counted wrong)\n",
                 pct(with.corner_err_px, 50), pct(with.corner_err_px, 100), kWrongPx);
-    std::printf("camera pose without verify: rotation p50 %.3f p95 %.3f deg, position p50 %.2f p95 %.2f mm (%zu "
-                "poses); with: %.3f %.3f deg, %.2f %.2f mm (%zu poses)\n",
-                pct(without.rot_deg, 50), pct(without.rot_deg, 95), pct(without.trans_mm, 50), pct(without.trans_mm, 95),
-                without.rot_deg.size(), pct(with.rot_deg, 50), pct(with.rot_deg, 95), pct(with.trans_mm, 50),
-                pct(with.trans_mm, 95), with.rot_deg.size());
-    std::printf("verify step CPU per frame: mean %.2f ms, p50 %.2f, max %.2f; tracking stage CPU p50 %.2f ms without, "
-                "%.2f ms with\n",
-                mean(with.verify_cpu_ms), pct(with.verify_cpu_ms, 50), pct(with.verify_cpu_ms, 100),
-                pct(without.total_cpu_ms, 50), pct(with.total_cpu_ms, 50));
+    std::printf(
+        "camera pose without verify: rotation p50 %.3f p95 %.3f deg, position p50 %.2f p95 %.2f mm (%zu "
+        "poses); with: %.3f %.3f deg, %.2f %.2f mm (%zu poses)\n",
+        pct(without.rot_deg, 50), pct(without.rot_deg, 95), pct(without.trans_mm, 50), pct(without.trans_mm, 95),
+        without.rot_deg.size(), pct(with.rot_deg, 50), pct(with.rot_deg, 95), pct(with.trans_mm, 50),
+        pct(with.trans_mm, 95), with.rot_deg.size());
+    std::printf(
+        "verify step CPU per frame: mean %.2f ms, p50 %.2f, max %.2f; tracking stage CPU p50 %.2f ms without, "
+        "%.2f ms with\n",
+        mean(with.verify_cpu_ms), pct(with.verify_cpu_ms, 50), pct(with.verify_cpu_ms, 100),
+        pct(without.total_cpu_ms, 50), pct(with.total_cpu_ms, 50));
     const bool same_accepts = all_tried.verified_ids == with.verified_ids;
-    std::printf("verify step without skipping the tags the proxies hide: CPU per frame mean %.2f ms (with the skip "
-                "%.2f); the same tags verified in every frame: %s\n",
-                mean(all_tried.verify_cpu_ms), mean(with.verify_cpu_ms), same_accepts ? "yes" : "NO");
+    std::printf(
+        "verify step without skipping the tags the proxies hide: CPU per frame mean %.2f ms (with the skip "
+        "%.2f); the same tags verified in every frame: %s\n",
+        mean(all_tried.verify_cpu_ms), mean(with.verify_cpu_ms), same_accepts ? "yes" : "NO");
     json j;
     j["verify_cpu_ms_per_frame_without_occlusion_skip"] = mean(all_tried.verify_cpu_ms);
     j["occlusion_skip_same_accepts"] = same_accepts;
@@ -233,9 +245,11 @@ Result<json> benchDetectionBySize(const DetectionBySizeInput& input, const track
     };
     j["camera_without_verify"] = pose(without);
     j["camera_with_verify"] = pose(with);
-    j["verify_cpu_ms_per_frame"] = {
-        {"mean", mean(with.verify_cpu_ms)}, {"p50", pct(with.verify_cpu_ms, 50)}, {"max", pct(with.verify_cpu_ms, 100)}};
-    j["total_cpu_ms_p50"] = {{"without_verify", pct(without.total_cpu_ms, 50)}, {"with_verify", pct(with.total_cpu_ms, 50)}};
+    j["verify_cpu_ms_per_frame"] = {{"mean", mean(with.verify_cpu_ms)},
+                                    {"p50", pct(with.verify_cpu_ms, 50)},
+                                    {"max", pct(with.verify_cpu_ms, 100)}};
+    j["total_cpu_ms_p50"] = {{"without_verify", pct(without.total_cpu_ms, 50)},
+                             {"with_verify", pct(with.total_cpu_ms, 50)}};
     return j;
 }
 

@@ -31,7 +31,8 @@ std::vector<std::array<double, 5>> blurKernels(const std::vector<double>& sigmas
         std::array<double, 5> k{0, 0, 1, 0, 0};
         if (sigma > 0) {
             double sum = 0;
-            for (int i = 0; i < 5; ++i) sum += k[static_cast<std::size_t>(i)] = std::exp(-(i - 2) * (i - 2) / (2 * sigma * sigma));
+            for (int i = 0; i < 5; ++i)
+                sum += k[static_cast<std::size_t>(i)] = std::exp(-(i - 2) * (i - 2) / (2 * sigma * sigma));
             for (double& w : k) w /= sum;
         }
         out.push_back(k);
@@ -286,8 +287,8 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
     }
     for (const TagPattern* other : others) {
         if (!other || other->total() != total) continue;
-        out.ncc_other = std::max(
-            out.ncc_other, matcher->at(cellsOf(total, [&](int c, int r) { return other->white(c, r); }), shift));
+        out.ncc_other = std::max(out.ncc_other,
+                                 matcher->at(cellsOf(total, [&](int c, int r) { return other->white(c, r); }), shift));
     }
     if (ncc - out.ncc_other < options.min_margin_other) {
         out.reason = "another id matches as well";

@@ -55,7 +55,7 @@ struct TagVerifyOptions {
     // The tracker (step 3b) tries a tag again, once the tags it accepted have joined the bundle,
     // when its pattern correlated at least this much (but under min_ncc) the first time.
     double retry_min_ncc = 0.7;
-    bool srgb = true;                 // pixels are sRGB-encoded (as TagAlignOptions::srgb)
+    bool srgb = true;  // pixels are sRGB-encoded (as TagAlignOptions::srgb)
 };
 
 struct TagVerifyResult {

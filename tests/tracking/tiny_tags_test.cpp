@@ -219,10 +219,11 @@ TEST(TinyTags, TagsHiddenByProxiesAreNotTried) {
     Scene proxies;
     proxies.tags = tags;
     const TagItem* hidden = tags.find(4);
-    proxies.real_objects.push_back({"card", BoxShape{Eigen::Vector3d(0.08, 0.08, 0.002)},
-                                    Rigid3d(Eigen::Quaterniond::Identity(),
-                                            hidden->world_from_tag.translation + Eigen::Vector3d(0, 0, 0.01)),
-                                    {}});
+    proxies.real_objects.push_back(
+        {"card",
+         BoxShape{Eigen::Vector3d(0.08, 0.08, 0.002)},
+         Rigid3d(Eigen::Quaterniond::Identity(), hidden->world_from_tag.translation + Eigen::Vector3d(0, 0, 0.01)),
+         {}});
     TrackerOptions options;
     options.filter = false;
     options.independent_frames = true;
@@ -245,9 +246,10 @@ TEST(TinyTags, TagsHiddenByProxiesAreNotTried) {
             same += (findTag(*a, item.id) != nullptr) == (findTag(*b, item.id) != nullptr) ? 1 : 0;
         }
     }
-    std::printf("tag 4 behind a proxy card: accepted in %d views without the proxies, %d with; other tags' outcome "
-                "the same in %d of %d\n",
-                accepted_without, accepted_with, same, others);
+    std::printf(
+        "tag 4 behind a proxy card: accepted in %d views without the proxies, %d with; other tags' outcome "
+        "the same in %d of %d\n",
+        accepted_without, accepted_with, same, others);
     EXPECT_GE(accepted_without, 6);
     EXPECT_EQ(accepted_with, 0);
     EXPECT_EQ(same, others);
@@ -330,9 +332,11 @@ double shortSpanPx(const TagItem& item, const Rigid3d& cam_from_world) {
     const CameraModel cam = testing::syntheticCamera();
     std::array<Eigen::Vector2d, 4> c;
     for (int k = 0; k < 4; ++k) {
-        c[static_cast<std::size_t>(k)] = *cam.project(cam_from_world * (item.world_from_tag * tagCornerInTag(k, item.size)));
+        c[static_cast<std::size_t>(k)] =
+            *cam.project(cam_from_world * (item.world_from_tag * tagCornerInTag(k, item.size)));
     }
-    return std::min((0.5 * (c[0] + c[1]) - 0.5 * (c[2] + c[3])).norm(), (0.5 * (c[1] + c[2]) - 0.5 * (c[3] + c[0])).norm());
+    return std::min((0.5 * (c[0] + c[1]) - 0.5 * (c[2] + c[3])).norm(),
+                    (0.5 * (c[1] + c[2]) - 0.5 * (c[3] + c[0])).norm());
 }
 
 // Covers a tag's drawn square (and a little more) with a grey card; `half`: its left half only.
@@ -422,11 +426,12 @@ TEST(TinyTags, EnlargedSetDetectsNinetyFivePercentWithoutFalseAccepts) {
             }
         }
     }
-    std::printf("enlarged set: %d positives of 7-10 px, verified %d (%.1f%%), %d within 1 px (worst %.3f px); "
-                "negatives %d (absent %d, another id %d, covered %d), accepted %d (%d, %d, %d); verify CPU %.2f ms "
-                "per frame (mean)\n",
-                positives, verified, 100.0 * verified / std::max(positives, 1), accurate, worst, negatives, neg_kind[0],
-                neg_kind[1], neg_kind[2], false_accepts, neg_accepted[0], neg_accepted[1], neg_accepted[2], cpu / 26);
+    std::printf(
+        "enlarged set: %d positives of 7-10 px, verified %d (%.1f%%), %d within 1 px (worst %.3f px); "
+        "negatives %d (absent %d, another id %d, covered %d), accepted %d (%d, %d, %d); verify CPU %.2f ms "
+        "per frame (mean)\n",
+        positives, verified, 100.0 * verified / std::max(positives, 1), accurate, worst, negatives, neg_kind[0],
+        neg_kind[1], neg_kind[2], false_accepts, neg_accepted[0], neg_accepted[1], neg_accepted[2], cpu / 26);
     EXPECT_GE(positives, 40);
     EXPECT_GE(negatives, positives);
     EXPECT_GE(verified, static_cast<int>(std::ceil(0.95 * positives)));
@@ -470,9 +475,10 @@ TEST(TinyTags, ForeshortenedTagsAreTriedByTheirShorterSpan) {
             accurate += cornerError(*t, item, truth) <= 1.5 ? 1 : 0;
         }
     }
-    std::printf("foreshortened tags 7-10 px across: %d (%d with a mean side over 20 px); detected before %d, after %d, "
-                "%d within 1.5 px (worst corner %.2f px)\n",
-                in_range, long_sides, before, after, accurate, worst);
+    std::printf(
+        "foreshortened tags 7-10 px across: %d (%d with a mean side over 20 px); detected before %d, after %d, "
+        "%d within 1.5 px (worst corner %.2f px)\n",
+        in_range, long_sides, before, after, accurate, worst);
     EXPECT_GE(in_range, 20);
     EXPECT_GE(long_sides, in_range / 2);
     EXPECT_GE(after, static_cast<int>(std::ceil(0.95 * in_range)));
