@@ -7,11 +7,12 @@
 // whole drawn square (black square and white border) with the predicted pose; a homography from
 // its four outer corners maps each pixel back to the tag plane (the lens is locally a homography
 // over a tag this small). Step 2 renders the expected image of the pattern pixel by pixel (each
-// pixel the white fraction of 3 x 3 sub-samples) and takes its normalized cross-correlation (NCC)
-// with the image in linear light, over shifts of the whole prediction within +- `search_px` (0.5
-// px steps, then 0.25 around the best). Step 3 does the same with the plain black square (no
-// inner cells) and with `other ids` of the family, each on a 3 x 3 grid of 0.5 px around the
-// pattern's best shift (skipped when the pattern already fails). The tag is accepted when its
+// pixel the white fraction of 3 x 3 sub-samples), blurs it by each of `blur_sigma_px` in turn and
+// takes the best normalized cross-correlation (NCC) with the image in linear light, over shifts
+// of the whole prediction within +- `search_px` (0.5 px steps, then 0.25 around the best). Step 3
+// does the same with the plain black square (no inner cells) on a 3 x 3 grid of 0.5 px around the
+// pattern's best shift, and with `other ids` of the family at that shift (skipped when the
+// pattern already fails). The tag is accepted when its
 // pattern's NCC reaches `min_ncc` and beats each alternative by its margin:
 // a place where the tag is not (background, an occluder, a wrong prediction) matches neither
 // clearly, or a plain square as well as the pattern. The accepted corners are the predicted ones
