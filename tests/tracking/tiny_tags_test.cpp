@@ -264,6 +264,18 @@ TEST(TinyTags, BadVerifyOptionsAreRefused) {
     ASSERT_FALSE(tracker);
     EXPECT_EQ(tracker.error().code, ErrorCode::kUsage);
     EXPECT_NE(tracker.error().message.find("verify"), std::string::npos);
+    // No blur level, a blur level out of range, a bundle weight that is not in (0, 1].
+    for (int k = 0; k < 3; ++k) {
+        TrackerOptions bad;
+        bad.filter = false;
+        if (k == 0) bad.verify.blur_sigma_px.clear();
+        if (k == 1) bad.verify.blur_sigma_px = {0.0, 5.0};
+        if (k == 2) bad.verify_bundle_weight = 0.0;
+        auto t = Tracker::create(testing::syntheticCamera(), scene(), nullptr, bad);
+        ASSERT_FALSE(t) << k;
+        EXPECT_EQ(t.error().code, ErrorCode::kUsage);
+        EXPECT_NE(t.error().message.find(k == 2 ? "verify_bundle_weight" : "blur_sigma_px"), std::string::npos);
+    }
 }
 
 // Detection by black-square size, before (libapriltag alone) and after (with the verification),
