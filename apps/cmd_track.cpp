@@ -135,14 +135,15 @@ int runTrack(TrackCommandOptions& options) {
         csv = file.get();
     }
     std::fprintf(csv, "image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status,"
-                      "pose_timestamp_ns,ambiguity_ratio,alt_tx,alt_ty,alt_tz,alt_qw,alt_qx,alt_qy,alt_qz\n");
-    constexpr const char* kNoAlternative = ",,,,,,,";  // ambiguity_ratio and the alternative pose, empty
+                      "pose_timestamp_ns,ambiguity_ratio,alt_tx,alt_ty,alt_tz,alt_qw,alt_qx,alt_qy,alt_qz,verified\n");
+    // ambiguity_ratio, the alternative pose and `verified` (tag rows only), empty
+    constexpr const char* kNoAlternative = ",,,,,,,,";
 
     // Step 3: track every frame.
     GreyFrameLoader loader;
     Image grey;
     Progress progress("track", input->frames.size());
-    std::size_t unreadable = 0, with_pose = 0, tag_rows = 0, ambiguous_tags = 0, ambiguous_frames = 0;
+    std::size_t unreadable = 0, with_pose = 0, tag_rows = 0, ambiguous_tags = 0, ambiguous_frames = 0, verified_tags = 0;
     std::string first_unreadable;
     std::vector<double> rot_err, trans_err, total_ms;
     for (std::size_t i = 0; i < input->frames.size(); ++i) {
@@ -182,12 +183,15 @@ int runTrack(TrackCommandOptions& options) {
                                           : (scene && !scene->tags.find(tag.detection.id) && options.tag_size <= 0
                                                  ? "unknown_tag"
                                                  : "pose_failed");
-            std::string extra = kNoAlternative;
+            std::string extra = ",,,,,,,";
             if (tag.pose) {
                 std::optional<Rigid3d> alt;
                 if (tag.pose->candidates.size() > 1) alt = tag.pose->candidates[1].cam_from_tag;
                 extra = alternativeColumns(tag.pose->ambiguity_ratio, alt);
             }
+            // verified: 1 when the tag was not decoded but verified at its predicted place against
+            // its known pattern (too small for the detector; docs/tracking.md "Small and tiny tags").
+            extra += tag.verified ? ",1" : ",0";
             std::fprintf(csv, "%s,%lld,%d,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%s,%s,%lld,%s\n", image.c_str(),
                          static_cast<long long>(frame.timestamp_ns), tag.detection.id, c[0].x(), c[0].y(), c[1].x(),
                          c[1].y(), c[2].x(), c[2].y(), c[3].x(), c[3].y(),
@@ -195,10 +199,12 @@ int runTrack(TrackCommandOptions& options) {
                          static_cast<long long>(track->pose_timestamp_ns), extra.c_str());
             ++tag_rows;
             if (tag.pose && tag.pose->ambiguous) ++ambiguous_tags;
+            if (tag.verified) ++verified_tags;
         }
-        const std::string frame_extra = track->status == tracking::TrackStatus::kAmbiguous
-                                            ? alternativeColumns(track->ambiguity_ratio, track->alternative_cam_from_world)
-                                            : std::string(kNoAlternative);
+        const std::string frame_extra =
+            track->status == tracking::TrackStatus::kAmbiguous
+                ? alternativeColumns(track->ambiguity_ratio, track->alternative_cam_from_world) + ","
+                : std::string(kNoAlternative);
         std::fprintf(csv, "%s,%lld,-1,,,,,,,,,%s,%s,%lld,%s\n", image.c_str(), static_cast<long long>(frame.timestamp_ns),
                      track->cam_from_world ? poseColumns(*track->cam_from_world).c_str() : ",,,,,,",
                      tracking::trackStatusName(track->status), static_cast<long long>(track->pose_timestamp_ns),
@@ -226,9 +232,9 @@ int runTrack(TrackCommandOptions& options) {
         std::sort(v.begin(), v.end());
         return nearestRank(v, 100.0 * q);
     };
-    sayErr("tracked %zu frames: %zu with a camera pose (%zu ambiguous), %zu tag rows (%zu ambiguous); %.2f ms per frame "
-           "(p50)\n",
-           input->frames.size() - unreadable, with_pose, ambiguous_frames, tag_rows, ambiguous_tags,
+    sayErr("tracked %zu frames: %zu with a camera pose (%zu ambiguous), %zu tag rows (%zu ambiguous, %zu verified); %.2f "
+           "ms per frame (p50)\n",
+           input->frames.size() - unreadable, with_pose, ambiguous_frames, tag_rows, ambiguous_tags, verified_tags,
            total_ms.empty() ? 0.0 : pct(total_ms, 0.5));
     if (!rot_err.empty()) {
         sayErr("pose error against groundtruth/cam_poses.csv (%zu frames): rotation p50 %.3f p95 %.3f max %.3f "
@@ -274,9 +280,10 @@ void addTrackCommand(CLI::App& app, Runner& runner) {
                     "The camera's response: srgb, linear, gamma:G or a response file (default: the sequence's sensor.yaml, else srgb)");
     sub->footer(
         "CSV columns: image,timestamp_ns,tag_id,c0x..c3y (pixels, libapriltag's corner order and pixel convention),"
-        "tx,ty,tz,qw,qx,qy,qz,status,pose_timestamp_ns,ambiguity_ratio,alt_tx..alt_qz. Tag rows hold cam_from_tag; the "
+        "tx,ty,tz,qw,qx,qy,qz,status,pose_timestamp_ns,ambiguity_ratio,alt_tx..alt_qz,verified. Tag rows hold cam_from_tag; the "
         "frame row (tag_id -1) holds cam_from_world; both for pose_timestamp_ns, the middle of the exposure "
-        "(timestamp_ns is its start). Status ambiguous: the image cannot tell the pose from the alt_ one. "
+        "(timestamp_ns is its start). Status ambiguous: the image cannot tell the pose from the alt_ one. verified 1: a "
+        "scene tag too small to decode, verified at its predicted place against its pattern (0: decoded). "
         "See docs/tracking.md. Exit codes: 0 ok, 2 usage, 3 bad input.");
     sub->callback([options, &runner] { runner = [options] { return runTrack(*options); }; });
 }

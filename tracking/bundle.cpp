@@ -17,6 +17,7 @@ struct Point {
     Eigen::Vector3d p_in_local;  // world point minus the centroid
     Eigen::Vector2d observed;    // distorted pixel
     int tag = 0;                 // index into the used tags
+    double weight = 1.0;         // BundleTag::weight
 };
 
 double huberWeight(double r, double k) { return r <= k ? 1.0 : k / r; }
@@ -28,7 +29,7 @@ double robustCost(const std::vector<Point>& points, const CameraModel& camera, c
     for (const Point& pt : points) {
         const auto px = camera.project(cam_from_local * pt.p_in_local);
         if (!px) return std::numeric_limits<double>::infinity();
-        cost += huberCost((*px - pt.observed).norm(), k);
+        cost += pt.weight * huberCost((*px - pt.observed).norm(), k);
     }
     return cost;
 }
@@ -53,7 +54,7 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
             const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
             if (!proj) continue;
             const Eigen::Vector2d r = proj->pixel - pt.observed;
-            const double w = huberWeight(r.norm(), options.huber_px);
+            const double w = pt.weight * huberWeight(r.norm(), options.huber_px);
             h += w * proj->d_pixel_d_xi.transpose() * proj->d_pixel_d_xi;
             g += w * proj->d_pixel_d_xi.transpose() * r;
         }
@@ -83,7 +84,7 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
         const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
         if (!proj) continue;
         const Eigen::Vector2d r = proj->pixel - pt.observed;
-        const double w = huberWeight(r.norm(), options.huber_px);
+        const double w = pt.weight * huberWeight(r.norm(), options.huber_px);
         fit.information += w * proj->d_pixel_d_xi.transpose() * proj->d_pixel_d_xi;
         fit.chi2 += w * r.squaredNorm();
     }
@@ -120,6 +121,9 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
         }
         const bool finite = std::all_of(t.detection->corners.begin(), t.detection->corners.end(),
                                         [](const Eigen::Vector2d& c) { return c.allFinite(); });
+        if (!(t.weight > 0) || !std::isfinite(t.weight)) {
+            return fail(ErrorCode::kBadInput, "bundle: tag " + std::to_string(t.detection->id) + " has a weight that is not positive");
+        }
         if (finite) used.push_back({&t, item});
     }
     if (used.empty()) return fail(ErrorCode::kBadInput, "bundle: none of the detected tags is placed in the scene");
@@ -140,7 +144,7 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
             const Used& u = used[static_cast<std::size_t>(i)];
             for (int c = 0; c < 4; ++c) {
                 const Eigen::Vector3d p_world = u.item->world_from_tag * tagCornerInTag(c, u.item->size);
-                points.push_back({p_world - centroid, u.tag->detection->corners[c], i});
+                points.push_back({p_world - centroid, u.tag->detection->corners[c], i, u.tag->weight});
             }
         }
         // Step 2: the best start.

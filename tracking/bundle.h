@@ -38,6 +38,9 @@ struct BundleOptions {
 struct BundleTag {
     const TagDetection* detection = nullptr;
     const TagPose* single = nullptr;  // may be null: the tag then only contributes corners
+    // Its corners' weight in the fit, relative to a detected tag's (1 / their variance ratio): a
+    // tag verified at its predicted place (tracker step 3b) has less precise corners.
+    double weight = 1.0;
 };
 
 struct BundleResult {

@@ -413,7 +413,7 @@ std::optional<Matrix6d> edgeCovariance(const LinearSystem& sys, const std::vecto
     }
     const double correction = clusters > 6 ? clusters / (clusters - 6.0) : 1.0;
     Matrix6d c = h_inv * b * h_inv * correction + sigma2 * h_inv;
-    c = 0.5 * (c + c.transpose());
+    c = (0.5 * (c + c.transpose())).eval();  // eval: the transpose aliases c
     if (!c.allFinite()) return std::nullopt;
     return c;
 }
@@ -758,7 +758,13 @@ Result<EdgeRefineResult> refinePoseWithEdges(const ImageView& gray8, const Camer
     } else {
         result.covariance = *edge_covariance;
     }
-    result.covariance = 0.5 * (result.covariance + result.covariance.transpose());
+    result.covariance = (0.5 * (result.covariance + result.covariance.transpose())).eval();  // eval: aliasing
+    // Hard case: a nearly degenerate system (a wall seen 75-80 degrees off its normal) whose
+    // inverted covariance comes out indefinite by rounding; the filter would refuse it and stop
+    // the frame's tracking. Not ok: the tags' pose stands.
+    if (result.covariance.llt().info() != Eigen::Success || !result.covariance.allFinite()) {
+        return finish(result, "poorly constrained: the covariance is not positive definite");
+    }
     result.step_seconds.solve += since(t0);
     result.ok = true;
     return finish(result, {});

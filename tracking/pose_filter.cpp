@@ -134,7 +134,7 @@ void PoseFilter::propagate(double dt, Rigid3d& pose, Matrix12d& covariance) cons
     q.bottomLeftCorner<6, 6>().diagonal() = q2 * (dt * a / 2.0);
     q.bottomRightCorner<6, 6>().diagonal() = q2 * a;
     covariance = f * covariance * f.transpose() + q;
-    covariance = 0.5 * (covariance + covariance.transpose());
+    covariance = (0.5 * (covariance + covariance.transpose())).eval();  // eval: the transpose aliases it
 }
 
 Result<PoseFilter::UpdateResult> PoseFilter::update(const PoseMeasurement& measurement) {
@@ -174,7 +174,7 @@ Result<PoseFilter::UpdateResult> PoseFilter::update(const PoseMeasurement& measu
     const Matrix6d j_inverse = leftJacobianSe3(y).inverse();
     const Matrix6d r = j_inverse * *covariance * j_inverse.transpose();
     Matrix6d s = p.topLeftCorner<6, 6>() + r;
-    s = 0.5 * (s + s.transpose());
+    s = (0.5 * (s + s.transpose())).eval();  // eval: the transpose aliases s
     const Eigen::LLT<Matrix6d> s_llt(s);
     if (s_llt.info() != Eigen::Success) {
         return fail(ErrorCode::kInternal, "pose filter: innovation covariance is not positive definite");

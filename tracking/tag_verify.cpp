@@ -1,8 +1,11 @@
 #include "tracking/tag_verify.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdint>
 #include <functional>
+#include <memory>
 #include <opencv2/imgproc.hpp>
 
 #include "tracking/tag_detector.h"
@@ -10,13 +13,41 @@
 namespace commonlight::tracking {
 namespace {
 
+// A template: the drawn tag's cells, `total` x `total`, 1 for white (row 0 at the tag's top).
+using Cells = std::vector<std::uint8_t>;
+
+Cells cellsOf(int total, const std::function<bool(int, int)>& white) {
+    Cells c(static_cast<std::size_t>(total * total));
+    for (int r = 0; r < total; ++r) {
+        for (int col = 0; col < total; ++col) c[static_cast<std::size_t>(r * total + col)] = white(col, r) ? 1 : 0;
+    }
+    return c;
+}
+
+// 5-tap Gaussian kernels of the optics' blur levels tried (sigma 0: none).
+std::vector<std::array<double, 5>> blurKernels(const std::vector<double>& sigmas) {
+    std::vector<std::array<double, 5>> out;
+    for (const double sigma : sigmas) {
+        std::array<double, 5> k{0, 0, 1, 0, 0};
+        if (sigma > 0) {
+            double sum = 0;
+            for (int i = 0; i < 5; ++i)
+                sum += k[static_cast<std::size_t>(i)] = std::exp(-(i - 2) * (i - 2) / (2 * sigma * sigma));
+            for (double& w : k) w /= sum;
+        }
+        out.push_back(k);
+    }
+    return out;
+}
+
 // The expected image of one template over the tag's box, and its NCC with the image there.
 class Matcher {
 public:
     static constexpr int kSub = 9;  // sub-samples per pixel (3 x 3)
     Matcher(const ImageView& gray8, const Linearizer& lin, const cv::Matx33d& pixel_to_cells, int total,
-            const Eigen::Matrix2d& cells_per_px, int x0, int y0, int width, int height)
-        : total_(total), cells_per_px_(cells_per_px), width_(width), height_(height) {
+            const Eigen::Matrix2d& cells_per_px, int x0, int y0, int width, int height,
+            std::vector<std::array<double, 5>> kernels)
+        : total_(total), cells_per_px_(cells_per_px), width_(width), height_(height), kernels_(std::move(kernels)) {
         // Sub-samples at each pixel of the box (3 x 3), in cells of the drawn tag; the inner mask
         // keeps pixels whose centre is at least half a cell inside the drawn square (the outer half
         // of the white border sees the unknown surroundings through the blur).
@@ -36,19 +67,20 @@ public:
                 }
             }
         }
+        double mean = 0;
+        for (double g : image_) mean += g;
+        mean /= std::max<double>(1.0, static_cast<double>(image_.size()));
+        for (double& g : image_) g -= mean;  // centred once: the NCC needs the image's deviations only
+        for (double g : image_) image_ss_ += g * g;
         model_.assign(static_cast<std::size_t>(width * height), 0.0);
         blurred_.assign(model_.size(), 0.0);
+        m_.resize(mask_.size());
     }
     std::size_t samples() const { return mask_.size(); }
-    double imageStddev() const {
-        double mean = 0, sq = 0;
-        for (double g : image_) mean += g;
-        mean /= static_cast<double>(image_.size());
-        for (double g : image_) sq += (g - mean) * (g - mean);
-        return std::sqrt(sq / static_cast<double>(image_.size()));
-    }
-    // The best NCC over shifts of the template within +- search px (0.5 px grid, then 0.25).
-    std::pair<double, Eigen::Vector2d> best(const std::function<bool(int, int)>& white, double search) const {
+    double imageStddev() const { return std::sqrt(image_ss_ / static_cast<double>(image_.size())); }
+    // The best NCC (over the blur levels) over shifts of the template within +- search px (0.5 px
+    // grid, then 0.25).
+    std::pair<double, Eigen::Vector2d> best(const Cells& white, double search) const {
         double best_ncc = -2.0;
         Eigen::Vector2d best_shift = Eigen::Vector2d::Zero();
         const int steps = static_cast<int>(std::floor(search / 0.5 + 1e-9));
@@ -70,8 +102,10 @@ public:
         }
         return {best_ncc, best_shift};
     }
+    // The NCC at one shift.
+    double at(const Cells& white, const Eigen::Vector2d& shift_px) const { return ncc(white, shift_px); }
     // The best NCC on a 3 x 3 grid of 0.5 px around `centre`.
-    double bestAround(const std::function<bool(int, int)>& white, const Eigen::Vector2d& centre) const {
+    double bestAround(const Cells& white, const Eigen::Vector2d& centre) const {
         double best_ncc = -2.0;
         for (int sy = -1; sy <= 1; ++sy) {
             for (int sx = -1; sx <= 1; ++sx)
@@ -85,8 +119,9 @@ private:
         const cv::Vec3d q = h * cv::Vec3d(x, y, 1.0);
         return {q[0] / q[2], q[1] / q[2]};
     }
-    double ncc(const std::function<bool(int, int)>& white, const Eigen::Vector2d& shift_px) const {
-        // The template moved by shift_px: a pixel sees the tag plane at its position minus the shift.
+    // The template moved by shift_px, blurred by each level in turn: the best NCC.
+    double ncc(const Cells& white, const Eigen::Vector2d& shift_px) const {
+        // A pixel sees the tag plane at its position minus the shift.
         const Eigen::Vector2d d = cells_per_px_ * shift_px;
         for (std::size_t p = 0; p < model_.size(); ++p) {
             int count = 0;
@@ -95,51 +130,54 @@ private:
                 const int col = static_cast<int>(std::floor(uv.x()));
                 const int row = static_cast<int>(std::floor(uv.y()));
                 const bool inside = col >= 0 && row >= 0 && col < total_ && row < total_;
-                count += (!inside || white(col, row)) ? 1 : 0;
+                count += (!inside || white[static_cast<std::size_t>(row * total_ + col)]) ? 1 : 0;
             }
             model_[p] = count / static_cast<double>(kSub);
         }
-        // The optics: a [1 2 1] / 4 blur each way (about 0.7 px sigma), edges clamped.
         const auto at = [&](const std::vector<double>& v, int x, int y) {
             return v[static_cast<std::size_t>(std::clamp(y, 0, height_ - 1) * width_ + std::clamp(x, 0, width_ - 1))];
         };
-        for (int y = 0; y < height_; ++y) {
-            for (int x = 0; x < width_; ++x) {
-                blurred_[static_cast<std::size_t>(y * width_ + x)] =
-                    0.25 * at(model_, x - 1, y) + 0.5 * at(model_, x, y) + 0.25 * at(model_, x + 1, y);
+        double best = -2.0;
+        for (const auto& k : kernels_) {
+            // The optics: the level's Gaussian each way, edges clamped (rows over the box, columns
+            // at the mask's pixels only).
+            for (int y = 0; y < height_; ++y) {
+                for (int x = 0; x < width_; ++x) {
+                    double v = 0;
+                    for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * at(model_, x + t, y);
+                    blurred_[static_cast<std::size_t>(y * width_ + x)] = v;
+                }
             }
+            double sm = 0;
+            for (std::size_t i = 0; i < mask_.size(); ++i) {
+                const int p = mask_[i];
+                const int x = p % width_, y = p / width_;
+                double v = 0;
+                for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * at(blurred_, x, y + t);
+                m_[i] = v;
+                sm += v;
+            }
+            sm /= static_cast<double>(mask_.size());
+            double smg = 0, smm = 0;
+            for (std::size_t i = 0; i < mask_.size(); ++i) {
+                const double a = m_[i] - sm;
+                smg += a * image_[i];
+                smm += a * a;
+            }
+            if (smm > 0 && image_ss_ > 0) best = std::max(best, smg / std::sqrt(smm * image_ss_));
         }
-        double sm = 0, sg = 0;
-        std::vector<double>& m = scratch_;
-        m.resize(mask_.size());
-        for (std::size_t i = 0; i < mask_.size(); ++i) {
-            const int p = mask_[i];
-            const int x = p % width_, y = p / width_;
-            m[i] = 0.25 * at(blurred_, x, y - 1) + 0.5 * at(blurred_, x, y) + 0.25 * at(blurred_, x, y + 1);
-            sm += m[i];
-            sg += image_[i];
-        }
-        const double n = static_cast<double>(mask_.size());
-        sm /= n;
-        sg /= n;
-        double smg = 0, smm = 0, sgg = 0;
-        for (std::size_t i = 0; i < mask_.size(); ++i) {
-            const double a = m[i] - sm, b = image_[i] - sg;
-            smg += a * b;
-            smm += a * a;
-            sgg += b * b;
-        }
-        if (smm <= 0 || sgg <= 0) return 0.0;
-        return smg / std::sqrt(smm * sgg);
+        return best > -2.0 ? best : 0.0;
     }
 
     int total_;
     Eigen::Matrix2d cells_per_px_;
     int width_, height_;
+    std::vector<std::array<double, 5>> kernels_;
     std::vector<Eigen::Vector2d> uv_;
     std::vector<int> mask_;
-    std::vector<double> image_;
-    mutable std::vector<double> model_, blurred_, scratch_;
+    std::vector<double> image_;  // linear, minus its mean
+    double image_ss_ = 0.0;
+    mutable std::vector<double> model_, blurred_, m_;
 };
 
 }  // namespace
@@ -166,7 +204,13 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
         out.side_px +=
             0.25 *
             (out.corners[static_cast<std::size_t>(k)] - out.corners[static_cast<std::size_t>((k + 1) % 4)]).norm();
-    if (out.side_px < options.min_side_px || out.side_px > options.max_side_px) {
+    // The range applies to the shorter span (between the midpoints of opposite sides): a tag seen
+    // 75-80 degrees off its normal is 7-10 px across and 30-45 px along, and the detector misses it.
+    const auto mid = [&](int a, int b) {
+        return 0.5 * (out.corners[static_cast<std::size_t>(a)] + out.corners[static_cast<std::size_t>(b)]);
+    };
+    out.span_px = std::min((mid(0, 1) - mid(2, 3)).norm(), (mid(1, 2) - mid(3, 0)).norm());
+    if (out.span_px < options.min_side_px || out.span_px > options.max_side_px) {
         out.reason = "predicted side outside the tried range";
         return out;
     }
@@ -196,48 +240,55 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
         return out;
     }
     const cv::Matx33d to_cells(cv::getPerspectiveTransform(pixel_pts.data(), cells_pts.data()));
-    // The local pixel-to-cell Jacobian at the tag's centre (for shifting the template).
     const Eigen::Vector2d centre = 0.25 * (out.corners[0] + out.corners[1] + out.corners[2] + out.corners[3]);
-    const auto cellsAt = [&](const Eigen::Vector2d& p) {
-        const cv::Vec3d q = to_cells * cv::Vec3d(p.x(), p.y(), 1.0);
-        return Eigen::Vector2d(q[0] / q[2], q[1] / q[2]);
-    };
-    Eigen::Matrix2d jac;
-    jac.col(0) = 0.5 * (cellsAt(centre + Eigen::Vector2d(0.5, 0)) - cellsAt(centre - Eigen::Vector2d(0.5, 0)));
-    jac.col(1) = 0.5 * (cellsAt(centre + Eigen::Vector2d(0, 0.5)) - cellsAt(centre - Eigen::Vector2d(0, 0.5)));
     const int x0 = static_cast<int>(std::floor(xmin)), y0 = static_cast<int>(std::floor(ymin));
     const int x1 = static_cast<int>(std::ceil(xmax)), y1 = static_cast<int>(std::ceil(ymax));
-    const Matcher matcher(gray8, Linearizer::get(options.srgb), to_cells, total, jac, x0, y0, x1 - x0 + 1, y1 - y0 + 1);
-    if (matcher.samples() < 16) {
+    const auto kernels = blurKernels(options.blur_sigma_px);
+    // A matcher for a pixel-to-cell homography over the box (with the local Jacobian at the tag's
+    // centre, for shifting the template).
+    const auto makeMatcher = [&](const cv::Matx33d& h) {
+        const auto cellsAt = [&](const Eigen::Vector2d& p) {
+            const cv::Vec3d q = h * cv::Vec3d(p.x(), p.y(), 1.0);
+            return Eigen::Vector2d(q[0] / q[2], q[1] / q[2]);
+        };
+        Eigen::Matrix2d jac;
+        jac.col(0) = 0.5 * (cellsAt(centre + Eigen::Vector2d(0.5, 0)) - cellsAt(centre - Eigen::Vector2d(0.5, 0)));
+        jac.col(1) = 0.5 * (cellsAt(centre + Eigen::Vector2d(0, 0.5)) - cellsAt(centre - Eigen::Vector2d(0, 0.5)));
+        return std::make_unique<Matcher>(gray8, Linearizer::get(options.srgb), h, total, jac, x0, y0, x1 - x0 + 1,
+                                         y1 - y0 + 1, kernels);
+    };
+    std::unique_ptr<Matcher> matcher = makeMatcher(to_cells);
+    if (matcher->samples() < 16) {
         out.reason = "too few pixels";
         return out;
     }
-    if (matcher.imageStddev() < options.min_contrast) {
+    if (matcher->imageStddev() < options.min_contrast) {
         out.reason = "no contrast where the tag is predicted";
         return out;
     }
     // Step 2: the tag's pattern.
-    const auto [ncc, shift] = matcher.best([&](int c, int r) { return pattern.white(c, r); }, options.search_px);
+    const Cells own = cellsOf(total, [&](int c, int r) { return pattern.white(c, r); });
+    const auto [ncc, shift] = matcher->best(own, options.search_px);
+    for (auto& c : out.corners) c += shift;
     out.ncc = ncc;
     out.shift_px = shift;
     // Step 3: the alternatives.
     const int border = static_cast<int>(std::lround(1.0 / pattern.cell()));
     const int b0 = (total - border) / 2;
     const auto square = [&](int c, int r) { return c < b0 || r < b0 || c >= b0 + border || r >= b0 + border; };
-    for (auto& c : out.corners) c += shift;
     if (ncc < options.min_ncc) {
         out.reason = "the pattern does not match the image";
         return out;
     }
-    out.ncc_square = matcher.bestAround(square, shift);
+    out.ncc_square = matcher->bestAround(cellsOf(total, square), shift);
     if (ncc - out.ncc_square < options.min_margin_square) {
         out.reason = "a plain black square matches as well";
         return out;
     }
     for (const TagPattern* other : others) {
         if (!other || other->total() != total) continue;
-        out.ncc_other =
-            std::max(out.ncc_other, matcher.bestAround([&](int c, int r) { return other->white(c, r); }, shift));
+        out.ncc_other = std::max(out.ncc_other,
+                                 matcher->at(cellsOf(total, [&](int c, int r) { return other->white(c, r); }), shift));
     }
     if (ncc - out.ncc_other < options.min_margin_other) {
         out.reason = "another id matches as well";

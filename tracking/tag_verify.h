@@ -7,11 +7,12 @@
 // whole drawn square (black square and white border) with the predicted pose; a homography from
 // its four outer corners maps each pixel back to the tag plane (the lens is locally a homography
 // over a tag this small). Step 2 renders the expected image of the pattern pixel by pixel (each
-// pixel the white fraction of 3 x 3 sub-samples) and takes its normalized cross-correlation (NCC)
-// with the image in linear light, over shifts of the whole prediction within +- `search_px` (0.5
-// px steps, then 0.25 around the best). Step 3 does the same with the plain black square (no
-// inner cells) and with `other ids` of the family, each on a 3 x 3 grid of 0.5 px around the
-// pattern's best shift (skipped when the pattern already fails). The tag is accepted when its
+// pixel the white fraction of 3 x 3 sub-samples), blurs it by each of `blur_sigma_px` in turn and
+// takes the best normalized cross-correlation (NCC) with the image in linear light, over shifts
+// of the whole prediction within +- `search_px` (0.5 px steps, then 0.25 around the best). Step 3
+// does the same with the plain black square (no inner cells) on a 3 x 3 grid of 0.5 px around the
+// pattern's best shift, and with `other ids` of the family at that shift (skipped when the
+// pattern already fails). The tag is accepted when its
 // pattern's NCC reaches `min_ncc` and beats each alternative by its margin:
 // a place where the tag is not (background, an occluder, a wrong prediction) matches neither
 // clearly, or a plain square as well as the pattern. The accepted corners are the predicted ones
@@ -32,8 +33,10 @@
 namespace commonlight::tracking {
 
 struct TagVerifyOptions {
-    double min_side_px = 5.0;     // predicted black squares with a shorter side: not tried
-    double max_side_px = 20.0;    // with a longer side: not tried (the detector finds those)
+    // Predicted black squares whose shorter span (between the midpoints of opposite sides) is
+    // under min_side_px, or over max_side_px (the detector finds those), are not tried.
+    double min_side_px = 5.0;
+    double max_side_px = 20.0;
     double edge_margin_px = 3.0;  // the drawn square (white border included) this far inside the image
     double search_px = 1.0;       // the prediction's error this verification absorbs, +- pixels
     // The pattern's normalized cross-correlation with the image: measured on synthetic 7-20 px
@@ -44,7 +47,16 @@ struct TagVerifyOptions {
     double min_margin_other = 0.05;   // over every other id's
     int other_ids = 8;                // other ids of the family compared (the ids after the tag's)
     double min_contrast = 0.03;       // the image's standard deviation over the tag, linear [0, 1]
-    bool srgb = true;                 // pixels are sRGB-encoded (as TagAlignOptions::srgb)
+    // The optics' blur is not known: the expected image is blurred by each of these Gaussians
+    // (sigma, pixels, on top of the pixel's own area; 0: none) and each template's NCC is its
+    // best over them. At 1 px cells the blur decides the correlation: a path-traced frame (a box
+    // pixel, no optics) correlates 0.44-0.83 at the truth under a fixed 0.7 px blur, 0.90-0.98
+    // with none.
+    std::vector<double> blur_sigma_px = {0.0, 0.5, 0.75, 1.0};
+    // The tracker (step 3b) tries a tag again, once the tags it accepted have joined the bundle,
+    // when its pattern correlated at least this much (but under min_ncc) the first time.
+    double retry_min_ncc = 0.7;
+    bool srgb = true;  // pixels are sRGB-encoded (as TagAlignOptions::srgb)
 };
 
 struct TagVerifyResult {
@@ -56,6 +68,7 @@ struct TagVerifyResult {
     double ncc_square = 0.0;                             // the plain black square at its best shift
     double ncc_other = -1.0;                             // the best of the other ids
     double side_px = 0.0;                                // the predicted black square's mean side
+    double span_px = 0.0;                                // its shorter span (the range's measure)
 };
 
 // `pattern`: the predicted tag's; `others`: patterns of other ids of the family (may be empty).

@@ -114,8 +114,11 @@ Result<void> TrackerOptions::validate() const {
         const TagVerifyOptions& v = verify;
         if (!(v.min_side_px > 0) || !(v.max_side_px >= v.min_side_px) || !(v.search_px >= 0 && v.search_px <= 3) ||
             !(v.min_ncc > 0 && v.min_ncc <= 1) || !(v.min_margin_square >= 0) || !(v.min_margin_other >= 0) ||
-            v.other_ids < 0 || !(v.edge_margin_px >= 0) || !(v.min_contrast >= 0)) {
-            return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px, min_ncc in (0, 1], margins >= 0)");
+            v.other_ids < 0 || !(v.edge_margin_px >= 0) || !(v.min_contrast >= 0) || v.blur_sigma_px.empty() ||
+            !(verify_bundle_weight > 0 && verify_bundle_weight <= 1) ||
+            std::any_of(v.blur_sigma_px.begin(), v.blur_sigma_px.end(), [](double b) { return !(b >= 0 && b <= 2); })) {
+            return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px, min_ncc in (0, 1], "
+                                           "margins >= 0, blur_sigma_px: one or more in [0, 2], verify_bundle_weight in (0, 1])");
         }
     }
     if (filter) CL_TRY_VOID(filter_options.validate());
@@ -131,6 +134,9 @@ struct Tracker::State {
     TagPatternCache patterns;
     PoseFilter filter;
     std::optional<EdgeModel> edge_model;
+    // The proxies as occluders for the verification of predicted tags, when edges are off.
+    std::optional<EdgeModel> occluder_model;
+    const EdgeModel* occluders() const { return edge_model ? &*edge_model : (occluder_model ? &*occluder_model : nullptr); }
     std::int64_t frames = 0;
     std::int64_t frames_since_full = 0;
     std::optional<std::int64_t> last_timestamp;
@@ -194,6 +200,10 @@ Result<Tracker> Tracker::create(const CameraModel& camera, const TagSet& scene_t
         if (!proxies) return fail(ErrorCode::kUsage, "edge refinement needs a scene with proxy geometry");
         CL_TRY(EdgeModel model, EdgeModel::fromScene(*proxies));
         state->edge_model.emplace(std::move(model));
+    } else if (options.verify_predicted && options.verify_skip_occluded && proxies && !proxies->real_objects.empty()) {
+        // Only an optimisation of the verification: proxies it cannot model (a mesh that was not
+        // loaded) leave it without the occlusion test rather than fail the tracker.
+        if (auto model = EdgeModel::fromScene(*proxies)) state->occluder_model.emplace(std::move(*model));
     }
     return Tracker(std::move(state));
 }
@@ -434,7 +444,9 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         out.bundle.reset();
         std::vector<BundleTag> bundle_tags;
         for (const TrackedTag& t : out.tags) {
-            if (s.tags.find(t.detection.id) && t.pose) bundle_tags.push_back({&t.detection, &*t.pose});
+            if (s.tags.find(t.detection.id) && t.pose) {
+                bundle_tags.push_back({&t.detection, &*t.pose, t.verified ? s.options.verify_bundle_weight : 1.0});
+            }
         }
         if (bundle_tags.empty()) return;
         auto bundle = solveBundle(bundle_tags, s.tags, s.camera, predicted, s.options.bundle);
@@ -464,43 +476,72 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
     t0 = Clock::now();
     c0 = threadCpuMs();
     if (s.options.verify_predicted) {
-        std::optional<Rigid3d> basis;
-        if (measurement && !alone_ambiguous) {
-            basis = measurement->cam_from_world;
-        } else if (!measurement && predicted) {
-            basis = predicted;
-        }
-        bool added = false;
-        for (const TagItem& item : basis ? s.tags.items : std::vector<TagItem>{}) {
-            const bool seen = std::any_of(out.tags.begin(), out.tags.end(),
-                                          [&](const TrackedTag& t) { return t.detection.id == item.id; });
-            const TagPattern* pattern = seen ? nullptr : s.patterns.get(item.id);
-            if (!pattern) continue;
-            std::vector<const TagPattern*> others;
-            const int family_size = tagFamilySize(s.tags.family);
-            for (int k = 1; k <= s.options.verify.other_ids && family_size > 1; ++k) {
-                const int other = (item.id + k) % family_size;
-                if (other != item.id) others.push_back(s.patterns.get(other));
+        // Two passes: the tags the first accepts join the bundle, whose pose then errs less in
+        // rotation and scale than the big tags' alone; the second tries again, under it, the tags
+        // whose pattern correlated closely but under min_ncc (verify.retry_min_ncc).
+        std::vector<int> retry;
+        for (int pass = 0; pass < 2; ++pass) {
+            std::optional<Rigid3d> basis;
+            if (measurement && !alone_ambiguous) {
+                basis = measurement->cam_from_world;
+            } else if (!measurement && predicted) {
+                basis = predicted;
             }
-            const Rigid3d predicted_cam_from_tag = *basis * item.world_from_tag;
-            const TagVerifyResult v =
-                verifyPredictedTag(gray8, s.camera, *pattern, others, item.size, predicted_cam_from_tag, s.options.verify);
-            if (!v.ok) continue;
-            TrackedTag tag;
-            tag.detection.id = item.id;
-            tag.detection.corners = v.corners;
-            tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
-            tag.verified = true;
-            auto pose = solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
-            if (pose) {
-                tag.pose = std::move(*pose);
-            } else {
-                tag.error = pose.error().message;
+            if (!basis) break;
+            bool added = false;
+            std::vector<int> close;
+            for (const TagItem& item : s.tags.items) {
+                if (pass == 1 && std::find(retry.begin(), retry.end(), item.id) == retry.end()) continue;
+                const bool seen = std::any_of(out.tags.begin(), out.tags.end(),
+                                              [&](const TrackedTag& t) { return t.detection.id == item.id; });
+                const TagPattern* pattern = seen ? nullptr : s.patterns.get(item.id);
+                if (!pattern) continue;
+                std::vector<const TagPattern*> others;
+                const int family_size = tagFamilySize(s.tags.family);
+                for (int k = 1; k <= s.options.verify.other_ids && family_size > 1; ++k) {
+                    const int other = (item.id + k) % family_size;
+                    if (other != item.id) others.push_back(s.patterns.get(other));
+                }
+                const Rigid3d predicted_cam_from_tag = *basis * item.world_from_tag;
+                if (s.options.verify_skip_occluded && s.occluders()) {
+                    // 3 x 3 points on the black square, against the proxies from the camera centre.
+                    const Eigen::Vector3d eye = basis->inverse().translation;
+                    int hidden = 0;
+                    for (int j = -1; j <= 1; ++j) {
+                        for (int i = -1; i <= 1; ++i) {
+                            const Eigen::Vector3d p =
+                                item.world_from_tag * Eigen::Vector3d(0.4 * i * item.size, 0.4 * j * item.size, 0.0);
+                            hidden += s.occluders()->occluded(eye, p, 1e-3) ? 1 : 0;
+                        }
+                    }
+                    if (hidden >= 3) continue;
+                }
+                const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *pattern, others, item.size,
+                                                             predicted_cam_from_tag, s.options.verify);
+                if (!v.ok) {
+                    if (v.ncc >= s.options.verify.retry_min_ncc && v.ncc < s.options.verify.min_ncc) close.push_back(item.id);
+                    continue;
+                }
+                TrackedTag tag;
+                tag.detection.id = item.id;
+                tag.detection.corners = v.corners;
+                tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
+                tag.verified = true;
+                auto pose =
+                    solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+                if (pose) {
+                    tag.pose = std::move(*pose);
+                } else {
+                    tag.error = pose.error().message;
+                }
+                out.tags.push_back(std::move(tag));
+                added = true;
             }
-            out.tags.push_back(std::move(tag));
-            added = true;
+            if (added) runBundle();
+            // A second pass only when the first moved the bundle and left close ones.
+            if (!added || close.empty()) break;
+            retry = std::move(close);
         }
-        if (added) runBundle();
     }
     out.times.verify_ms = msSince(t0);
     out.times.verify_cpu_ms = threadCpuMs() - c0;

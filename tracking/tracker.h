@@ -51,6 +51,13 @@ struct TrackerOptions {
     // accepted, joins the bundle as TrackedTag::verified.
     bool verify_predicted = true;
     TagVerifyOptions verify;
+    // With the scene's proxy geometry: a predicted tag whose black square the proxies hide from
+    // the predicted camera (3 or more of 9 points on it) is not tried (it cannot match; its
+    // verification would cost for nothing).
+    bool verify_skip_occluded = true;
+    // A verified tag's corners in the bundle weigh this much against a detected tag's: they are
+    // the prediction moved by a shift on a 0.25 px grid, about 3x the refined corners' error.
+    double verify_bundle_weight = 0.1;
     // Tracking mode: detect only in windows around the predicted tags.
     bool tracking_mode = false;
     int redetect_every = 15;      // full-frame detection every N frames in tracking mode (>= 1)

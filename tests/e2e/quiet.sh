@@ -3,7 +3,7 @@
 # subcommand's product (track's CSV on standard output) is still written; errors still print.
 source "$(dirname "$0")/lib.sh"
 
-header='image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status,pose_timestamp_ns,ambiguity_ratio,alt_tx,alt_ty,alt_tz,alt_qw,alt_qx,alt_qy,alt_qz'
+header='image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status,pose_timestamp_ns,ambiguity_ratio,alt_tx,alt_ty,alt_tz,alt_qw,alt_qx,alt_qy,alt_qz,verified'
 
 # track: without -q a summary on stderr; with -q nothing but the CSV.
 expect_exit 0 "$COMMONLIGHT" track "$SAMPLE" --out "$TMP/a.csv"

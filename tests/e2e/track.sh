@@ -2,7 +2,7 @@
 # one image, and bad input. The figures themselves are checked by tests/tracking and the bench.
 source "$(dirname "$0")/lib.sh"
 
-header='image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status,pose_timestamp_ns,ambiguity_ratio,alt_tx,alt_ty,alt_tz,alt_qw,alt_qx,alt_qy,alt_qz'
+header='image,timestamp_ns,tag_id,c0x,c0y,c1x,c1y,c2x,c2y,c3x,c3y,tx,ty,tz,qw,qx,qy,qz,status,pose_timestamp_ns,ambiguity_ratio,alt_tx,alt_ty,alt_tz,alt_qw,alt_qx,alt_qy,alt_qz,verified'
 
 # 1. The sample with its scene: a header, one frame row per frame, tag rows with poses.
 expect_exit 0 "$COMMONLIGHT" track "$SAMPLE" --out "$TMP/poses.csv"
@@ -13,8 +13,12 @@ tracked=$(awk -F, 'NR > 1 && $3 == -1 && $19 == "tracked"' "$TMP/poses.csv" | wc
 [[ $tracked == "$SAMPLE_FRAMES" ]] || fail "expected every frame tracked, got $tracked"
 tag_rows=$(awk -F, 'NR > 1 && $3 >= 0 && $19 == "ok"' "$TMP/poses.csv" | wc -l)
 (( tag_rows >= 3 * SAMPLE_FRAMES )) || fail "expected at least 3 tags per frame, got $tag_rows rows"
-# Every row has 28 fields; quaternions are unit length.
-awk -F, 'NR > 1 && NF != 28 { exit 1 }' "$TMP/poses.csv" || fail "a row without 28 fields"
+# Every row has 29 fields; quaternions are unit length.
+awk -F, 'NR > 1 && NF != 29 { exit 1 }' "$TMP/poses.csv" || fail "a row without 29 fields"
+# The sample's tags are all decoded (verified 0 on every tag row, empty on frame rows).
+awk -F, 'NR > 1 && (($3 >= 0 && $29 != "0") || ($3 == -1 && $29 != "")) { exit 1 }' "$TMP/poses.csv" ||
+    fail "the verified column: 0 on decoded tags, empty on frame rows"
+expect_text "0 verified)" "$TMP/err"
 # Poses are for the middle of the exposure: the sample's meta.csv has 10 ms, so 5 ms after the timestamp.
 awk -F, 'NR > 1 && $20 != $2 + 5000000 { exit 1 }' "$TMP/poses.csv" || fail "pose_timestamp_ns is not mid-exposure"
 awk -F, 'NR > 1 && $15 != "" { n = $15*$15 + $16*$16 + $17*$17 + $18*$18; if (n < 0.999999 || n > 1.000001) exit 1 }' \
@@ -23,6 +27,16 @@ awk -F, 'NR > 1 && $15 != "" { n = $15*$15 + $16*$16 + $17*$17 + $18*$18; if (n 
 expect_text "pose error against groundtruth/cam_poses.csv ($SAMPLE_FRAMES frames)" "$TMP/err"
 rot_p95=$(sed -n 's/.*rotation p50 [0-9.]* p95 \([0-9.]*\) max.*/\1/p' "$TMP/err")
 python3 -c "import sys; sys.exit(0 if float('$rot_p95') < 1.0 else 1)" || fail "rotation p95 $rot_p95 deg"
+
+# 1b. Tags too small to decode are verified where the scene's big tags put them: one rendered
+# frame of data/scenes/tiny (tags 2-13 of 6-10 px), verified 1 on some of them, never on 0 and 1.
+expect_exit 0 "$COMMONLIGHT" sim --scene "$SRC/data/scenes/tiny/scene.yaml" --trajectory "$SRC/data/scenes/tiny/tiny.yaml" \
+    --out "$TMP/tiny" --frames 1 --spp 4 --no-radiance
+expect_exit 0 "$COMMONLIGHT" track "$TMP/tiny" --out "$TMP/tiny.csv"
+verified=$(awk -F, 'NR > 1 && $29 == 1 && $3 >= 2 && $3 <= 13 && $19 == "ok"' "$TMP/tiny.csv" | wc -l)
+(( verified >= 3 )) || fail "expected tiny tags verified, got $verified"
+awk -F, 'NR > 1 && ($3 == 0 || $3 == 1) && $29 != 0 { exit 1 }' "$TMP/tiny.csv" || fail "the anchors are decoded"
+expect_text "$verified verified)" "$TMP/err"
 
 # 2. Standard output when there is no --out; tracking mode gives the same frame rows.
 expect_exit 0 "$COMMONLIGHT" track "$SAMPLE" --tracking-mode

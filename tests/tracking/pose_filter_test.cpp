@@ -121,6 +121,7 @@ TEST(PoseFilter, FirstMeasurementInitialisesAndIsReturnedAsIs) {
     const auto later = filter.predict(1'000'000 + kFrameNs);
     ASSERT_TRUE(later);
     EXPECT_GT(later->covariance.trace(), 2 * p->covariance.trace());
+    EXPECT_EQ((later->covariance - later->covariance.transpose()).cwiseAbs().maxCoeff(), 0.0) << "exactly symmetric";
     filter.reset();
     EXPECT_FALSE(filter.initialized());
     EXPECT_FALSE(filter.predict(0).has_value());
