@@ -11,6 +11,8 @@
 
 #include <cmath>
 #include <memory>
+#include <optional>
+#include <vector>
 
 #include "core/scene_io.h"
 #include "lighting/estimator.h"
@@ -119,6 +121,36 @@ TEST(TexelDirect, PenumbraCloserToTheTruthThanTheElements) {
     RecordProperty("texels_rms", std::to_string(texels.rms));
 }
 
+// The snapshots of an estimator that saw the ball at its start and then at each of `centres`
+// (first and last), and of a fresh estimator with the ball at the last centre.
+struct Moved {
+    std::optional<LightingSnapshot> first, last, fresh;
+};
+Moved moveThenFresh(const Scene& scene, const std::vector<Eigen::Vector3d>& centres) {
+    Moved out;
+    auto moving = makeEstimator(scene, 16);
+    auto fresh_est = makeEstimator(scene, 16);
+    if (!moving || !fresh_est) return out;
+    std::vector<Rigid3d> poses = SceneLighting::scenePoses(scene, 0.0);
+    auto first = moving->update(poses);
+    EXPECT_TRUE(first) << first.error().message;
+    if (!first) return out;
+    for (const Eigen::Vector3d& c : centres) {
+        poses[0] = Rigid3d::fromRpyDeg(c, Eigen::Vector3d::Zero());
+        auto moved = moving->update(poses);
+        EXPECT_TRUE(moved) << moved.error().message;
+        if (!moved) return out;
+    }
+    auto last = moving->update(poses);
+    auto fresh = fresh_est->update(poses);
+    EXPECT_TRUE(last && fresh);
+    if (!last || !fresh) return out;
+    out.first = std::move(*first);
+    out.last = std::move(*last);
+    out.fresh = std::move(*fresh);
+    return out;
+}
+
 // A texel's real visibility is traced once and kept; a move traces its virtual rays again where the
 // ball's old or new bounds reach its shafts. After three moves the floor's texture is the one a
 // fresh estimator gives with the ball where it ended (both estimators trace the same pairs): a
@@ -126,21 +158,9 @@ TEST(TexelDirect, PenumbraCloserToTheTruthThanTheElements) {
 TEST(TexelDirect, KeptAnswersAfterMovesEqualAFreshEstimate) {
     auto scene = parseScene(kScene, "texel_direct.yaml");
     ASSERT_TRUE(scene) << scene.error().message;
-    auto moving = makeEstimator(*scene, 16);
-    ASSERT_TRUE(moving);
-    std::vector<Rigid3d> poses = SceneLighting::scenePoses(*scene, 0.0);
-    auto first = moving->update(poses);
-    ASSERT_TRUE(first) << first.error().message;
-    for (double x : {0.03, 0.06, 0.09}) {
-        poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(x, 0.0, 0.2), Eigen::Vector3d::Zero());
-        ASSERT_TRUE(moving->update(poses));
-    }
-    auto last = moving->update(poses);
-    ASSERT_TRUE(last) << last.error().message;
-    auto fresh_est = makeEstimator(*scene, 16);
-    ASSERT_TRUE(fresh_est);
-    auto fresh = fresh_est->update(poses);
-    ASSERT_TRUE(fresh) << fresh.error().message;
+    const Moved m = moveThenFresh(*scene, {{0.03, 0.0, 0.2}, {0.06, 0.0, 0.2}, {0.09, 0.0, 0.2}});
+    ASSERT_TRUE(m.first && m.last && m.fresh);
+    const LightingSnapshot *first = &*m.first, *last = &*m.last, *fresh = &*m.fresh;
     const FaceModulation* a = last->findFace(0, 0);
     const FaceModulation* b = fresh->findFace(0, 0);
     const FaceModulation* start = first->findFace(0, 0);
@@ -167,21 +187,11 @@ TEST(TexelDirect, TexturesKeptBetweenMovesEqualAFreshBuild) {
     yaml.replace(yaml.find("lights:"), 0, "  - {name: crate, box: {size: [0.2, 0.2, 0.1]}, world_from_object: {t: [0.1, 0.05, 0.05]}, albedo: [0.6, 0.5, 0.4]}\n");
     auto scene = parseScene(yaml, "texel_direct_box.yaml");
     ASSERT_TRUE(scene) << scene.error().message;
-    auto moving = makeEstimator(*scene, 16);
-    ASSERT_TRUE(moving);
-    std::vector<Rigid3d> poses = SceneLighting::scenePoses(*scene, 0.0);
-    auto first = moving->update(poses);
-    ASSERT_TRUE(first) << first.error().message;
-    for (double x : {-0.05, 0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.2}) {
-        poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(x, 0.05, 0.22), Eigen::Vector3d::Zero());
-        ASSERT_TRUE(moving->update(poses));
-    }
-    auto last = moving->update(poses);
-    ASSERT_TRUE(last) << last.error().message;
-    auto fresh_est = makeEstimator(*scene, 16);
-    ASSERT_TRUE(fresh_est);
-    auto fresh = fresh_est->update(poses);
-    ASSERT_TRUE(fresh) << fresh.error().message;
+    std::vector<Eigen::Vector3d> centres;
+    for (double x : {-0.05, 0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.2}) centres.emplace_back(x, 0.05, 0.22);
+    const Moved m = moveThenFresh(*scene, centres);
+    ASSERT_TRUE(m.last && m.fresh);
+    const LightingSnapshot *last = &*m.last, *fresh = &*m.fresh;
     ASSERT_EQ(last->faces.size(), fresh->faces.size());
     ASSERT_GE(last->faces.size(), 6u) << "the floor and the box's faces";
     double worst_ratio = 0.0, worst_original = 0.0;
