@@ -139,23 +139,40 @@ private:
         };
         double best = -2.0;
         for (const auto& k : kernels_) {
-            // The optics: the level's Gaussian each way, edges clamped (rows over the box, columns
-            // at the mask's pixels only).
-            for (int y = 0; y < height_; ++y) {
-                for (int x = 0; x < width_; ++x) {
-                    double v = 0;
-                    for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * at(model_, x + t, y);
-                    blurred_[static_cast<std::size_t>(y * width_ + x)] = v;
-                }
-            }
             double sm = 0;
-            for (std::size_t i = 0; i < mask_.size(); ++i) {
-                const int p = mask_[i];
-                const int x = p % width_, y = p / width_;
-                double v = 0;
-                for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * at(blurred_, x, y + t);
-                m_[i] = v;
-                sm += v;
+            if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
+                // No blur: the model itself (what the sums below give, exactly).
+                for (std::size_t i = 0; i < mask_.size(); ++i) {
+                    m_[i] = model_[static_cast<std::size_t>(mask_[i])];
+                    sm += m_[i];
+                }
+            } else {
+                // The optics: the level's Gaussian each way, edges clamped (rows over the box,
+                // columns at the mask's pixels only; the clamping only within 2 px of an edge).
+                for (int y = 0; y < height_; ++y) {
+                    const double* row = model_.data() + static_cast<std::size_t>(y * width_);
+                    for (int x = 0; x < width_; ++x) {
+                        double v = 0;
+                        if (x >= 2 && x + 2 < width_) {
+                            for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * row[x + t];
+                        } else {
+                            for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * at(model_, x + t, y);
+                        }
+                        blurred_[static_cast<std::size_t>(y * width_ + x)] = v;
+                    }
+                }
+                for (std::size_t i = 0; i < mask_.size(); ++i) {
+                    const int p = mask_[i];
+                    const int x = p % width_, y = p / width_;
+                    double v = 0;
+                    if (y >= 2 && y + 2 < height_) {
+                        for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * blurred_[static_cast<std::size_t>(p + t * width_)];
+                    } else {
+                        for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * at(blurred_, x, y + t);
+                    }
+                    m_[i] = v;
+                    sm += v;
+                }
             }
             sm /= static_cast<double>(mask_.size());
             double smg = 0, smm = 0;
