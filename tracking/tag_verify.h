@@ -37,6 +37,9 @@ struct TagVerifyOptions {
     // under min_side_px, or over max_side_px (the detector finds those), are not tried.
     double min_side_px = 5.0;
     double max_side_px = 20.0;
+    // ... and one whose mean side is over max_side_px (foreshortened) only when its shorter span is
+    // at most this (cells of 1.5 px across).
+    double max_foreshortened_span_px = 12.0;
     double edge_margin_px = 3.0;  // the drawn square (white border included) this far inside the image
     double search_px = 1.0;       // the prediction's error this verification absorbs, +- pixels
     // The pattern's normalized cross-correlation with the image: measured on synthetic 7-20 px

@@ -264,17 +264,20 @@ TEST(TinyTags, BadVerifyOptionsAreRefused) {
     ASSERT_FALSE(tracker);
     EXPECT_EQ(tracker.error().code, ErrorCode::kUsage);
     EXPECT_NE(tracker.error().message.find("verify"), std::string::npos);
-    // No blur level, a blur level out of range, a bundle weight that is not in (0, 1].
-    for (int k = 0; k < 3; ++k) {
+    // No blur level, a blur level out of range, a bundle weight that is not in (0, 1], a
+    // foreshortened span limit under the smallest side.
+    for (int k = 0; k < 4; ++k) {
         TrackerOptions bad;
         bad.filter = false;
         if (k == 0) bad.verify.blur_sigma_px.clear();
         if (k == 1) bad.verify.blur_sigma_px = {0.0, 5.0};
         if (k == 2) bad.verify_bundle_weight = 0.0;
+        if (k == 3) bad.verify.max_foreshortened_span_px = 1.0;
         auto t = Tracker::create(testing::syntheticCamera(), scene(), nullptr, bad);
         ASSERT_FALSE(t) << k;
         EXPECT_EQ(t.error().code, ErrorCode::kUsage);
-        EXPECT_NE(t.error().message.find(k == 2 ? "verify_bundle_weight" : "blur_sigma_px"), std::string::npos);
+        const char* key = k == 2 ? "verify_bundle_weight" : (k == 3 ? "max_foreshortened_span_px" : "blur_sigma_px");
+        EXPECT_NE(t.error().message.find(key), std::string::npos) << k;
     }
 }
 
