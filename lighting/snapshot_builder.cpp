@@ -176,18 +176,25 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
     m.mean_original = mean_original;
     // The texels whose leaf and box filter are found again: [i0, i1] x [j0, j1] (empty: i0 > i1).
     int i0 = 0, i1 = width - 1, j0 = 0, j1 = height - 1;
+    // Each leaf's place in `leaves`, by element (made at the first need: only when leaves changed).
+    std::vector<int> place;
+    const auto placeOf = [&](int element) {
+        if (place.empty()) {
+            place.assign(h.elements().size(), -1);
+            for (std::size_t q = 0; q < leaves.size(); ++q) place[static_cast<std::size_t>(leaves[q].element)] = static_cast<int>(q);
+        }
+        return place[static_cast<std::size_t>(element)];
+    };
     // Leaves new since the last build, by place in `leaves` (every leaf in a new layout).
     std::vector<char> fresh(leaves.size(), same_leaves ? 0 : 1);
     if (same_layout && !same_leaves) {
         // Places of the leaves kept (the same element with the same extent) from the old list to
         // the new; the texels of the rest are rasterised again, and the box filters within a
         // quarter of the largest leaf of the texels that changed leaf are found again.
-        std::vector<int> place(h.elements().size(), -1);
-        for (std::size_t q = 0; q < leaves.size(); ++q) place[static_cast<std::size_t>(leaves[q].element)] = static_cast<int>(q);
         std::vector<int> old_to_new(keep.leaves.size(), -1);
         for (std::size_t q = 0; q < keep.leaves.size(); ++q) {
             const FaceBuild::Leaf& o = keep.leaves[q];
-            const int p = place[static_cast<std::size_t>(o.element)];
+            const int p = placeOf(o.element);
             if (p < 0) continue;
             const FaceBuild::Leaf& n = leaves[static_cast<std::size_t>(p)];
             if (n.buried == o.buried && n.st == o.st && n.ds == o.ds && n.dt == o.dt) {
@@ -268,14 +275,6 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
                 }
             }
         }
-        std::vector<int> place;  // by element, for lookups by descent
-        const auto placeOf = [&](int element) {
-            if (place.empty()) {
-                place.assign(h.elements().size(), -1);
-                for (std::size_t q = 0; q < leaves.size(); ++q) place[static_cast<std::size_t>(leaves[q].element)] = static_cast<int>(q);
-            }
-            return place[static_cast<std::size_t>(element)];
-        };
         for (std::size_t k = 0; k < texels; ++k) {
             if (keep.leaf_of[k] >= 0) continue;
             const int i = static_cast<int>(k % static_cast<std::size_t>(width)), j = static_cast<int>(k / static_cast<std::size_t>(width));
