@@ -278,6 +278,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
             cache->at(face, texel, w, h, x, rad.face(face).normal, d0, d1);
         };
         td.kept = [cache](int face, std::size_t texel) { return cache->kept(face, texel); };
+        td.forgotten = [cache](int face, std::vector<std::uint32_t>& texels) { return cache->takeForgotten(face, texels); };
         texel_direct = std::move(td);
     } else {
         d.texels.reset();
@@ -296,7 +297,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     }
     snapshot.faces.reserve(faces);
     for (const FaceBuild& f : d.face_builds) {
-        if (f.modulation) snapshot.faces.push_back(*f.modulation);
+        if (f.modulation) snapshot.faces.push_back(f.modulation);
     }
     snapshot.virtual_objects = buildProbes(rad, d.scene, inf.radiance(), d.probe_lights);
     snapshot.solve = with_.summary;

@@ -188,8 +188,9 @@ struct LightingSnapshot {
     SolveSummary solve;
 
     // Faces of real proxies whose light changed or that were estimated; a face absent here has
-    // ratio 1 everywhere.
-    std::vector<FaceModulation> faces;
+    // ratio 1 everywhere. Shared and immutable: a face an update did not change is the previous
+    // snapshot's (no copy of the textures; a desk's are 10 MB).
+    std::vector<std::shared_ptr<const FaceModulation>> faces;
     std::vector<EstimatedLight> lights;
     std::vector<VirtualIrradiance> virtual_objects;
     // The poses of the virtual objects this solution was computed for (world_from_object, by
@@ -198,8 +199,8 @@ struct LightingSnapshot {
     std::vector<std::string> warnings;  // e.g. a light that could not be estimated
 
     const FaceModulation* findFace(int object_index, int face) const {
-        for (const FaceModulation& f : faces) {
-            if (f.object_index == object_index && f.face == face) return &f;
+        for (const auto& f : faces) {
+            if (f->object_index == object_index && f->face == face) return f.get();
         }
         return nullptr;
     }

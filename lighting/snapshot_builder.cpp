@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cmath>
 #include <numbers>
+#include <numeric>
 #include <optional>
 
 #include "lighting/sampling.h"
@@ -98,6 +99,46 @@ bool sameLeaves(const std::vector<FaceBuild::Leaf>& a, const std::vector<FaceBui
     return true;
 }
 
+// The texels (i0, j0, i1, j1, inclusive, clamped to the layout) whose centres lie within `reach`
+// texels (and one more) of leaf `l`'s extent.
+Eigen::Vector4i texelRect(const FaceBuild::Leaf& l, int width, int height, double reach) {
+    const Eigen::Vector2d a = l.st, b = l.st + l.ds, c = l.st + l.dt, d = l.st + l.ds + l.dt;
+    const Eigen::Vector2d lo = a.cwiseMin(b).cwiseMin(c).cwiseMin(d), hi = a.cwiseMax(b).cwiseMax(c).cwiseMax(d);
+    const double r = reach + 1.0;
+    return {std::max(0, static_cast<int>(std::floor(lo.x() * width - 0.5 - r))), std::max(0, static_cast<int>(std::floor(lo.y() * height - 0.5 - r))),
+            std::min(width - 1, static_cast<int>(std::ceil(hi.x() * width - 0.5 + r))),
+            std::min(height - 1, static_cast<int>(std::ceil(hi.y() * height - 0.5 + r)))};
+}
+
+// Brings `to` (a face's spare buffer, FaceBuild) up to `from`: everything but the texels, and of
+// those the tiles `tiles` (null: all).
+void bringOver(const FaceModulation& from, const std::vector<int>* tiles, FaceModulation& to) {
+    if (tiles == nullptr) {
+        to = from;
+        return;
+    }
+    to.object = from.object;
+    to.object_index = from.object_index;
+    to.face = from.face;
+    to.corners = from.corners;
+    to.normal = from.normal;
+    to.elements = from.elements;
+    to.mean_original = from.mean_original;
+    to.revision = from.revision;
+    constexpr int kTile = FaceBuild::kTile;
+    const int tiles_w = (from.width + kTile - 1) / kTile;
+    for (const int tile : *tiles) {
+        const int i0 = (tile % tiles_w) * kTile, j0 = (tile / tiles_w) * kTile;
+        const int n = std::min(kTile, from.width - i0);
+        for (int j = j0; j < std::min(from.height, j0 + kTile); ++j) {
+            const std::size_t k = from.texel(i0, j);
+            for (auto field : {&FaceModulation::ratio, &FaceModulation::difference, &FaceModulation::original, &FaceModulation::reflectance}) {
+                std::copy_n((from.*field).begin() + static_cast<std::ptrdiff_t>(k), n, (to.*field).begin() + static_cast<std::ptrdiff_t>(k));
+            }
+        }
+    }
+}
+
 // One face into `keep` (buildFaceModulations()).
 void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, const std::vector<Eigen::Vector3d>& without,
                          const std::vector<Eigen::Vector3d>& with, const std::vector<Eigen::Vector3d>& rho, int max_texels,
@@ -147,14 +188,27 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
     const std::size_t texels = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
     // Three cases: a new layout (everything built); the same leaves (the texels whose leaves'
     // values changed); leaves split or merged (also the texels near them: their leaf and box filter).
-    const bool same_layout = keep.modulation && keep.modulation->width == width && keep.modulation->height == height &&
-                             keep.texel_direct == direct_on;
+    // A texel's box filter reaches a quarter of its leaf's size (stencilAt() below), and half a
+    // texel more (the leaf under a texel is the one under its centre): `reach`, in texels, from
+    // the largest leaf, old or new.
+    double reach = 0.0;
+    for (const std::vector<FaceBuild::Leaf>* list : {&leaves, &keep.leaves}) {
+        for (const FaceBuild::Leaf& l : *list) {
+            reach = std::max(reach, 0.25 * std::max(std::max(std::abs(l.ds.x()), std::abs(l.dt.x())) * width,
+                                                    std::max(std::abs(l.ds.y()), std::abs(l.dt.y())) * height));
+        }
+    }
+    const FaceModulation* last = keep.modulation.get();
+    const bool same_layout = last != nullptr && last->width == width && last->height == height && keep.texel_direct == direct_on;
     const bool same_leaves = same_layout && sameLeaves(keep.leaves, leaves);
+    // The buffer this build writes (FaceBuild::Buffer): a new one for a new layout; the spare
+    // brought up to date when no snapshot holds it; else a copy of the last.
+    std::shared_ptr<FaceBuild::Buffer> out;
     if (!same_layout) {
         keep = FaceBuild{};
         keep.texel_direct = direct_on;
-        keep.modulation.emplace();
-        FaceModulation& m = *keep.modulation;
+        out = std::make_shared<FaceBuild::Buffer>();
+        FaceModulation& m = out->textures;
         m.object_index = face.object_index;
         m.object = scene.real_objects[static_cast<std::size_t>(face.object_index)].name;
         m.face = face.face_index;
@@ -169,8 +223,14 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
         keep.leaf_of.assign(texels, -1);
         keep.stencils.resize(texels);
         keep.direct.assign(texels, 0);
+    } else if (keep.spare && !keep.spare->held.load(std::memory_order_acquire)) {
+        out = std::move(keep.spare);
+        bringOver(*last, keep.written_all ? nullptr : &keep.written, out->textures);
+    } else {
+        out = std::make_shared<FaceBuild::Buffer>();
+        out->textures = *last;
     }
-    FaceModulation& m = *keep.modulation;
+    FaceModulation& m = out->textures;
     const float mean_original = area > 0.0 ? static_cast<float>(lum / area) : 0.0f;
     bool revised = !same_leaves || m.mean_original != mean_original;
     m.mean_original = mean_original;
@@ -187,6 +247,10 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
     };
     // Leaves new since the last build, by place in `leaves` (every leaf in a new layout).
     std::vector<char> fresh(leaves.size(), same_leaves ? 0 : 1);
+    // Rectangles in texels (i0, j0, i1, j1) of the leaves the last build had and this one has not:
+    // the box filters that averaged them are within `reach` of them.
+    std::vector<const FaceBuild::Leaf*> gone;
+    std::vector<Eigen::Vector4i> gone_rects;
     if (same_layout && !same_leaves) {
         // Places of the leaves kept (the same element with the same extent) from the old list to
         // the new; the texels of the rest are rasterised again, and the box filters within a
@@ -195,9 +259,11 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
         for (std::size_t q = 0; q < keep.leaves.size(); ++q) {
             const FaceBuild::Leaf& o = keep.leaves[q];
             const int p = placeOf(o.element);
+            gone.push_back(&o);  // (popped below when kept)
             if (p < 0) continue;
             const FaceBuild::Leaf& n = leaves[static_cast<std::size_t>(p)];
             if (n.buried == o.buried && n.st == o.st && n.ds == o.ds && n.dt == o.dt) {
+                gone.pop_back();
                 old_to_new[q] = p;
                 fresh[static_cast<std::size_t>(p)] = 0;
                 leaves[static_cast<std::size_t>(p)].fields = o.fields;  // compared below, as kept
@@ -210,12 +276,8 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
                 leaf = old_to_new[static_cast<std::size_t>(leaf)];
             }
         }
+        for (const FaceBuild::Leaf* o : gone) gone_rects.push_back(texelRect(*o, width, height, reach));
         i0 = width, i1 = -1, j0 = height, j1 = -1;
-        double reach = 0.0;  // a quarter of the largest leaf, in texels
-        for (const FaceBuild::Leaf& l : leaves) {
-            reach = std::max(reach, 0.25 * std::max(std::max(std::abs(l.ds.x()), std::abs(l.dt.x())) * width,
-                                                    std::max(std::abs(l.ds.y()), std::abs(l.dt.y())) * height));
-        }
         for (std::size_t k = 0; k < texels; ++k) {
             if (keep.leaf_of[k] >= 0) continue;
             const int i = static_cast<int>(k % static_cast<std::size_t>(width)), j = static_cast<int>(k / static_cast<std::size_t>(width));
@@ -321,10 +383,50 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
         for (int q = 0; q < st.n; ++q) sum += kept[static_cast<std::size_t>(st.leaf[static_cast<std::size_t>(q)])].fields[field];
         return Eigen::Vector3d(sum / st.n);
     };
+    // The tiles to visit: every one in a new layout; else those within reach of a leaf that
+    // changed or went, of the region whose box filters were found again, and of a texel whose own
+    // direct light went (TexelDirect::forgotten).
+    constexpr int kTile = FaceBuild::kTile;
+    const int tiles_w = (width + kTile - 1) / kTile, tiles_h = (height + kTile - 1) / kTile;
+    std::vector<int> visit;
+    if (all) {
+        visit.resize(static_cast<std::size_t>(tiles_w) * static_cast<std::size_t>(tiles_h));
+        std::iota(visit.begin(), visit.end(), 0);
+        std::vector<std::uint32_t> went;  // (every texel is built: the list is only emptied)
+        if (direct_on && texel_direct->forgotten) texel_direct->forgotten(f, went);
+    } else {
+        std::vector<char> mark(static_cast<std::size_t>(tiles_w) * static_cast<std::size_t>(tiles_h), 0);
+        const auto markRect = [&](const Eigen::Vector4i& r) {
+            for (int tj = r[1] / kTile; tj <= r[3] / kTile; ++tj) {
+                for (int ti = r[0] / kTile; ti <= r[2] / kTile; ++ti) mark[static_cast<std::size_t>(tj * tiles_w + ti)] = 1;
+            }
+        };
+        if (i0 <= i1) markRect({i0, j0, i1, j1});
+        for (const Eigen::Vector4i& r : gone_rects) markRect(r);
+        for (std::size_t q = 0; q < kept.size(); ++q) {
+            if (changed[q]) markRect(texelRect(kept[q], width, height, reach));
+        }
+        if (direct_on) {
+            std::vector<std::uint32_t> went;
+            if (texel_direct->forgotten && texel_direct->forgotten(f, went)) {
+                for (const std::uint32_t k : went) {
+                    if (k < texels && keep.direct[k]) mark[static_cast<std::size_t>((static_cast<int>(k) / width / kTile) * tiles_w + static_cast<int>(k) % width / kTile)] = 1;
+                }
+            } else {
+                for (std::size_t k = 0; k < texels; ++k) {
+                    if (keep.direct[k]) mark[static_cast<std::size_t>((static_cast<int>(k) / width / kTile) * tiles_w + static_cast<int>(k) % width / kTile)] = 1;
+                }
+            }
+        }
+        for (std::size_t t = 0; t < mark.size(); ++t) {
+            if (mark[t]) visit.push_back(static_cast<int>(t));
+        }
+    }
     std::atomic<long> built{0};
-    tbb::parallel_for(0, m.height, [&](int j) {
+    tbb::parallel_for(std::size_t{0}, visit.size(), [&](std::size_t v) {
         long count = 0;
-        for (int i = 0; i < m.width; ++i) {
+        const int ti = visit[v] % tiles_w, tj = visit[v] / tiles_w;
+        for (int j = tj * kTile; j < std::min(height, (tj + 1) * kTile); ++j) for (int i = ti * kTile; i < std::min(width, (ti + 1) * kTile); ++i) {
             const std::size_t k = m.texel(i, j);
             FaceBuild::Stencil& st = keep.stencils[k];
             bool dirty = all || (i >= i0 && i <= i1 && j >= j0 && j <= j1);
@@ -375,6 +477,18 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
         static std::atomic<std::uint64_t> revisions{0};
         m.revision = ++revisions;
     }
+    // Published: the last one becomes the spare (its deleter below marks it free once no snapshot
+    // holds it), this one the face's textures.
+    keep.written = std::move(visit);
+    keep.written_all = all;
+    keep.spare = std::move(keep.current);
+    keep.current = out;
+    keep.modulation.reset();
+    out->held.store(true, std::memory_order_relaxed);
+    const FaceModulation* published = &out->textures;
+    keep.modulation = std::shared_ptr<const FaceModulation>(published, [buffer = std::move(out)](const FaceModulation*) {
+        buffer->held.store(false, std::memory_order_release);
+    });
 }
 
 }  // namespace

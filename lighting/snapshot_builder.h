@@ -3,8 +3,10 @@
 #pragma once
 
 #include <array>
+#include <atomic>
+#include <cstdint>
 #include <functional>
-#include <optional>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
@@ -35,6 +37,10 @@ struct TexelDirect {
     std::function<void(int, std::size_t, int, int, const Eigen::Vector3d&, Eigen::Vector3d&, Eigen::Vector3d&)> at;
     // (face, texel) -> its answer of the last build stands (no move reached it); empty: never.
     std::function<bool(int, std::size_t)> kept;
+    // (face, texels) -> the texels of the face whose answers went since the face's last build
+    // (appended to `texels`; the builder visits only them and the texels whose leaves changed), or
+    // false: any may have gone (every texel drawn with its own direct light is visited). Empty: false.
+    std::function<bool(int, std::vector<std::uint32_t>&)> forgotten;
     double threshold = 0.0;  // |with - without| (irradiance, largest channel) below this: no change
     int oversample = 1;      // texels per finest leaf along each side (the faces of a parallelogram)
     // By face: the texel size (metres) the camera asks for (cameraTexelSize()); 0 or missing: the
@@ -49,7 +55,18 @@ double cameraTexelSize(const Face& face, const CameraModel& camera, const Rigid3
 // What a face's last build keeps, so that the next one computes only the texels that changed: a
 // move changes a few hundred texels of a face, and the propagation nudges all its leaves a little.
 struct FaceBuild {
-    std::optional<FaceModulation> modulation;  // nullopt: the face takes no part in transport
+    // The face's textures as published: snapshots share them, and they are not written while any
+    // holds them. Null: the face takes no part in transport.
+    std::shared_ptr<const FaceModulation> modulation;
+    // Two buffers by turns: the next build writes into the one published before `modulation` once
+    // no snapshot holds it, after bringing over the tiles the last build wrote, so that a move
+    // copies only what changed instead of every texel of the faces it reaches (a desk's are 10 MB).
+    struct Buffer {
+        FaceModulation textures;
+        std::atomic<bool> held{false};  // a published pointer to it is alive
+    };
+    std::shared_ptr<Buffer> current, spare;
+    static constexpr int kTile = 16;  // texels per side of the tiles the builds track
     struct Leaf {
         int element = -1;
         bool buried = false;
@@ -66,6 +83,8 @@ struct FaceBuild {
     std::vector<int> leaf_of;       // by texel: the place in `leaves` of the leaf under its centre
     std::vector<Stencil> stencils;  // by texel
     std::vector<char> direct;       // by texel: drawn with its own direct light (TexelDirect)
+    std::vector<int> written;       // the tiles the last build wrote (row-major, kTile texels a side)
+    bool written_all = true;        // ... or every texel
     bool texel_direct = false;
     long texels_built = 0;  // texels computed by the last build (statistics)
 };

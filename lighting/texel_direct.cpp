@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 
 #include "lighting/form_factor.h"
@@ -25,19 +26,53 @@ void TexelDirectCache::reset(std::vector<Light> lights, std::size_t faces) {
 
 void TexelDirectCache::forget(const std::vector<Ball>& moved) {
     if (moved.empty()) return;
+    // The cone from a ball around `x` of radius `r` to a ball holding light k's polygon (it holds
+    // every shaft from a point of the first ball to the light).
+    const auto reached = [&](const Eigen::Vector3d& x, double r) {
+        for (std::size_t k = 0; k < lights_.size(); ++k) {
+            const Shaft shaft{x, lights_[k].polygon->centre, r, light_radius_[k]};
+            if (std::any_of(moved.begin(), moved.end(), [&](const Ball& b) { return shaftMeetsBall(shaft, b); })) return true;
+        }
+        return false;
+    };
+    constexpr int kTile = 16;
     for (Face& f : faces_) {
-        for (Entry& e : f.entries) {
-            if (!e.valid) continue;
-            for (std::size_t k = 0; k < lights_.size(); ++k) {
-                // The cone from the texel's point to a ball holding the light polygon.
-                const Shaft shaft{e.x, lights_[k].polygon->centre, 0.0, light_radius_[k]};
-                if (std::any_of(moved.begin(), moved.end(), [&](const Ball& b) { return shaftMeetsBall(shaft, b); })) {
-                    e.valid = false;
-                    break;
+        if (f.entries.empty()) continue;
+        for (int tj = 0; tj < f.height; tj += kTile) {
+            for (int ti = 0; ti < f.width; ti += kTile) {
+                // The tile's valid answers' points: their box's ball first.
+                Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+                for (int j = tj; j < std::min(f.height, tj + kTile); ++j) {
+                    for (int i = ti; i < std::min(f.width, ti + kTile); ++i) {
+                        const Entry& e = f.entries[static_cast<std::size_t>(j) * static_cast<std::size_t>(f.width) + static_cast<std::size_t>(i)];
+                        if (!e.valid) continue;
+                        lo = lo.cwiseMin(e.x);
+                        hi = hi.cwiseMax(e.x);
+                    }
+                }
+                if (!(lo.x() <= hi.x()) || !reached(0.5 * (lo + hi), 0.5 * (hi - lo).norm())) continue;
+                for (int j = tj; j < std::min(f.height, tj + kTile); ++j) {
+                    for (int i = ti; i < std::min(f.width, ti + kTile); ++i) {
+                        const std::size_t k = static_cast<std::size_t>(j) * static_cast<std::size_t>(f.width) + static_cast<std::size_t>(i);
+                        Entry& e = f.entries[k];
+                        if (!e.valid || !reached(e.x, 0.0)) continue;
+                        e.valid = false;
+                        if (!f.all_gone) f.gone.push_back(static_cast<std::uint32_t>(k));
+                    }
                 }
             }
         }
     }
+}
+
+bool TexelDirectCache::takeForgotten(int face, std::vector<std::uint32_t>& texels) {
+    if (face < 0 || static_cast<std::size_t>(face) >= faces_.size()) return false;
+    Face& f = faces_[static_cast<std::size_t>(face)];
+    const bool listed = !f.all_gone;
+    if (listed) texels.insert(texels.end(), f.gone.begin(), f.gone.end());
+    f.gone.clear();
+    f.all_gone = false;
+    return listed;
 }
 
 void TexelDirectCache::at(int face, std::size_t texel, int width, int height, const Eigen::Vector3d& x, const Eigen::Vector3d& normal,
@@ -51,6 +86,8 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             f.height = height;
             f.entries.assign(static_cast<std::size_t>(width) * static_cast<std::size_t>(height), Entry{});
             f.parts.assign(f.entries.size() * nl, RealPart{});
+            f.gone.clear();
+            f.all_gone = true;
         }
     }
     Entry& e = f.entries[texel];

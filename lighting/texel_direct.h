@@ -36,8 +36,12 @@ public:
 
     // A new set of lights (a full update): every answer goes.
     void reset(std::vector<Light> lights, std::size_t faces);
-    // Before the textures of an update: the answers whose shafts meet any of `moved` go.
+    // Before the textures of an update: the answers whose shafts meet any of `moved` go (tested
+    // by tiles of texels first: most of a face is far from a move).
     void forget(const std::vector<Ball>& moved);
+    // The texels of face `face` whose answers went since the last call, appended to `texels`
+    // (TexelDirect::forgotten); false when any may have (none taken since the last reset()).
+    bool takeForgotten(int face, std::vector<std::uint32_t>& texels);
     // The direct light at point x of texel `texel` of face `face` (layout width x height), facing
     // `normal`: without the virtual objects and with them. Thread-safe for distinct texels.
     void at(int face, std::size_t texel, int width, int height, const Eigen::Vector3d& x, const Eigen::Vector3d& normal,
@@ -67,6 +71,8 @@ private:
         int width = 0, height = 0;
         std::vector<Entry> entries;
         std::vector<RealPart> parts;  // entries x lights
+        std::vector<std::uint32_t> gone;  // texels forgotten since the last takeForgotten()
+        bool all_gone = true;             // ... or any (a reset() since)
     };
     const RayScene& rays_;
     int pairs_;

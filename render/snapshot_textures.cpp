@@ -106,7 +106,7 @@ FaceBlock faceBlock(const lighting::FaceModulation& f) {
 std::vector<std::array<int, 4>> layoutKey(const lighting::LightingSnapshot& snapshot) {
     std::vector<std::array<int, 4>> key;
     key.reserve(snapshot.faces.size());
-    for (const lighting::FaceModulation& f : snapshot.faces) key.push_back({f.object_index, f.face, f.width, f.height});
+    for (const auto& f : snapshot.faces) key.push_back({f->object_index, f->face, f->width, f->height});
     return key;
 }
 
@@ -138,7 +138,7 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
     // into their place (a move changes a few faces; the atlas of a desk is 10 MB).
     if (lighting && lighting_ && atlas_m_ != 0 && layoutKey(snapshot) == layout_key_ && revisions_.size() == snapshot.faces.size()) {
         for (std::size_t i = 0; i < snapshot.faces.size(); ++i) {
-            const lighting::FaceModulation& f = snapshot.faces[i];
+            const lighting::FaceModulation& f = *snapshot.faces[i];
             if (f.revision != 0 && f.revision == revisions_[i]) continue;
             revisions_[i] = f.revision;
             const auto it = faces_.find({f.object_index, f.face});
@@ -160,7 +160,7 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
     release();
     layout_key_ = layoutKey(snapshot);
     revisions_.clear();
-    for (const lighting::FaceModulation& f : snapshot.faces) revisions_.push_back(f.revision);
+    for (const auto& f : snapshot.faces) revisions_.push_back(f->revision);
     version_ = snapshot.version;
     address_ = &snapshot;
     lighting_ = lighting;
@@ -173,7 +173,8 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
         int x = 0, y = 0;  // atlas texel of the frame's corner
     };
     std::vector<Item> items;
-    for (const lighting::FaceModulation& f : snapshot.faces) {
+    for (const auto& face : snapshot.faces) {
+        const lighting::FaceModulation& f = *face;
         if (f.width <= 0 || f.height <= 0 || f.corners.size() < 3) continue;
         const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
         if (f.ratio.size() != n || f.difference.size() != n || f.original.size() != n) continue;

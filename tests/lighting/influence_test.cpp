@@ -361,7 +361,8 @@ lighting: {max_elements: 3000}
     config.present[0] = false;
     snap = apply(*est, config);
     ASSERT_TRUE(snap);
-    for (const FaceModulation& f : snap->faces) {
+    for (const auto& face : snap->faces) {
+        const FaceModulation& f = *face;
         for (const Rgb& r : f.ratio) EXPECT_NEAR(r.y(), 1.0f, 1e-3f);
     }
 }
@@ -387,7 +388,8 @@ TEST(Influence, RemovedObjectsReturnEveryRatioToOne) {
     auto snap = apply(*est, config);
     ASSERT_TRUE(snap);
     const double bound = 20.0 * est->influence().options().residual;
-    for (const FaceModulation& f : snap->faces) {
+    for (const auto& face : snap->faces) {
+        const FaceModulation& f = *face;
         for (std::size_t k = 0; k < f.ratio.size(); ++k) {
             ASSERT_NEAR(f.ratio[k].y(), 1.0f, bound * std::max(1.0f, f.mean_original / std::max(1e-6f, luminance(f.original[k]))))
                 << f.object << " face " << f.face;

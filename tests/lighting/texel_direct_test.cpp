@@ -9,9 +9,11 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <optional>
+#include <random>
 #include <vector>
 
 #include "core/scene_io.h"
@@ -196,7 +198,8 @@ TEST(TexelDirect, TexturesKeptBetweenMovesEqualAFreshBuild) {
     ASSERT_GE(last->faces.size(), 6u) << "the floor and the box's faces";
     double worst_ratio = 0.0, worst_original = 0.0;
     int changed = 0;
-    for (const FaceModulation& a : last->faces) {
+    for (const auto& face : last->faces) {
+        const FaceModulation& a = *face;
         const FaceModulation* b = fresh->findFace(a.object_index, a.face);
         ASSERT_NE(b, nullptr) << a.object << " face " << a.face;
         ASSERT_EQ(a.width, b->width) << a.object << " face " << a.face;
@@ -212,6 +215,118 @@ TEST(TexelDirect, TexturesKeptBetweenMovesEqualAFreshBuild) {
     EXPECT_GT(changed, 50) << "the ball's shadow is in the textures";
     EXPECT_LT(worst_ratio, 0.01) << "largest ratio difference against a fresh build";
     EXPECT_LT(worst_original, 0.01) << "largest relative B~ difference against a fresh build";
+}
+
+// A snapshot shares its textures with the estimator (lighting/snapshot_builder.h FaceBuild): a
+// build writes into a buffer only once no snapshot holds it, else into a copy. Snapshots held over
+// later moves (a renderer still drawing them) keep exactly the texels they were published with;
+// the builds in between, into copies and into the buffers let go, end where a fresh estimator does.
+TEST(TexelDirect, HeldSnapshotsKeepTheirTexturesWhileLaterMovesAreBuilt) {
+    // A glowing ball: besides its shadow it lights the floor far around it, a change smooth enough
+    // that most elements there do not split (their texels are built again for their values alone).
+    std::string yaml = kScene;
+    const std::string black = "material: {albedo: [0.0, 0.0, 0.0]}";
+    yaml.replace(yaml.find(black), black.size(), "material: {albedo: [0.5, 0.5, 0.5]}, emission: 20");
+    auto scene = parseScene(yaml, "texel_direct_white.yaml");
+    ASSERT_TRUE(scene) << scene.error().message;
+    auto est = makeEstimator(*scene, 16);
+    auto fresh_est = makeEstimator(*scene, 16);
+    ASSERT_TRUE(est && fresh_est);
+    std::vector<Rigid3d> poses = SceneLighting::scenePoses(*scene, 0.0);
+    std::vector<LightingSnapshot> held;
+    std::vector<std::vector<Rgb>> published;
+    std::optional<LightingSnapshot> last;
+    for (int step = 0; step < 9; ++step) {
+        poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(-0.12 + 0.03 * step, 0.0, 0.2), Eigen::Vector3d::Zero());
+        auto s = est->update(poses);
+        ASSERT_TRUE(s) << s.error().message;
+        const FaceModulation* floor = s->findFace(0, 0);
+        ASSERT_NE(floor, nullptr);
+        if (step % 3 == 0) {  // held; the others are let go at once
+            published.push_back(floor->ratio);
+            held.push_back(*s);
+        }
+        last = std::move(*s);
+    }
+    for (std::size_t k = 0; k < held.size(); ++k) {
+        const FaceModulation* floor = held[k].findFace(0, 0);
+        ASSERT_EQ(floor->ratio.size(), published[k].size());
+        long differ = 0;
+        for (std::size_t t = 0; t < floor->ratio.size(); ++t) differ += floor->ratio[t] != published[k][t] ? 1 : 0;
+        EXPECT_EQ(differ, 0) << "snapshot " << k << ": texels written after it was published";
+    }
+    long moved = 0;  // (the shadow moved between the held snapshots: a write would have shown)
+    for (std::size_t t = 0; t < published.front().size() && t < published.back().size(); ++t) {
+        moved += std::abs(published.front()[t].y() - published.back()[t].y()) > 0.2f ? 1 : 0;
+    }
+    EXPECT_GT(moved, 50);
+    auto fresh = fresh_est->update(poses);
+    ASSERT_TRUE(fresh) << fresh.error().message;
+    const FaceModulation* a = last->findFace(0, 0);
+    const FaceModulation* b = fresh->findFace(0, 0);
+    ASSERT_TRUE(a && b);
+    ASSERT_EQ(a->ratio.size(), b->ratio.size());
+    double worst = 0.0;
+    for (std::size_t t = 0; t < a->ratio.size(); ++t) worst = std::max(worst, static_cast<double>((a->ratio[t] - b->ratio[t]).cwiseAbs().maxCoeff()));
+    EXPECT_LT(worst, 0.01) << "largest ratio difference against a fresh estimate";
+}
+
+// forget() culls by tiles of texels before testing each texel's shafts: the texels it lists (and
+// only those) are the ones whose shaft to the light meets a moved ball, against a scan of every
+// texel; the first list after reset() is "any" (false), and a texel traced again is kept again.
+TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
+    Face floor;
+    floor.origin = {-0.6, -0.6, 0.0};
+    floor.edge_s = {1.2, 0, 0};
+    floor.edge_t = {0, 1.2, 0};
+    floor.normal = {0, 0, 1};
+    floor.area = 1.44;
+    auto rays = RayScene::build({floor}, {}, {});
+    ASSERT_TRUE(rays) << rays.error().message;
+    LightGeometry lamp;
+    lamp.world_from_object = Rigid3d::fromRpyDeg(Eigen::Vector3d(0.05, 0.0, 0.8), Eigen::Vector3d(180, 0, 0));
+    lamp.size = {0.12, 0.12};
+    lamp.centre = lamp.world_from_object.translation;
+    lamp.normal = {0, 0, -1};
+    lamp.area = 0.0144;
+    for (const auto& [x, y] : {std::pair{-0.06, -0.06}, {0.06, -0.06}, {0.06, 0.06}, {-0.06, 0.06}}) lamp.polygon.push_back(lamp.world_from_object * Eigen::Vector3d(x, y, 0));
+    constexpr int kSide = 50;  // (not a multiple of the tiles' 16: partial tiles at two edges)
+    TexelDirectCache cache(**rays, 4);
+    cache.reset({{&lamp, Eigen::Vector3d::Constant(100.0)}}, 1);
+    std::vector<Eigen::Vector3d> points;
+    const auto traceAll = [&] {
+        for (int k = 0; k < kSide * kSide; ++k) {
+            Eigen::Vector3d d0, d1;
+            cache.at(0, static_cast<std::size_t>(k), kSide, kSide, points[static_cast<std::size_t>(k)], floor.normal, d0, d1);
+        }
+    };
+    for (int j = 0; j < kSide; ++j) {
+        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
+    }
+    traceAll();
+    std::vector<std::uint32_t> list;
+    EXPECT_FALSE(cache.takeForgotten(0, list)) << "after reset(): any";
+    double radius = 0.0;
+    for (const Eigen::Vector3d& c : lamp.polygon) radius = std::max(radius, (c - lamp.centre).norm());
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> u(-0.7, 0.7), h(0.02, 0.7), r(0.005, 0.1);
+    long listed_total = 0;
+    for (int move = 0; move < 40; ++move) {
+        const Ball ball{{u(rng), u(rng), h(rng)}, r(rng)};
+        cache.forget({ball});
+        list.clear();
+        ASSERT_TRUE(cache.takeForgotten(0, list));
+        std::sort(list.begin(), list.end());
+        std::vector<std::uint32_t> expected;
+        for (std::size_t k = 0; k < points.size(); ++k) {
+            if (shaftMeetsBall(Shaft{points[k], lamp.centre, 0.0, radius}, ball)) expected.push_back(static_cast<std::uint32_t>(k));
+            EXPECT_EQ(cache.kept(0, k), !std::binary_search(list.begin(), list.end(), static_cast<std::uint32_t>(k))) << "texel " << k;
+        }
+        ASSERT_EQ(list, expected) << "move " << move;
+        listed_total += static_cast<long>(list.size());
+        traceAll();
+    }
+    EXPECT_GT(listed_total, 400) << "the moves reached texels";
 }
 
 }  // namespace

@@ -194,7 +194,7 @@ TEST_F(CompositorTest, YuyvAndNv12FramesAreConvertedAsTheCpuConvertsThem) {
     f.difference = {lighting::Rgb::Constant(-0.1f), lighting::Rgb::Zero()};
     f.original = {lighting::Rgb::Constant(0.5f), lighting::Rgb::Constant(0.5f)};
     f.mean_original = 0.5f;
-    snapshot.faces.push_back(f);
+    snapshot.faces.push_back(std::make_shared<const lighting::FaceModulation>(f));
     auto changed = make(scene, camera, ResponseCurve::srgb());
     ASSERT_TRUE(changed);
     for (PixelFormat format : {PixelFormat::kYuyv, PixelFormat::kNv12}) {
@@ -252,7 +252,7 @@ TEST_F(CompositorTest, TheRatioDarkensAndTheDifferenceBrightensTheBackground) {
         }
     }
     f.mean_original = 0.75f;
-    snapshot.faces.push_back(f);
+    snapshot.faces.push_back(std::make_shared<const lighting::FaceModulation>(f));
     auto c = make(scene, camera, response);
     ASSERT_TRUE(c);
     const Image frame = constantFrame(camera.width, camera.height, 180);
@@ -296,7 +296,7 @@ TEST_F(CompositorTest, AFaceWithANewRevisionIsUploadedAgainInItsPlace) {
         }
         f.mean_original = 1.0f;
         f.revision = revision;
-        snapshot.faces.push_back(f);
+        snapshot.faces.push_back(std::make_shared<const lighting::FaceModulation>(f));
         return snapshot;
     };
     const auto maxAbsDiff = [&](const ImageView& a, const ImageView& b) {
@@ -359,7 +359,7 @@ TEST_F(CompositorTest, AClosedProxyAroundTheCameraIsSeenFromInside) {
         scene.real_objects.push_back(box);
         lighting::LightingSnapshot snapshot;
         snapshot.version = 1;
-        snapshot.faces.push_back(floorFace(0.0, 0.5f));
+        snapshot.faces.push_back(std::make_shared<const lighting::FaceModulation>(floorFace(0.0, 0.5f)));
         auto c = make(scene, camera, response);
         return c ? centreLinear(render(*c, frame.view(), lookingDown(), snapshot)) : -1.0;
     };
@@ -400,7 +400,7 @@ TEST_F(CompositorTest, TheModulationIsDrawnWhereTheSnapshotChangesSomethingAndOn
         }
     }
     f.mean_original = 1.0f;
-    snapshot.faces.push_back(f);
+    snapshot.faces.push_back(std::make_shared<const lighting::FaceModulation>(f));
     auto c = make(scene, camera, response);
     ASSERT_TRUE(c);
     const Image frame = noiseFrame(camera.width, camera.height, 11);
@@ -1198,7 +1198,7 @@ TEST_F(CompositorTest, NoGlObjectIsLeaked) {
         f.difference.assign(4, lighting::Rgb::Constant(-0.1f));
         f.original.assign(4, lighting::Rgb::Constant(0.5f));
         f.mean_original = 0.5f;
-        snapshot.faces.push_back(f);
+        snapshot.faces.push_back(std::make_shared<const lighting::FaceModulation>(f));
         lighting::EstimatedLight lamp;
         lamp.kind = lighting::LightKind::kArea;
         lamp.size = {0.3, 0.3};
