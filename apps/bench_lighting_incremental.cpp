@@ -361,7 +361,7 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
     const int base_links = inc->radiosity().linkCount(Mode::kReal);
     std::vector<double> cpu_ms;
     std::vector<double> update_ms, influence_ms, snapshot_ms, full_ms, rebuild_ms, agreement, candidates_ms, refine_ms, solve_ms, touched, evaluated,
-        answers_computed, answers_kept, texels_built, texels;
+        answers_computed, answers_kept, texels_built, texels, texels_traced;
     Series ser;
     ser.scene = ps.name;
     std::vector<RatioFigures> inc_ratio, full_ratio;
@@ -380,6 +380,7 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
         snapshot_ms.push_back(inc->stats().ms_snapshot);
         texels_built.push_back(static_cast<double>(inc->stats().texels_built));
         texels.push_back(static_cast<double>(inc->stats().texels));
+        texels_traced.push_back(static_cast<double>(inc->stats().texels_traced));
         const auto& is = inc->stats().influence;
         candidates_ms.push_back(is.ms_candidates);
         refine_ms.push_back(is.ms_refine);
@@ -444,8 +445,8 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
                 percentile(candidates_ms, 50), percentile(refine_ms, 50), percentile(touched, 50), percentile(evaluated, 50), percentile(solve_ms, 50));
     std::printf("        answers per move p50 (a light, a blocked link or an object's light at an element): %.0f computed, %.0f kept\n",
                 percentile(answers_computed, 50), percentile(answers_kept, 50));
-    std::printf("        texels per move p50: %.0f computed of %.0f on the faces whose leaves changed\n", percentile(texels_built, 50),
-                percentile(texels, 50));
+    std::printf("        texels per move p50: %.0f computed of %.0f on the faces whose leaves changed (%.0f of them traced: a move reached their direct light)\n",
+                percentile(texels_built, 50), percentile(texels, 50), percentile(texels_traced, 50));
     std::printf("        full re-solve ms p50 %.0f (influence from scratch alone p50 %.0f): %.0fx (%.0fx) the incremental p50\n",
                 percentile(full_ms, 50), percentile(rebuild_ms, 50), percentile(full_ms, 50) / percentile(update_ms, 50),
                 percentile(rebuild_ms, 50) / percentile(update_ms, 50));
@@ -475,6 +476,7 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
                        {"answers_kept", stats(answers_kept)},
                        {"texels_computed", stats(texels_built)},
                        {"texels_of_changed_faces", stats(texels)},
+                       {"texels_traced", stats(texels_traced)},
                        {"full_resolve_ms", stats(full_ms)},
                        {"influence_rebuild_ms", stats(rebuild_ms)},
                        {"speedup_full_over_incremental_p50", percentile(full_ms, 50) / percentile(update_ms, 50)},

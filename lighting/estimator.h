@@ -86,6 +86,7 @@ struct EstimatorStats {
     double ms_snapshot = 0.0;     // textures and probes
     long texels_built = 0;        // texels the update's textures computed (lighting/snapshot_builder.h FaceBuild) ...
     long texels = 0;              // ... of the texels of the faces it rebuilt
+    long texels_traced = 0;       // ... and of those, the texels whose direct light was traced again (a move reached it)
     double ms_observe = 0.0;      // the last frame's observation (ray cast and accumulation)
     double ms_influence = 0.0;    // the virtual objects' influence (lighting/influence.h)
     bool full = false;            // a full update (fit, B~); else only the influence, incrementally

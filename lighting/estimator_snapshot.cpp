@@ -234,6 +234,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     // The area lights' direct light per texel where the objects change it (lighting/texel_direct.h;
     // only when every light is an area light: the others' direct light stays the elements').
     std::optional<TexelDirect> texel_direct;
+    long traced_before = 0;  // (TexelDirectCache::traced() before this update's textures)
     std::vector<Eigen::Vector3d> area_without, area_with;
     const bool area_only = !d.sources.empty() && std::all_of(d.sources.begin(), d.sources.end(), [](const Source& s) {
         return s.direct.kind == DirectSource::Kind::kPolygon && s.direct.polygon != nullptr;
@@ -274,6 +275,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
             }
         }
         TexelDirectCache* cache = d.texels.get();
+        traced_before = cache->traced();
         td.at = [cache, &rad](int face, std::size_t texel, int w, int h, const Eigen::Vector3d& x, Eigen::Vector3d& d0, Eigen::Vector3d& d1) {
             cache->at(face, texel, w, h, x, rad.face(face).normal, d0, d1);
         };
@@ -289,6 +291,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     buildFaceModulations(rad, d.scene, inf.original(), inf.radiance(), inf.reflectance(), todo, d.face_builds, 1e-3, 256,
                          texel_direct ? &*texel_direct : nullptr);
     stats_.texels_built = stats_.texels = 0;
+    stats_.texels_traced = d.texels ? d.texels->traced() - traced_before : 0;
     for (int f : todo) {
         const FaceBuild& b = d.face_builds[static_cast<std::size_t>(f)];
         if (!b.modulation) continue;
