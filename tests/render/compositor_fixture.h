@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "render/compositor.h"
+#include "tests/render/gl_suite.h"
 
 namespace commonlight::render {
 
@@ -51,19 +52,8 @@ inline Image noiseFrame(int w, int h, unsigned seed) {
     return image;
 }
 
-class CompositorTest : public ::testing::Test {
+class CompositorTest : public GlSuite {
 protected:
-    static void SetUpTestSuite() {
-        auto ctx = GlContext::create({});
-        if (!ctx) {
-            std::fprintf(stderr, "skipped: no offscreen GL context: %s\n", ctx.error().message.c_str());
-            std::exit(77);
-        }
-        context_ = std::move(*ctx);
-    }
-    static void TearDownTestSuite() { context_.reset(); }
-    inline static std::unique_ptr<GlContext> context_;
-
     std::unique_ptr<Compositor> make(const Scene& scene, const CameraModel& camera, const ResponseCurve& response,
                                      CompositorOptions options = {}) {
         auto c = Compositor::create(*context_, scene, camera, response, options);

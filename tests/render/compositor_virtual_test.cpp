@@ -192,6 +192,24 @@ lighting::LightingSnapshot pointLampSnapshot(const Eigen::Vector3d& at, double i
     return snapshot;
 }
 
+// A virtual tile of `size` at the origin (facing +z), Lambertian of albedo 0.8.
+VirtualObject whiteTile(const Eigen::Vector2d& size) {
+    VirtualObject tile;
+    tile.name = "tile";
+    tile.shape = PlaneShape{size};
+    tile.material.albedo = Eigen::Vector3d::Constant(0.8);
+    return tile;
+}
+
+// A real box of side `side` centred at `at`.
+RealObject realBlock(double side, const Eigen::Vector3d& at) {
+    RealObject block;
+    block.name = "block";
+    block.shape = BoxShape{Eigen::Vector3d::Constant(side)};
+    block.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), at);
+    return block;
+}
+
 // A 2 m x 2 m virtual tile at the origin with a GGX material.
 VirtualObject ggxTile(const Eigen::Vector3d& f0, double roughness) {
     VirtualObject tile;
@@ -329,21 +347,13 @@ TEST_F(CompositorTest, AnAreaLightGivesAGgxObjectOneHighlight) {
 // real box (real proxies are occluders too) than in the open.
 TEST_F(CompositorTest, ShadowMapsHaveRealAndVirtualOccluders) {
     Scene scene;
-    VirtualObject tile;
-    tile.name = "tile";
-    tile.shape = PlaneShape{Eigen::Vector2d(1.6, 1.0)};
-    tile.material.albedo = Eigen::Vector3d::Constant(0.8);
-    scene.virtual_objects.push_back(tile);
+    scene.virtual_objects.push_back(whiteTile(Eigen::Vector2d(1.6, 1.0)));
     VirtualObject cube;
     cube.name = "cube";
     cube.shape = BoxShape{Eigen::Vector3d(0.2, 0.2, 0.2)};
     cube.placement = FixedPlacement{Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-0.4, 0.0, 0.4))};
     scene.virtual_objects.push_back(cube);
-    RealObject block;
-    block.name = "block";
-    block.shape = BoxShape{Eigen::Vector3d(0.2, 0.2, 0.2)};
-    block.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.4, 0.0, 0.4));
-    scene.real_objects.push_back(block);
+    scene.real_objects.push_back(realBlock(0.2, Eigen::Vector3d(0.4, 0.0, 0.4)));
     const lighting::LightingSnapshot snapshot = pointLampSnapshot(Eigen::Vector3d(0, 0, 1.2), 0.8);
     // A camera off to the side so the tile under the boxes is in view.
     const Rigid3d pose(Eigen::Quaterniond(Eigen::AngleAxisd(std::numbers::pi, Eigen::Vector3d::UnitX())) *
@@ -394,16 +404,8 @@ TEST(VirtualShadowMapSize, FollowsTheObjectsWidthInPixels) {
 
 TEST_F(CompositorTest, RealShadowsFollowAVirtualObjectThatMoves) {
     Scene scene;
-    VirtualObject tile;
-    tile.name = "tile";
-    tile.shape = PlaneShape{Eigen::Vector2d(0.4, 0.4)};
-    tile.material.albedo = Eigen::Vector3d::Constant(0.8);
-    scene.virtual_objects.push_back(tile);
-    RealObject block;
-    block.name = "block";
-    block.shape = BoxShape{Eigen::Vector3d(0.1, 0.1, 0.1)};
-    block.world_from_object = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.0, 0.0, 0.45));
-    scene.real_objects.push_back(block);
+    scene.virtual_objects.push_back(whiteTile(Eigen::Vector2d(0.4, 0.4)));
+    scene.real_objects.push_back(realBlock(0.1, Eigen::Vector3d(0.0, 0.0, 0.45)));
     const lighting::LightingSnapshot snapshot = pointLampSnapshot(Eigen::Vector3d(0, 0, 1.2), 0.8);
     const CameraModel camera = smallCamera(200, 150);
     auto moving = make(scene, camera, ResponseCurve::linear());
@@ -661,12 +663,7 @@ TEST_F(CompositorTest, BadInputIsAnErrorNamingIt) {
 // The window (under Xvfb): the same composite as offscreen, shown and read back.
 TEST(CompositorWindow, ShowsTheCompositeInAWindow) {
     if (std::getenv("DISPLAY") == nullptr) GTEST_SKIP() << "no DISPLAY (run under xvfb-run)";
-    ContextOptions options;
-    options.kind = ContextKind::kWindow;
-    options.title = "compositor-test";  // not "commonlight": e2e/live_window looks for that one
-    options.width = 160;
-    options.height = 120;
-    auto window = GlContext::create(options);
+    auto window = testWindow("compositor-test", 160, 120);
     ASSERT_TRUE(window) << window.error().message;
     Scene scene;
     scene.virtual_objects.push_back(sphere("ball", 0.3, {0, 0, 0.3}, Eigen::Vector3d::Zero(), Eigen::Vector3d::Constant(0.7)));

@@ -14,6 +14,7 @@
 #include <cstdlib>
 
 #include "render/compositor.h"
+#include "tests/render/gl_suite.h"
 
 namespace commonlight::render {
 namespace {
@@ -113,19 +114,8 @@ TEST(OverlayRaster, TagCornersAreScaledFromTheCameraImageToTheTarget) {
     EXPECT_GT(id_pixels, 30);
 }
 
-class OverlayGl : public ::testing::Test {
+class OverlayGl : public GlSuite {
 protected:
-    static void SetUpTestSuite() {
-        auto ctx = GlContext::create({});
-        if (!ctx) {
-            std::fprintf(stderr, "skipped: no offscreen GL context: %s\n", ctx.error().message.c_str());
-            std::exit(77);
-        }
-        context_ = std::move(*ctx);
-    }
-    static void TearDownTestSuite() { context_.reset(); }
-    static std::unique_ptr<GlContext> context_;
-
     // An RGBA8 framebuffer of w x h filled with `fill`.
     struct Target {
         GLuint fbo = 0, texture = 0;
@@ -163,7 +153,6 @@ protected:
         return t;
     }
 };
-std::unique_ptr<GlContext> OverlayGl::context_;
 
 TEST_F(OverlayGl, BlendsOverTheTargetWithPremultipliedAlpha) {
     auto overlay = Overlay::create(*context_);
@@ -236,12 +225,7 @@ TEST_F(OverlayGl, DrawsAnImageAsIsAndLeaksNoGlObjects) {
 // output (the frames written to disk).
 TEST(OverlayWindow, TheWindowShowsItAndTheCompositeStaysClean) {
     if (std::getenv("DISPLAY") == nullptr) GTEST_SKIP() << "no DISPLAY (run under xvfb-run)";
-    ContextOptions options;
-    options.kind = ContextKind::kWindow;
-    options.title = "overlay-test";  // not "commonlight": e2e/live_window looks for that one
-    options.width = 320;
-    options.height = 240;
-    auto window = GlContext::create(options);
+    auto window = testWindow("overlay-test", 320, 240);
     ASSERT_TRUE(window) << window.error().message;
     CameraModel camera;
     camera.width = 320;
