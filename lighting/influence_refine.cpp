@@ -571,19 +571,20 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
 void VirtualInfluence::Impl::rebuildCorrectionIndex() {
     const Hierarchy& h = self.radiosity_.hierarchy();
     const std::size_t n = h.elements().size();
+    // By source, in order of receiver and index (a counting sort: two passes, no comparison sort).
     corr_offsets.assign(n + 1, 0);
-    corr_by_source.clear();
-    std::vector<std::pair<int, std::pair<int, int>>> all;  // source, (receiver, index)
-    for (std::size_t c = 0; c < n && c < has_terms.size(); ++c) {
-        if (!has_terms[c] || h[static_cast<int>(c)].retired) continue;
-        const auto& corr = terms[c].corrections;
-        for (std::size_t k = 0; k < corr.size(); ++k) all.push_back({corr[k].source, {static_cast<int>(c), static_cast<int>(k)}});
-    }
-    std::sort(all.begin(), all.end());
-    for (const auto& a : all) ++corr_offsets[static_cast<std::size_t>(a.first) + 1];
+    const auto each = [&](auto visit) {
+        for (std::size_t c = 0; c < n && c < has_terms.size(); ++c) {
+            if (!has_terms[c] || h[static_cast<int>(c)].retired) continue;
+            const auto& corr = terms[c].corrections;
+            for (std::size_t k = 0; k < corr.size(); ++k) visit(corr[k].source, static_cast<int>(c), static_cast<int>(k));
+        }
+    };
+    each([&](int source, int, int) { ++corr_offsets[static_cast<std::size_t>(source) + 1]; });
     for (std::size_t i = 1; i <= n; ++i) corr_offsets[i] += corr_offsets[i - 1];
-    corr_by_source.reserve(all.size());
-    for (const auto& a : all) corr_by_source.push_back(a.second);
+    corr_by_source.resize(static_cast<std::size_t>(corr_offsets[n]));
+    std::vector<int> next(corr_offsets.begin(), corr_offsets.end() - 1);
+    each([&](int source, int receiver, int k) { corr_by_source[static_cast<std::size_t>(next[static_cast<std::size_t>(source)]++)] = {receiver, k}; });
 }
 
 
