@@ -244,7 +244,9 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
             std::vector<TexelDirectCache::Light> lights;
             for (std::size_t k = 0; k < d.sources.size(); ++k) lights.push_back({d.sources[k].direct.polygon, d.probe_lights[k].emission});
             d.texels = std::make_unique<TexelDirectCache>(*rays_, options_.texel_direct_pairs);
-            d.texels->reset(std::move(lights), faces);
+            std::vector<Face> real_faces;
+            for (std::size_t f = 0; f < faces; ++f) real_faces.push_back(rad.face(static_cast<int>(f)));
+            d.texels->reset(std::move(lights), std::move(real_faces));
         } else {
             d.texels->forget(inf.movedBalls());
         }

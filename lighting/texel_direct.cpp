@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <numbers>
 
 #include "lighting/form_factor.h"
@@ -10,7 +9,7 @@
 
 namespace commonlight::lighting {
 
-void TexelDirectCache::reset(std::vector<Light> lights, std::size_t faces) {
+void TexelDirectCache::reset(std::vector<Light> lights, std::vector<Face> faces) {
     lights_ = std::move(lights);
     light_radius_.clear();
     for (const Light& l : lights_) {
@@ -18,9 +17,10 @@ void TexelDirectCache::reset(std::vector<Light> lights, std::size_t faces) {
         for (const Eigen::Vector3d& c : l.polygon->polygon) radius = std::max(radius, (c - l.polygon->centre).norm());
         light_radius_.push_back(radius);
     }
-    faces_.assign(faces, Face{});
+    faces_.assign(faces.size(), FaceState{});
+    for (std::size_t f = 0; f < faces.size(); ++f) faces_[f].geometry = std::move(faces[f]);
     locks_.clear();
-    locks_.resize(faces);
+    locks_.resize(faces_.size());
     traced_ = 0;
 }
 
@@ -36,21 +36,17 @@ void TexelDirectCache::forget(const std::vector<Ball>& moved) {
         return false;
     };
     constexpr int kTile = 16;
-    for (Face& f : faces_) {
+    for (FaceState& f : faces_) {
         if (f.entries.empty()) continue;
+        const lighting::Face& g = f.geometry;
         for (int tj = 0; tj < f.height; tj += kTile) {
             for (int ti = 0; ti < f.width; ti += kTile) {
-                // The tile's valid answers' points: their box's ball first.
-                Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
-                for (int j = tj; j < std::min(f.height, tj + kTile); ++j) {
-                    for (int i = ti; i < std::min(f.width, ti + kTile); ++i) {
-                        const Entry& e = f.entries[static_cast<std::size_t>(j) * static_cast<std::size_t>(f.width) + static_cast<std::size_t>(i)];
-                        if (!e.valid) continue;
-                        lo = lo.cwiseMin(e.x);
-                        hi = hi.cwiseMax(e.x);
-                    }
-                }
-                if (!(lo.x() <= hi.x()) || !reached(0.5 * (lo + hi), 0.5 * (hi - lo).norm())) continue;
+                // The ball around the tile's part of the face (it holds its texels' points) first.
+                const double s0 = static_cast<double>(ti) / f.width, s1 = static_cast<double>(std::min(f.width, ti + kTile)) / f.width;
+                const double t0 = static_cast<double>(tj) / f.height, t1 = static_cast<double>(std::min(f.height, tj + kTile)) / f.height;
+                const Eigen::Vector3d ds = (s1 - s0) * g.edge_s, dt = (t1 - t0) * g.edge_t;
+                const double radius = 0.5 * std::max((ds + dt).norm(), (ds - dt).norm()) * (1.0 + 1e-9) + 1e-12;
+                if (!reached(g.point(0.5 * (s0 + s1), 0.5 * (t0 + t1)), radius)) continue;
                 for (int j = tj; j < std::min(f.height, tj + kTile); ++j) {
                     for (int i = ti; i < std::min(f.width, ti + kTile); ++i) {
                         const std::size_t k = static_cast<std::size_t>(j) * static_cast<std::size_t>(f.width) + static_cast<std::size_t>(i);
@@ -67,7 +63,7 @@ void TexelDirectCache::forget(const std::vector<Ball>& moved) {
 
 bool TexelDirectCache::takeForgotten(int face, std::vector<std::uint32_t>& texels) {
     if (face < 0 || static_cast<std::size_t>(face) >= faces_.size()) return false;
-    Face& f = faces_[static_cast<std::size_t>(face)];
+    FaceState& f = faces_[static_cast<std::size_t>(face)];
     const bool listed = !f.all_gone;
     if (listed) texels.insert(texels.end(), f.gone.begin(), f.gone.end());
     f.gone.clear();
@@ -77,7 +73,7 @@ bool TexelDirectCache::takeForgotten(int face, std::vector<std::uint32_t>& texel
 
 void TexelDirectCache::at(int face, std::size_t texel, int width, int height, const Eigen::Vector3d& x, const Eigen::Vector3d& normal,
                           Eigen::Vector3d& without, Eigen::Vector3d& with) {
-    Face& f = faces_[static_cast<std::size_t>(face)];
+    FaceState& f = faces_[static_cast<std::size_t>(face)];
     const std::size_t nl = lights_.size();
     {
         const std::lock_guard lock(locks_[static_cast<std::size_t>(face)]);

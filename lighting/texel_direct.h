@@ -34,8 +34,10 @@ public:
     // `pairs`: visibility pairs per texel and light (stratified on the light, kernel-weighted).
     TexelDirectCache(const RayScene& rays, int pairs) : rays_(rays), pairs_(pairs) {}
 
-    // A new set of lights (a full update): every answer goes.
-    void reset(std::vector<Light> lights, std::size_t faces);
+    // A new set of lights (a full update): every answer goes. `faces`: the real faces (world), which
+    // at() takes its texels' points on (texel (i, j) of a w x h layout at s = (i + 0.5) / w,
+    // t = (j + 0.5) / h: forget() bounds tiles of texels by them).
+    void reset(std::vector<Light> lights, std::vector<Face> faces);
     // Before the textures of an update: the answers whose shafts meet any of `moved` go (tested
     // by tiles of texels first: most of a face is far from a move).
     void forget(const std::vector<Ball>& moved);
@@ -49,7 +51,7 @@ public:
 
     // The answer of texel `texel` of face `face` stands (made, and no move reached it since).
     bool kept(int face, std::size_t texel) const {
-        const Face& f = faces_[static_cast<std::size_t>(face)];
+        const FaceState& f = faces_[static_cast<std::size_t>(face)];
         return texel < f.entries.size() && f.entries[texel].valid && f.entries[texel].real;
     }
     long traced() const noexcept { return traced_; }  // texels traced since the last reset() (statistics)
@@ -67,7 +69,8 @@ private:
         double all = 0.0;            // kernel weight of the pairs
         std::uint64_t blocked = 0;   // pairs the real scene blocks (bit j), or with no weight
     };
-    struct Face {
+    struct FaceState {
+        lighting::Face geometry;
         int width = 0, height = 0;
         std::vector<Entry> entries;
         std::vector<RealPart> parts;  // entries x lights
@@ -78,7 +81,7 @@ private:
     int pairs_;
     std::vector<Light> lights_;
     std::vector<double> light_radius_;  // a ball about each light polygon's centre holding it
-    std::vector<Face> faces_;
+    std::vector<FaceState> faces_;
     std::deque<std::mutex> locks_;  // by face: a change of layout
     std::atomic<long> traced_{0};
 };

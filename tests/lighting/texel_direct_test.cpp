@@ -292,7 +292,7 @@ TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
     for (const auto& [x, y] : {std::pair{-0.06, -0.06}, {0.06, -0.06}, {0.06, 0.06}, {-0.06, 0.06}}) lamp.polygon.push_back(lamp.world_from_object * Eigen::Vector3d(x, y, 0));
     constexpr int kSide = 50;  // (not a multiple of the tiles' 16: partial tiles at two edges)
     TexelDirectCache cache(**rays, 4);
-    cache.reset({{&lamp, Eigen::Vector3d::Constant(100.0)}}, 1);
+    cache.reset({{&lamp, Eigen::Vector3d::Constant(100.0)}}, {floor});
     std::vector<Eigen::Vector3d> points;
     const auto traceAll = [&] {
         for (int k = 0; k < kSide * kSide; ++k) {
