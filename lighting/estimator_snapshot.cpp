@@ -226,7 +226,8 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     std::vector<int> todo;
     const bool all_faces = d.face_builds.size() != faces;
     if (all_faces) {
-        d.face_builds.assign(faces, FaceBuild{});
+        d.face_builds.clear();
+        d.face_builds.resize(faces);
         for (std::size_t f = 0; f < faces; ++f) todo.push_back(static_cast<int>(f));
     } else {
         todo = inf.changedFaces();

@@ -67,6 +67,13 @@ struct FaceBuild {
     };
     std::shared_ptr<Buffer> current, spare;
     static constexpr int kTile = 16;  // texels per side of the tiles the builds track
+
+    // Move-only: two builds sharing a spare would write into each other's textures.
+    FaceBuild() = default;
+    FaceBuild(FaceBuild&&) = default;
+    FaceBuild& operator=(FaceBuild&&) = default;
+    FaceBuild(const FaceBuild&) = delete;
+    FaceBuild& operator=(const FaceBuild&) = delete;
     struct Leaf {
         int element = -1;
         bool buried = false;
