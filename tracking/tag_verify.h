@@ -72,6 +72,9 @@ struct TagVerifyResult {
     double ncc_other = -1.0;                             // the best of the other ids
     double side_px = 0.0;                                // the predicted black square's mean side
     double span_px = 0.0;                                // its shorter span (the range's measure)
+    // Not tried: a foreshortened tag whose shorter span is over max_foreshortened_span_px (but in
+    // the range), wide enough for the detector at full resolution (the tracker detects it there).
+    bool wide_enough_to_detect = false;
 };
 
 // `pattern`: the predicted tag's; `others`: patterns of other ids of the family (may be empty).
