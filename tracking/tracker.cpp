@@ -599,6 +599,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                         // prediction, the pattern chose the wrong one of a tag 15 px across at 55
                         // degrees: corners 2.7 px off).
                         out.tags.push_back(solveTag(*d, out.dilation_cells.value_or(0.0), nullptr, t.cam_from_tag));
+                        out.tags.back().detected_late = true;
                         added = true;
                         continue;
                     }

@@ -105,6 +105,9 @@ struct TrackedTag {
     // Not detected: a scene tag predicted in view and verified there against its pattern
     // (TrackerOptions::verify_predicted); its corners are the verified prediction's.
     bool verified = false;
+    // Detected late: a scene tag the frame's (decimated) detector missed, found by the detector at
+    // full resolution in a window around its prediction (TrackerOptions::verify_redetect_full_res).
+    bool detected_late = false;
     std::optional<TagPose> pose;  // nullopt: unknown size, or the solver refused (see error)
     std::string error;            // why there is no pose
 };
