@@ -237,6 +237,7 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
     // cost 2.7 ms per frame).
     if (out.side_px > options.max_side_px && out.span_px > options.max_foreshortened_span_px) {
         out.reason = "foreshortened tag wide enough for the detector";
+        out.wide_enough_to_detect = true;
         return out;
     }
     const int total = pattern.total();

@@ -38,7 +38,8 @@ struct TagVerifyOptions {
     double min_side_px = 5.0;
     double max_side_px = 20.0;
     // ... and one whose mean side is over max_side_px (foreshortened) only when its shorter span is
-    // at most this (cells of 1.5 px across).
+    // at most this (cells of 1.5 px across); the tracker detects the wider ones at full resolution
+    // first (TrackerOptions::verify_redetect_full_res) and verifies only those it misses there.
     double max_foreshortened_span_px = 12.0;
     double edge_margin_px = 3.0;  // the drawn square (white border included) this far inside the image
     double search_px = 1.0;       // the prediction's error this verification absorbs, +- pixels
@@ -72,6 +73,9 @@ struct TagVerifyResult {
     double ncc_other = -1.0;                             // the best of the other ids
     double side_px = 0.0;                                // the predicted black square's mean side
     double span_px = 0.0;                                // its shorter span (the range's measure)
+    // Not tried: a foreshortened tag whose shorter span is over max_foreshortened_span_px (but in
+    // the range), wide enough for the detector at full resolution (the tracker detects it there).
+    bool wide_enough_to_detect = false;
 };
 
 // `pattern`: the predicted tag's; `others`: patterns of other ids of the family (may be empty).

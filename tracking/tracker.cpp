@@ -132,6 +132,9 @@ struct Tracker::State {
     TagSet tags;
     TrackerOptions options;
     TagDetector detector;
+    // Full resolution, for the foreshortened tags the verification leaves to the detector
+    // (TrackerOptions::verify_redetect_full_res); none when `detector` is at full resolution.
+    std::optional<TagDetector> full_res_detector;
     TagPatternCache patterns;
     PoseFilter filter;
     std::optional<EdgeModel> edge_model;
@@ -197,6 +200,14 @@ Result<Tracker> Tracker::create(const CameraModel& camera, const TagSet& scene_t
     CL_TRY_VOID(camera.validate());
     CL_TRY(TagDetector detector, TagDetector::create(options.detector));
     auto state = std::make_unique<State>(camera, scene_tags, options, std::move(detector));
+    if (options.verify_predicted && options.verify_redetect_full_res && options.detector.decimate > 1.0) {
+        TagDetectorOptions full = options.detector;
+        full.decimate = 1.0;
+        full.threads = 1;  // windows of a few thousand pixels
+        full.reference_pose.reset();
+        CL_TRY(TagDetector d, TagDetector::create(full));
+        state->full_res_detector.emplace(std::move(d));
+    }
     if (options.edges) {
         if (!proxies) return fail(ErrorCode::kUsage, "edge refinement needs a scene with proxy geometry");
         CL_TRY(EdgeModel model, EdgeModel::fromScene(*proxies));
@@ -285,7 +296,10 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         out.times.align_cpu_ms += threadCpuMs() - a0;
         return a;
     };
-    const auto solveTag = [&](const TagDetection& d, double dilation_cells, double* measured_dilation_cells) {
+    // `prior`: the tag's predicted pose when the caller knows a better one than the frame's
+    // prediction (step 3b: the bundle's).
+    const auto solveTag = [&](const TagDetection& d, double dilation_cells, double* measured_dilation_cells,
+                              const std::optional<Rigid3d>& prior = std::nullopt) {
         TrackedTag tag;
         tag.detection = d;
         if (s.options.refine_corners) {
@@ -307,8 +321,10 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             tag.error = "tag " + std::to_string(d.id) + " is not in the scene";
             return tag;
         }
-        std::optional<Rigid3d> predicted_cam_from_tag;
-        if (item && predicted) {
+        std::optional<Rigid3d> predicted_cam_from_tag = prior;
+        if (prior) {
+            // Given.
+        } else if (item && predicted) {
             predicted_cam_from_tag = *predicted * item->world_from_tag;
         } else if (auto it = s.last_cam_from_tag.find(d.id); !s.options.independent_frames && it != s.last_cam_from_tag.end()) {
             predicted_cam_from_tag = it->second;
@@ -481,6 +497,23 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         // rotation and scale than the big tags' alone; the second tries again, under it, the tags
         // whose pattern correlated closely but under min_ncc (verify.retry_min_ncc).
         std::vector<int> retry;
+        // A verified tag joins the frame's tags (false: refused).
+        const auto accept = [&](const TagVerifyResult& v, const TagItem& item, const Rigid3d& predicted_cam_from_tag) {
+            if (!v.ok) return false;
+            TrackedTag tag;
+            tag.detection.id = item.id;
+            tag.detection.corners = v.corners;
+            tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
+            tag.verified = true;
+            auto pose = solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+            if (pose) {
+                tag.pose = std::move(*pose);
+            } else {
+                tag.error = pose.error().message;
+            }
+            out.tags.push_back(std::move(tag));
+            return true;
+        };
         for (int pass = 0; pass < 2; ++pass) {
             std::optional<Rigid3d> basis;
             if (measurement && !alone_ambiguous) {
@@ -491,6 +524,14 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             if (!basis) break;
             bool added = false;
             std::vector<int> close;
+            struct ToDetect {
+                const TagItem* item;
+                std::array<Eigen::Vector2d, 4> corners;  // the predicted black square
+                double span_px;
+                Rigid3d cam_from_tag;
+                std::vector<const TagPattern*> others;
+            };
+            std::vector<ToDetect> to_detect;
             for (const TagItem& item : s.tags.items) {
                 if (pass == 1 && std::find(retry.begin(), retry.end(), item.id) == retry.end()) continue;
                 const bool seen = std::any_of(out.tags.begin(), out.tags.end(),
@@ -519,24 +560,61 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                 }
                 const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *pattern, others, item.size,
                                                              predicted_cam_from_tag, s.options.verify);
-                if (!v.ok) {
+                if (v.wide_enough_to_detect && s.full_res_detector) {
+                    to_detect.push_back({&item, v.corners, v.span_px, predicted_cam_from_tag, std::move(others)});
+                    continue;
+                }
+                if (!accept(v, item, predicted_cam_from_tag)) {
                     if (v.ncc >= s.options.verify.retry_min_ncc && v.ncc < s.options.verify.min_ncc) close.push_back(item.id);
                     continue;
                 }
-                TrackedTag tag;
-                tag.detection.id = item.id;
-                tag.detection.corners = v.corners;
-                tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
-                tag.verified = true;
-                auto pose =
-                    solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
-                if (pose) {
-                    tag.pose = std::move(*pose);
-                } else {
-                    tag.error = pose.error().message;
-                }
-                out.tags.push_back(std::move(tag));
                 added = true;
+            }
+            // The foreshortened tags left to the detector: at full resolution in a window around
+            // each; a tag found there (its id, near the prediction) is solved as a detected one
+            // (step 2), one missed there is verified after all.
+            if (!to_detect.empty()) {
+                std::vector<PixelWindow> windows;
+                for (const ToDetect& t : to_detect) {
+                    // The black square, its white border and a few pixels of surroundings: a quarter of
+                    // the tag's size and at least 6 px each side (the whole tracking-mode margin, half
+                    // the tag and 12 px, found the same tags on tiny75 at twice the cost).
+                    windows.push_back(grownBox(t.corners, 0.25, 6));
+                }
+                // (Once: the second pass verifies the close ones the detector missed.)
+                std::vector<TagDetection> found;
+                if (pass == 0) {
+                    CL_TRY(found, s.full_res_detector->detectInWindows(gray8, mergeOverlapping(std::move(windows))));
+                }
+                // Step 2's split of the CPU time is for step 2's tags: this step's solves count as verify's.
+                const double refine_cpu = out.times.refine_cpu_ms, align_cpu = out.times.align_cpu_ms;
+                for (ToDetect& t : to_detect) {
+                    const Eigen::Vector2d centre = 0.25 * (t.corners[0] + t.corners[1] + t.corners[2] + t.corners[3]);
+                    const auto d = std::find_if(found.begin(), found.end(), [&](const TagDetection& f) {
+                        return f.id == t.item->id && (f.center - centre).norm() <= std::max(4.0, 0.5 * t.span_px);
+                    });
+                    if (d != found.end()) {
+                        // The frame's dilation is known by now (step 2 refined its unaligned tags with it),
+                        // and the bundle's pose chooses between the tag's candidates (without a
+                        // prediction, the pattern chose the wrong one of a tag 15 px across at 55
+                        // degrees: corners 2.7 px off).
+                        out.tags.push_back(solveTag(*d, out.dilation_cells.value_or(0.0), nullptr, t.cam_from_tag));
+                        out.tags.back().detected_late = true;
+                        added = true;
+                        continue;
+                    }
+                    TagVerifyOptions all = s.options.verify;
+                    all.max_foreshortened_span_px = all.max_side_px;
+                    const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *s.patterns.get(t.item->id), t.others,
+                                                                 t.item->size, t.cam_from_tag, all);
+                    if (accept(v, *t.item, t.cam_from_tag)) {
+                        added = true;
+                    } else if (v.ncc >= s.options.verify.retry_min_ncc && v.ncc < s.options.verify.min_ncc) {
+                        close.push_back(t.item->id);
+                    }
+                }
+                out.times.refine_cpu_ms = refine_cpu;
+                out.times.align_cpu_ms = align_cpu;
             }
             if (added) runBundle();
             // A second pass only when the first moved the bundle and left close ones.

@@ -58,6 +58,11 @@ struct TrackerOptions {
     // A verified tag's corners in the bundle weigh this much against a detected tag's: they are
     // the prediction moved by a shift on a 0.25 px grid, about 3x the refined corners' error.
     double verify_bundle_weight = 0.1;
+    // Predicted foreshortened tags the verification leaves to the detector (shorter span over
+    // TagVerifyOptions::max_foreshortened_span_px) that the frame's detector missed (decimated):
+    // detected again at full resolution (decimate 1) in a window around each, a detected tag like
+    // any other; one missed there too is verified. Without this they are not tried at all.
+    bool verify_redetect_full_res = true;
     // Tracking mode: detect only in windows around the predicted tags.
     bool tracking_mode = false;
     int redetect_every = 15;      // full-frame detection every N frames in tracking mode (>= 1)
@@ -100,6 +105,9 @@ struct TrackedTag {
     // Not detected: a scene tag predicted in view and verified there against its pattern
     // (TrackerOptions::verify_predicted); its corners are the verified prediction's.
     bool verified = false;
+    // Detected late: a scene tag the frame's (decimated) detector missed, found by the detector at
+    // full resolution in a window around its prediction (TrackerOptions::verify_redetect_full_res).
+    bool detected_late = false;
     std::optional<TagPose> pose;  // nullopt: unknown size, or the solver refused (see error)
     std::string error;            // why there is no pose
 };

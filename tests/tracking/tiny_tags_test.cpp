@@ -500,5 +500,67 @@ TEST(TinyTags, ForeshortenedTagsAreTriedByTheirShorterSpan) {
     EXPECT_EQ(accurate, after);
 }
 
+// Foreshortened tags 12-20 px across (25-35 px along, turned 55-60 degrees) between two anchor
+// tags, seen by a decimated detector (decimate 2), which misses most of them: the verification
+// leaves them to the detector (TagVerifyOptions::max_foreshortened_span_px), so the tracker
+// detects them again at full resolution in a window around each prediction
+// (TrackerOptions::verify_redetect_full_res) and verifies the ones it misses there too; the
+// bundle's pose chooses between a late-detected tag's candidates. Without that, only the
+// decimated detector's are found.
+TEST(TinyTags, ForeshortenedTagsTheDecimatedDetectorMissesAreDetectedAtFullResolution) {
+    TagSet tags = twoLargeTags(0.3);
+    for (int k = 0; k < 8; ++k) {
+        const double turn = (55.0 + 2.5 * (k % 3)) * M_PI / 180;
+        const Eigen::Quaterniond q(Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitY()));
+        tags.items.push_back({30 + k, 0.05 + 0.004 * k,
+                              Rigid3d(q, Eigen::Vector3d(-0.18 + 0.12 * (k % 4), k < 4 ? -0.12 : 0.12, 0)), 0.04, 0.8});
+    }
+    const auto make = [&](bool redetect) {
+        TrackerOptions options;
+        options.filter = false;
+        options.independent_frames = true;
+        options.detector.decimate = 2.0;
+        options.verify_redetect_full_res = redetect;
+        auto tracker = Tracker::create(testing::syntheticCamera(), tags, nullptr, options);
+        EXPECT_TRUE(tracker) << tracker.error().message;
+        return std::move(*tracker);
+    };
+    Tracker without = make(false);
+    Tracker with = make(true);
+    int in_range = 0, found_without = 0, found = 0, verified = 0, detected_late = 0, accurate = 0;
+    double worst = 0;
+    for (int v = 0; v < 12; ++v) {
+        const Rigid3d truth = camFromWorld(0.8 + 0.03 * v, 2.0 * v, 90.0, 0.01 * v);
+        const Image image = render(placed(tags, truth), 900 + static_cast<std::uint64_t>(v));
+        auto b = without.process(image, 0);
+        auto a = with.process(image, 0);
+        ASSERT_TRUE(a && b);
+        for (const TagItem& item : tags.items) {
+            if (item.id < 30) continue;
+            const double span = shortSpanPx(item, truth);
+            if (span <= 12.0 || span > 20.0 || sidePx(item, truth) <= 20.0) continue;
+            ++in_range;
+            const bool before = findTag(*b, item.id) != nullptr;
+            found_without += before ? 1 : 0;
+            const TrackedTag* t = findTag(*a, item.id);
+            if (!t) continue;
+            ++found;
+            verified += t->verified ? 1 : 0;
+            detected_late += !t->verified && !before ? 1 : 0;
+            worst = std::max(worst, cornerError(*t, item, truth));
+            accurate += cornerError(*t, item, truth) <= 1.5 ? 1 : 0;
+        }
+    }
+    std::printf(
+        "foreshortened tags 12-20 px across: %d; found without the full-resolution windows %d, with them %d (%d "
+        "detected there, %d verified), %d within 1.5 px (worst corner %.2f px)\n",
+        in_range, found_without, found, detected_late, verified, accurate, worst);
+    EXPECT_GE(in_range, 20);
+    EXPECT_LT(found_without, in_range / 2);
+    EXPECT_GE(found, static_cast<int>(std::ceil(0.95 * in_range)));
+    EXPECT_GE(detected_late, 3);
+    EXPECT_EQ(accurate, found);
+}
+
 }  // namespace
 }  // namespace commonlight::tracking
