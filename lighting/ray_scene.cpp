@@ -445,22 +445,6 @@ bool RayScene::occludedReal(const Eigen::Vector3d& from, const Eigen::Vector3d& 
 bool RayScene::occludedVirtual(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
                                const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal, std::uint32_t mask) const {
     if (mask == 0u) return false;
-    if ((mask & impl_->mesh_bits) == 0u) {
-        // Spheres alone: a segment that passes farther than the radius (and the ends' lift, epsilon
-        // each) from every centre meets none, which the exact test below would find too; most of
-        // the pairs a move asks about do (a transmission is found from the ones that come near).
-        const Eigen::Vector3d d = to - from;
-        const double dd = d.squaredNorm();
-        bool near = false;
-        for (std::size_t v = 0; v < impl_->sphere_bit.size() && !near; ++v) {
-            if ((impl_->sphere_bit[v] & mask) == 0u) continue;
-            const Eigen::Vector3d& c = impl_->sphere_centre[v];
-            const double u = dd > 0.0 ? std::clamp((c - from).dot(d) / dd, 0.0, 1.0) : 0.0;
-            const double reach = impl_->sphere_radius[v] + 4.0 * epsilon_;
-            near = (from + u * d - c).squaredNorm() <= reach * reach;
-        }
-        if (!near) return false;
-    }
     return occludedSegment(true, from, from_normal, to, to_normal, mask);
 }
 
