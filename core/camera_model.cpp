@@ -104,6 +104,65 @@ double CameraModel::maxValidRadius() const {
     return std::numeric_limits<double>::infinity();
 }
 
+namespace {
+
+// The largest squared radius (a multiple of kMaxR2 / kCells, at most kMaxR2) up to which the
+// slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 is proved positive, with a margin over the rounding of
+// its evaluation: on each cell [a, b] of [0, kMaxR2], every term c s^j is monotonic in s >= 0,
+// so the sum of their smaller ends is a lower bound of the slope there. A sample of [0, r2] with
+// r2 at most this radius is then positive in floating point too (Horner's rounding is a few
+// ulps of the terms' magnitudes, far under the 1e-9 margin): radialMonotonicUpTo answers true
+// exactly where its sampling would.
+double provedMonotonicR2(const Distortion& d) {
+    constexpr double kMaxR2 = 100.0;  // as maxValidRadius
+    constexpr int kCells = 4096;
+    const double c1 = 3.0 * d.k1, c2 = 5.0 * d.k2, c3 = 7.0 * d.k3;
+    double proved = 0.0;
+    for (int i = 0; i < kCells; ++i) {
+        const double a = kMaxR2 * i / kCells, b = kMaxR2 * (i + 1) / kCells;
+        const double low = 1.0 + std::min(c1 * a, c1 * b) + std::min(c2 * a * a, c2 * b * b) +
+                           std::min(c3 * a * a * a, c3 * b * b * b);
+        const double magnitude = 1.0 + std::abs(c1) * b + std::abs(c2) * b * b + std::abs(c3) * b * b * b;
+        if (!(low > 1e-9 * magnitude)) break;
+        proved = b;
+    }
+    return proved;
+}
+
+}  // namespace
+
+std::optional<double> CameraModel::MonotonicCache::find(const Distortion& d) const noexcept {
+    const std::uint64_t before = version_.load(std::memory_order_acquire);
+    if (before == 0 || before % 2 != 0) return std::nullopt;
+    const double k1 = k1_.load(std::memory_order_acquire), k2 = k2_.load(std::memory_order_acquire),
+                 k3 = k3_.load(std::memory_order_acquire), r2 = r2_.load(std::memory_order_acquire);
+    // A writer that started meanwhile changed the version: the values may be mixed.
+    if (version_.load(std::memory_order_acquire) != before) return std::nullopt;
+    if (k1 != d.k1 || k2 != d.k2 || k3 != d.k3) return std::nullopt;
+    return r2;
+}
+
+void CameraModel::MonotonicCache::store(const Distortion& d, double r2) const noexcept {
+    std::uint64_t version = version_.load(std::memory_order_acquire);
+    // Another writer at work: leave it to that one.
+    if (version % 2 != 0 || !version_.compare_exchange_strong(version, version + 1, std::memory_order_acq_rel)) return;
+    k1_.store(d.k1, std::memory_order_release);
+    k2_.store(d.k2, std::memory_order_release);
+    k3_.store(d.k3, std::memory_order_release);
+    r2_.store(r2, std::memory_order_release);
+    version_.store(version + 2, std::memory_order_release);
+}
+
+void CameraModel::MonotonicCache::copyFrom(const MonotonicCache& other) noexcept {
+    const Distortion key{other.k1_.load(std::memory_order_acquire), other.k2_.load(std::memory_order_acquire), 0.0, 0.0,
+                         other.k3_.load(std::memory_order_acquire)};
+    const auto r2 = other.find(key);
+    // Nothing (consistent) to copy: coefficients that match no distortion (NaN), so that the
+    // version only grows.
+    constexpr double kNone = std::numeric_limits<double>::quiet_NaN();
+    store(r2 ? key : Distortion{kNone, kNone, 0.0, 0.0, kNone}, r2.value_or(0.0));
+}
+
 bool CameraModel::radialMonotonicUpTo(double r2) const {
     const auto& d = distortion;
     if (d.k1 >= 0 && d.k2 >= 0 && d.k3 >= 0) return true;
@@ -113,6 +172,15 @@ bool CameraModel::radialMonotonicUpTo(double r2) const {
     // (the same answer, without the 64 evaluations).
     const double k1 = std::min(d.k1, 0.0), k2 = std::min(d.k2, 0.0), k3 = std::min(d.k3, 0.0);
     if (r2 >= 0 && 1.0 + r2 * (3.0 * k1 + r2 * (5.0 * k2 + r2 * 7.0 * k3)) > 0.0) return true;
+    // Then the squared radius up to which the slope is proved positive (k2 or k3 > 0 lifts it
+    // past the bound: the wide lens, k1 = -0.4 and k2 = 0.12, is monotonic everywhere), computed
+    // once for these coefficients.
+    std::optional<double> proved = monotonic_cache_.find(d);
+    if (!proved) {
+        proved = provedMonotonicR2(d);
+        monotonic_cache_.store(d, *proved);
+    }
+    if (r2 >= 0 && r2 <= *proved) return true;
     // The slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 (s = r^2) is 1 at s = 0; sample it up to r2.
     // A cubic that dips below zero and recovers between two of 64 samples would need a root
     // pair closer than r2 / 64; no calibrated lens has that.

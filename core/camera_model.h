@@ -4,6 +4,8 @@
 // that centre at (0.5, 0.5); subtract 0.5 from its corners before using them here.
 #pragma once
 
+#include <atomic>
+#include <cstdint>
 #include <optional>
 
 #include <Eigen/Core>
@@ -55,7 +57,10 @@ public:
     // Largest undistorted radius (in normalised coordinates) up to which the radial part of the
     // model is monotonic; infinity when it is monotonic everywhere.
     double maxValidRadius() const;
-    // True when the radial part is monotonic for every squared radius in [0, r2].
+    // True when the radial part is monotonic for every squared radius in [0, r2]: its slope is
+    // positive at 64 samples of [0, r2]. Answered without sampling below a bound, and below the
+    // squared radius up to which the slope is proved positive (computed once per set of
+    // coefficients, cached; the same answers).
     bool radialMonotonicUpTo(double r2) const;
 
     bool inImage(const Eigen::Vector2d& pixel, double margin = 0.0) const {
@@ -70,6 +75,30 @@ public:
     // (p_in_gl_cam = diag(1, -1, -1) * p_in_cam). Pixel centres land on the same pixels as
     // project() with zero distortion, for a viewport of width x height.
     Eigen::Matrix4d glProjection(double near_m, double far_m) const;
+
+private:
+    // radialMonotonicUpTo's squared radius for the radial coefficients it was computed for: read
+    // and filled by any thread (a sequence lock over atomics: a reader that overlaps a writer
+    // computes the value itself). The fields above are public, so it is keyed by the coefficients
+    // and follows a changed distortion. Not part of the camera: copied with it, ignored by ==.
+    class MonotonicCache {
+    public:
+        MonotonicCache() = default;
+        MonotonicCache(const MonotonicCache& other) noexcept { copyFrom(other); }
+        MonotonicCache& operator=(const MonotonicCache& other) noexcept {
+            if (this != &other) copyFrom(other);
+            return *this;
+        }
+        bool operator==(const MonotonicCache&) const noexcept { return true; }
+        std::optional<double> find(const Distortion& d) const noexcept;
+        void store(const Distortion& d, double r2) const noexcept;
+
+    private:
+        void copyFrom(const MonotonicCache& other) noexcept;
+        mutable std::atomic<std::uint64_t> version_{0};  // 0: empty; odd: being written
+        mutable std::atomic<double> k1_{0.0}, k2_{0.0}, k3_{0.0}, r2_{0.0};
+    };
+    MonotonicCache monotonic_cache_;
 };
 
 }  // namespace commonlight

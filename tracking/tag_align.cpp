@@ -92,6 +92,7 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
         out.reason = "cells of " + std::to_string(cell_px) + " px are too small";
         return out;
     }
+    out.measured = true;
     const double range = std::max(options.search_px, 0.35 * cell_px);
     const Linearizer& lin = options.linearizer ? *options.linearizer : Linearizer::get(options.srgb);
     using Matrix7d = Eigen::Matrix<double, 7, 7>;

@@ -93,6 +93,9 @@ struct TagAlignOptions {
 struct TagAlignResult {
     bool ok = false;
     std::string reason;         // when not ok
+    // The fit ran: false when refused before it (bad input, the tag outside the lens model, cells
+    // under min_cell_px), where the pattern says nothing for or against the pose.
+    bool measured = false;
     Rigid3d cam_from_tag;       // aligned when ok, the input otherwise
     Matrix6d covariance = Matrix6d::Identity();  // of cam_from_tag, pose_types.h convention
     int points = 0;             // edge points used in the last step

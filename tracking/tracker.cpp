@@ -386,12 +386,17 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             // the corners gave one only, from the mirrored pose) are aligned; the smaller
             // alignment residual wins, and when the two residuals are too close to tell
             // (ambiguous_pattern_ratio) the tag is ambiguous. Two alignments that end on the
-            // same pose, or a second one refused, leave no ambiguity.
+            // same pose, or a second one refused, leave no ambiguity. The corners' choice that the
+            // pattern could not measure (its cells under min_cell_px from that pose, a tag turned
+            // far from the camera) is not refuted by the other candidate's fit, which on cells of
+            // about 2 px passes the RMS cut even when it is the wrong side: the corners' choice
+            // stands, unaligned (docs/tracking.md, "Unmeasured candidates").
             const Rigid3d other_start = pose->candidates.size() > 1 ? pose->candidates[1].cam_from_tag
                                                                       : planarMirror(pose->candidates[0].cam_from_tag);
-            TagAlignResult a[2] = {align(*pattern, size, pose->candidates[0].cam_from_tag),
-                                   align(*pattern, size, other_start)};
-            if (a[0].ok || a[1].ok) {
+            TagAlignResult a[2];
+            a[0] = align(*pattern, size, pose->candidates[0].cam_from_tag);
+            if (a[0].measured) a[1] = align(*pattern, size, other_start);
+            if (a[0].measured && (a[0].ok || a[1].ok)) {
                 const int best = !a[1].ok || (a[0].ok && a[0].rms_px <= a[1].rms_px) ? 0 : 1;
                 const TagAlignResult& chosen = a[best];
                 const TagAlignResult& other = a[1 - best];

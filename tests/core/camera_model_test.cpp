@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -111,6 +113,99 @@ TEST(CameraModel, MonotonicCheckAgreesWithSamplingTheSlope) {
     EXPECT_GT(folded, 1000);
     EXPECT_GT(fast, 1000);
     EXPECT_LT(fast, 19000);
+}
+
+// The slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 at 64 samples of [0, r2]: radialMonotonicUpTo's definition.
+bool sampledMonotonic(const Distortion& d, double r2) {
+    for (int i = 1; i <= 64; ++i) {
+        const double s = r2 * i / 64;
+        if (1.0 + s * (3.0 * d.k1 + s * (5.0 * d.k2 + s * 7.0 * d.k3)) <= 0.0) return false;
+    }
+    return true;
+}
+
+// Past the bound, radialMonotonicUpTo answers from the squared radius up to which it proved the
+// slope positive, cached per camera: the same answers as sampling, on many radii of one camera,
+// near the hard cases: the wide lens (monotonic everywhere), a fold, a slope that touches zero
+// (a double root) and one that dips under zero briefly and recovers (which 64 samples of a
+// large r2 miss: the cached answer must miss it too).
+TEST(CameraModel, CachedMonotonicRadiusGivesTheSampledAnswers) {
+    const Distortion cases[] = {{-0.4, 0.12, 0.0005, -0.0008, 0.0}, {-0.4, 0.0, 0.0, 0.0, 0.0},
+                                {-0.4, 0.072, 0.0, 0.0, 0.0},       {-0.4, 0.071995, 0.0, 0.0, 0.0},
+                                {-0.3, 0.05, 0.0, 0.0, -0.01},      {0.1, -0.2, 0.0, 0.0, 0.03}};
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> r2(0.0, 6.0);
+    int folded = 0, past_bound = 0;
+    for (const Distortion& d : cases) {
+        const CameraModel cam = makeCamera(d);
+        std::vector<double> radii = {0.0, 1.0 / 1.2, 1.6667, 1.7, 100.0, 101.0, 1e6, -1.0, NAN};
+        for (int k = 0; k < 20000; ++k) radii.push_back(r2(rng));
+        for (const double r : radii) {
+            ASSERT_EQ(cam.radialMonotonicUpTo(r), sampledMonotonic(d, r)) << d.k1 << " " << d.k2 << " r2 " << r;
+            folded += sampledMonotonic(d, r) ? 0 : 1;
+            const double bound =
+                1.0 + r * (3.0 * std::min(d.k1, 0.0) + r * (5.0 * std::min(d.k2, 0.0) + r * 7.0 * std::min(d.k3, 0.0)));
+            past_bound += bound > 0.0 ? 0 : 1;
+        }
+    }
+    EXPECT_GT(folded, 10000);
+    EXPECT_GT(past_bound, 50000);
+    // The narrow dip (k2 = 0.071995: negative for s in 1.653-1.681) is missed by the samples of some radii.
+    const Distortion dip{-0.4, 0.071995, 0.0, 0.0, 0.0};
+    int missed = 0;
+    for (double r = 1.8; r < 6.0; r += 0.01) missed += sampledMonotonic(dip, r) ? 1 : 0;
+    EXPECT_GT(missed, 0);
+}
+
+// The cache is keyed by the coefficients (the fields are public): a camera whose distortion
+// changes answers for the new one; a copy answers as its original; == ignores the cache.
+TEST(CameraModel, CachedMonotonicRadiusFollowsTheDistortion) {
+    CameraModel cam = makeCamera({-0.4, 0.12, 0.0, 0.0, 0.0});
+    const CameraModel fresh = cam;
+    EXPECT_TRUE(cam.radialMonotonicUpTo(1.5));  // k2 lifts the slope: monotonic everywhere
+    EXPECT_TRUE(cam == fresh);                  // one has its cache filled, the other not
+    const CameraModel copy = cam;
+    EXPECT_TRUE(copy.radialMonotonicUpTo(1.5));
+    cam.distortion.k2 = 0.0;  // folds at r2 = 1 / 1.2
+    EXPECT_FALSE(cam.radialMonotonicUpTo(1.5));
+    EXPECT_TRUE(cam.radialMonotonicUpTo(0.8));
+    EXPECT_FALSE(cam.project({1.2, 0.0, 1.0}));
+    EXPECT_TRUE(copy.radialMonotonicUpTo(1.5));
+    cam.distortion.k2 = 0.12;
+    EXPECT_TRUE(cam.radialMonotonicUpTo(1.5));
+    CameraModel assigned;
+    assigned = copy;
+    EXPECT_TRUE(assigned == copy);
+    EXPECT_TRUE(assigned.radialMonotonicUpTo(1.5));
+    assigned.distortion.k1 = -0.6;  // 1 - 1.8 s + 0.6 s^2: folds at s = 0.70
+    EXPECT_EQ(assigned.radialMonotonicUpTo(1.5), sampledMonotonic(assigned.distortion, 1.5));
+    EXPECT_FALSE(assigned.radialMonotonicUpTo(1.5));
+}
+
+// Threads share one camera (the tracker and lighting project from several): they fill and read
+// its cache at once, and copies are made meanwhile; every answer is the sampled one.
+TEST(CameraModel, CachedMonotonicRadiusIsSharedByThreads) {
+    for (const Distortion& d : {Distortion{-0.4, 0.12, 0.0, 0.0, 0.0}, Distortion{-0.4, 0.071995, 0.0, 0.0, 0.0}}) {
+        const CameraModel cam = makeCamera(d);
+        std::vector<int> wrong(4, 0);
+        std::vector<std::thread> threads;
+        for (int t = 0; t < 4; ++t) {
+            threads.emplace_back([&, t] {
+                std::mt19937 rng(static_cast<unsigned>(100 + t));
+                std::uniform_real_distribution<double> r2(0.0, 4.0);
+                for (int k = 0; k < 5000; ++k) {
+                    const double r = r2(rng);
+                    if (t == 3 && k % 50 == 0) {
+                        const CameraModel copy = cam;
+                        wrong[3] += copy.radialMonotonicUpTo(r) != sampledMonotonic(d, r) ? 1 : 0;
+                    }
+                    wrong[static_cast<std::size_t>(t)] += cam.radialMonotonicUpTo(r) != sampledMonotonic(d, r) ? 1 : 0;
+                }
+            });
+        }
+        for (std::thread& t : threads) t.join();
+        for (int t = 0; t < 4; ++t) EXPECT_EQ(wrong[static_cast<std::size_t>(t)], 0) << "thread " << t;
+    }
 }
 
 TEST(CameraModel, ValidateRejectsBadIntrinsics) {

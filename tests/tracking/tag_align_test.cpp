@@ -125,11 +125,13 @@ TEST(TagAlign, RefusesTinyTagsAndBadInput) {
     TagAlignResult small = alignTagPose(grey.view(), cam, *pattern, 0.1, far);
     EXPECT_FALSE(small.ok);
     EXPECT_NE(small.reason.find("too small"), std::string::npos) << small.reason;
+    EXPECT_FALSE(small.measured);  // refused before any fit: no evidence against the pose
     EXPECT_TRUE(small.cam_from_tag.isValid());
     // Close enough, but a blank image: nothing to align with.
     const Rigid3d near(far.rotation, Eigen::Vector3d(0, 0, 0.5));
     TagAlignResult blank = alignTagPose(grey.view(), cam, *pattern, 0.1, near);
     EXPECT_FALSE(blank.ok);
+    EXPECT_TRUE(blank.measured);  // the fit ran and found nothing
     EXPECT_FALSE(blank.reason.empty());
     Rigid3d nan_pose = near;
     nan_pose.translation.x() = std::nan("");
