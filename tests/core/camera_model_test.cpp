@@ -86,16 +86,24 @@ TEST(CameraModel, UndistortRefusesPointsBeyondTheFold) {
     EXPECT_FALSE(cam.project({1.2, 0.0, 1.0}));
 }
 
+// The slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 at 64 samples of [0, r2]: radialMonotonicUpTo's definition.
+bool sampledMonotonic(const Distortion& d, double r2) {
+    for (int i = 1; i <= 64; ++i) {
+        const double s = r2 * i / 64;
+        if (1.0 + s * (3.0 * d.k1 + s * (5.0 * d.k2 + s * 7.0 * d.k3)) <= 0.0) return false;
+    }
+    return true;
+}
+
+// The slope's lower bound over [0, r2] from its negative terms alone: positive, no sampling needed.
+double quickBound(const Distortion& d, double r2) {
+    return 1.0 + r2 * (3.0 * std::min(d.k1, 0.0) + r2 * (5.0 * std::min(d.k2, 0.0) + r2 * 7.0 * std::min(d.k3, 0.0)));
+}
+
 TEST(CameraModel, MonotonicCheckAgreesWithSamplingTheSlope) {
     // radialMonotonicUpTo answers most calls from a bound without sampling; its answer must be
-    // the sampled one: the slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 positive at 64 samples of [0, r2].
-    const auto sampled = [](const Distortion& d, double r2) {
-        for (int i = 1; i <= 64; ++i) {
-            const double s = r2 * i / 64;
-            if (1.0 + s * (3.0 * d.k1 + s * (5.0 * d.k2 + s * 7.0 * d.k3)) <= 0.0) return false;
-        }
-        return true;
-    };
+    // the sampled one (sampledMonotonic()).
+    const auto sampled = sampledMonotonic;
     std::mt19937 rng(7);
     std::uniform_real_distribution<double> k(-0.6, 0.6), r2(0.0, 3.0);
     int folded = 0, fast = 0;
@@ -105,23 +113,12 @@ TEST(CameraModel, MonotonicCheckAgreesWithSamplingTheSlope) {
         const double r = r2(rng);
         ASSERT_EQ(cam.radialMonotonicUpTo(r), sampled(d, r)) << d.k1 << " " << d.k2 << " " << d.k3 << " r2 " << r;
         folded += sampled(d, r) ? 0 : 1;
-        const double bound =
-            1.0 + r * (3.0 * std::min(d.k1, 0.0) + r * (5.0 * std::min(d.k2, 0.0) + r * 7.0 * std::min(d.k3, 0.0)));
-        fast += bound > 0.0 ? 1 : 0;
+        fast += quickBound(d, r) > 0.0 ? 1 : 0;
     }
     // Both answers occur, and both paths are taken.
     EXPECT_GT(folded, 1000);
     EXPECT_GT(fast, 1000);
     EXPECT_LT(fast, 19000);
-}
-
-// The slope 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 at 64 samples of [0, r2]: radialMonotonicUpTo's definition.
-bool sampledMonotonic(const Distortion& d, double r2) {
-    for (int i = 1; i <= 64; ++i) {
-        const double s = r2 * i / 64;
-        if (1.0 + s * (3.0 * d.k1 + s * (5.0 * d.k2 + s * 7.0 * d.k3)) <= 0.0) return false;
-    }
-    return true;
 }
 
 // Past the bound, radialMonotonicUpTo answers from the squared radius up to which it proved the
@@ -143,9 +140,7 @@ TEST(CameraModel, CachedMonotonicRadiusGivesTheSampledAnswers) {
         for (const double r : radii) {
             ASSERT_EQ(cam.radialMonotonicUpTo(r), sampledMonotonic(d, r)) << d.k1 << " " << d.k2 << " r2 " << r;
             folded += sampledMonotonic(d, r) ? 0 : 1;
-            const double bound =
-                1.0 + r * (3.0 * std::min(d.k1, 0.0) + r * (5.0 * std::min(d.k2, 0.0) + r * 7.0 * std::min(d.k3, 0.0)));
-            past_bound += bound > 0.0 ? 0 : 1;
+            past_bound += quickBound(d, r) > 0.0 ? 0 : 1;
         }
     }
     EXPECT_GT(folded, 10000);
