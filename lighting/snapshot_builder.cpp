@@ -249,7 +249,6 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
     std::vector<char> fresh(leaves.size(), same_leaves ? 0 : 1);
     // Rectangles in texels (i0, j0, i1, j1) of the leaves the last build had and this one has not:
     // the box filters that averaged them are within `reach` of them.
-    std::vector<const FaceBuild::Leaf*> gone;
     std::vector<Eigen::Vector4i> gone_rects;
     if (same_layout && !same_leaves) {
         // Places of the leaves kept (the same element with the same extent) from the old list to
@@ -259,11 +258,9 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
         for (std::size_t q = 0; q < keep.leaves.size(); ++q) {
             const FaceBuild::Leaf& o = keep.leaves[q];
             const int p = placeOf(o.element);
-            gone.push_back(&o);  // (popped below when kept)
             if (p < 0) continue;
             const FaceBuild::Leaf& n = leaves[static_cast<std::size_t>(p)];
             if (n.buried == o.buried && n.st == o.st && n.ds == o.ds && n.dt == o.dt) {
-                gone.pop_back();
                 old_to_new[q] = p;
                 fresh[static_cast<std::size_t>(p)] = 0;
                 leaves[static_cast<std::size_t>(p)].fields = o.fields;  // compared below, as kept
@@ -276,7 +273,9 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
                 leaf = old_to_new[static_cast<std::size_t>(leaf)];
             }
         }
-        for (const FaceBuild::Leaf* o : gone) gone_rects.push_back(texelRect(*o, width, height, reach));
+        for (std::size_t q = 0; q < keep.leaves.size(); ++q) {
+            if (old_to_new[q] < 0) gone_rects.push_back(texelRect(keep.leaves[q], width, height, reach));
+        }
         i0 = width, i1 = -1, j0 = height, j1 = -1;
         for (std::size_t k = 0; k < texels; ++k) {
             if (keep.leaf_of[k] >= 0) continue;
@@ -401,6 +400,10 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
                 for (int ti = r[0] / kTile; ti <= r[2] / kTile; ++ti) mark[static_cast<std::size_t>(tj * tiles_w + ti)] = 1;
             }
         };
+        const auto markTexel = [&](std::size_t k) {
+            const int i = static_cast<int>(k % static_cast<std::size_t>(width)), j = static_cast<int>(k / static_cast<std::size_t>(width));
+            mark[static_cast<std::size_t>((j / kTile) * tiles_w + i / kTile)] = 1;
+        };
         if (i0 <= i1) markRect({i0, j0, i1, j1});
         for (const Eigen::Vector4i& r : gone_rects) markRect(r);
         for (std::size_t q = 0; q < kept.size(); ++q) {
@@ -410,11 +413,11 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
             std::vector<std::uint32_t> went;
             if (texel_direct->forgotten && texel_direct->forgotten(f, went)) {
                 for (const std::uint32_t k : went) {
-                    if (k < texels && keep.direct[k]) mark[static_cast<std::size_t>((static_cast<int>(k) / width / kTile) * tiles_w + static_cast<int>(k) % width / kTile)] = 1;
+                    if (k < texels && keep.direct[k]) markTexel(k);
                 }
             } else {
                 for (std::size_t k = 0; k < texels; ++k) {
-                    if (keep.direct[k]) mark[static_cast<std::size_t>((static_cast<int>(k) / width / kTile) * tiles_w + static_cast<int>(k) % width / kTile)] = 1;
+                    if (keep.direct[k]) markTexel(k);
                 }
             }
         }
