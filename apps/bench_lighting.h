@@ -61,6 +61,9 @@ struct BenchLightingOptions {
 // Every case's name (all but `incremental` run by default).
 std::vector<std::string> benchLightingCaseNames();
 
+// Case `solver` (apps/bench_lighting_solver.cpp); `plot`: its PNG (solve time against error), or empty.
+Result<nlohmann::json> runSolverCase(const BenchLightingOptions& options, const std::string& plot);
+
 // Case `cluster` (apps/bench_lighting_cluster.cpp).
 Result<nlohmann::json> runClusterCase(const BenchLightingOptions& options);
 
