@@ -180,7 +180,7 @@ bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, co
         if (segmentMeetsBall(e.centroid, target, ball)) return true;
         other = lightPolygon(light);
     } else {
-        const int source = self.radiosity_.links()[static_cast<std::size_t>(what)].source;
+        const int source = links[static_cast<std::size_t>(what)].source;
         if (!shaftMeetsBall(elementShaft(element, source), ball)) return false;
         const ElementShape& s = shape[static_cast<std::size_t>(source)];
         if (segmentMeetsBall(e.centroid, s.centroid, ball)) return true;
@@ -300,7 +300,7 @@ void VirtualInfluence::Impl::lightSignificanceParts(int b, int light, double& sh
 }
 
 void VirtualInfluence::Impl::linkSignificanceParts(int b, int link, double& share, double& omega) const {
-    const Link& l = self.radiosity_.links()[static_cast<std::size_t>(link)];
+    const Link& l = links[static_cast<std::size_t>(link)];
     const auto i = static_cast<std::size_t>(b);
     const ElementShape& src = shape[static_cast<std::size_t>(l.source)];
     const Eigen::Vector3d v = shape[i].centroid - src.centroid;
@@ -357,18 +357,18 @@ void VirtualInfluence::Impl::select(int b) {
         }
         if (best > 0.0) cand.push_back({best, static_cast<int>(k), -1});
     }
-    std::vector<std::pair<int, double>> links;  // link, best significance
+    std::vector<std::pair<int, double>> blocked;  // link, best significance
     for (const auto& [object, link] : entries[static_cast<std::size_t>(b)]) {
         if (link < 0) continue;
         const double sig = linkSignificance(b, link, object);
-        auto it = std::find_if(links.begin(), links.end(), [&](const auto& x) { return x.first == link; });
-        if (it == links.end()) {
-            links.emplace_back(link, sig);
+        auto it = std::find_if(blocked.begin(), blocked.end(), [&](const auto& x) { return x.first == link; });
+        if (it == blocked.end()) {
+            blocked.emplace_back(link, sig);
         } else {
             it->second = std::max(it->second, sig);
         }
     }
-    for (const auto& [link, sig] : links) cand.push_back({sig, -1, link});
+    for (const auto& [link, sig] : blocked) cand.push_back({sig, -1, link});
     // Keep the strongest; leave out the weakest while their sum stays below link_epsilon.
     std::sort(cand.begin(), cand.end(), [](const Candidate& x, const Candidate& y) {
         return x.significance != y.significance ? x.significance > y.significance : (x.light != y.light ? x.light < y.light : x.link < y.link);
@@ -408,8 +408,7 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
     } else {
         index->query(query, ids);
     }
-    const std::vector<Link>& links = rad.links();
-    // In parallel over blocks of the shafts found, gathered in their order.
+        // In parallel over blocks of the shafts found, gathered in their order.
     constexpr std::size_t kBlock = 64;
     std::vector<std::vector<std::pair<int, int>>> found((ids.size() + kBlock - 1) / kBlock);
     tbb::parallel_for(std::size_t{0}, found.size(), [&](std::size_t block) {

@@ -18,6 +18,8 @@
 //              irradiance at the object's centre, from B~ and the lights), so a detailed mesh
 //              does not multiply links. Close receivers see its faces one by one.
 // Internal elements hold the area-weighted mean of their children's D (push-pull on differences).
+// The base links are the element links and, where real proxies are clustered, the cluster links
+// taken as the element links they are linear in (Radiosity::clusterTransfers()).
 //
 // Incremental update (seed 000 sec. 4.4): a moved object's old and new bounding balls are looked
 // up in a shaft index (lighting/shaft_index.h) over the base links and the light shafts of the base

@@ -129,7 +129,12 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
         d.rho_mean[i] = area[i] > 0.0 ? d.rho_mean[i] / area[i] : 0.5;
     }
     // Step 2: base links by source.
-    const std::vector<Link>& links = radiosity_.links();
+    d.links = radiosity_.links();
+    {
+        std::vector<Link> through_clusters = radiosity_.clusterTransfers();
+        d.links.insert(d.links.end(), through_clusters.begin(), through_clusters.end());
+    }
+    const std::vector<Link>& links = d.links;
     d.link_offsets.assign(n + 1, 0);
     for (const Link& l : links) ++d.link_offsets[static_cast<std::size_t>(l.source) + 1];
     for (std::size_t i = 1; i <= n; ++i) d.link_offsets[i] += d.link_offsets[i - 1];

@@ -174,6 +174,9 @@ struct VirtualInfluence::Impl {
     // object's light does not depend on the refinement that others left), virtual faces as black.
     std::vector<Eigen::Vector3d> probe_radiance;
 
+    // The base links: the radiosity's element links, then its cluster links as element links
+    // (Radiosity::clusterTransfers()). Every "base link" index below is into this.
+    std::vector<Link> links;
     // Base links by source (CSR), corrections by source (rebuilt after each refinement).
     std::vector<int> link_offsets, link_by_source;
     std::vector<int> corr_offsets;

@@ -268,8 +268,7 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
     // where corrections may be made (`links_open`; below them no element has any: their answers
     // go). An answer whose shaft the move reached, or whose link is no longer selected, is dropped.
     if (links_open) {
-        const std::vector<Link>& links = self.radiosity_.links();
-        for (int li : reach.links) {
+                for (int li : reach.links) {
             if (!contains(sel.links, li)) continue;
             const int source = links[static_cast<std::size_t>(li)].source;
             if (reachedByMove([&](const Ball& ball) { return linkMeetsBall(c, source, ball); })) met.links.push_back(li);
@@ -340,15 +339,13 @@ void VirtualInfluence::Impl::finishDeferred(int c, int b, const LeafResult& r) {
 // much they may vary across it. Answers kept as computeTerms() keeps them (`met`: the links whose
 // shaft at c the move reached).
 double VirtualInfluence::Impl::computeLinks(int c, int b, const Reach& met, LeafResult& out) {
-    const Radiosity& rad = self.radiosity_;
     LeafTerms& t = terms[static_cast<std::size_t>(c)];
     t.corrections.clear();
     const Selection& sel = selection[static_cast<std::size_t>(b)];
     const Eigen::Vector3d& rho = self.rho_[static_cast<std::size_t>(c)];
     const double den = denominator(c);
     const std::uint32_t mask = objectMask(b);
-    const std::vector<Link>& links = rad.links();
-    Answers& ans = answers[static_cast<std::size_t>(c)];
+        Answers& ans = answers[static_cast<std::size_t>(c)];
     std::vector<LinkAnswer> fresh;
     fresh.reserve(sel.links.size());
     double variation = 0.0;

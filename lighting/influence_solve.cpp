@@ -89,7 +89,6 @@ void VirtualInfluence::Impl::pullSubtree(int element) {
 }
 
 void VirtualInfluence::Impl::propagate(InfluenceStats& stats) {
-    const std::vector<Link>& links = self.radiosity_.links();
     const double tau = self.options_.residual * scale;
     int rounds = 0;
     while (!worklist.empty() && rounds < 100000) {
@@ -152,7 +151,7 @@ std::vector<Eigen::Vector3d> VirtualInfluence::denseDifference(double tolerance)
     const Impl& d = *impl_;
     const Hierarchy& h = radiosity_.hierarchy();
     const std::size_t n = h.elements().size();
-    const std::vector<Link>& links = radiosity_.links();
+    const std::vector<Link>& links = d.links;
     std::vector<Eigen::Vector3d> D(n, Eigen::Vector3d::Zero()), G(n);
     std::vector<int> leaves;
     for (int e : radiosity_.leaves(Mode::kReal)) leaves.push_back(e);
@@ -210,7 +209,6 @@ std::vector<Eigen::Vector3d> VirtualInfluence::denseDifference(double tolerance)
 // After a dense solve: the propagation's bookkeeping made exact (every gather from the whole
 // difference, nothing unshot).
 void VirtualInfluence::Impl::resync() {
-    const std::vector<Link>& links = self.radiosity_.links();
     std::fill(G.begin(), G.end(), Eigen::Vector3d::Zero());
     for (const Link& l : links) {
         G[static_cast<std::size_t>(l.receiver)] +=

@@ -78,10 +78,10 @@ struct RadiosityOptions {
     // direction pushed to each face by its own cosine. A link opens the cluster into its faces
     // when its receiver (or source) is closer than cluster_distance radii, or when the form
     // factor's variation over the cluster's extent, times the radiance, exceeds link_epsilon.
-    // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default until
-    // the virtual objects' influence corrects cluster links (lighting/influence.h only corrects
-    // element links: a virtual object between a clustered proxy and a surface would cast no
-    // shadow through them); 24 is the setting the tests and `bench lighting --cases cluster` use.
+    // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default: the
+    // virtual objects' influence (lighting/influence.h) takes each cluster link as its faces'
+    // element links (clusterTransfers()), so with clusters it carries more links than without;
+    // 24 is the setting the tests and `bench lighting --cases cluster` use.
     int cluster_min_faces = 0;
     double cluster_small_radius = 0.0;
     double cluster_max_fraction = 0.25;
@@ -222,6 +222,15 @@ public:
     int linkCount(Mode mode) const;
     const std::vector<Link>& links() const noexcept { return links_; }
     const std::vector<ClusterLink>& clusterLinks() const noexcept { return cluster_links_; }
+    // The cluster links as the element links they are linear in, so that what works on links (the
+    // virtual objects' influence: shooting differences, correcting blocked links) works on them.
+    // A kSource link is one link per face that sees its bin, from the face's root to the element,
+    // weighted by the face's share of the bin's projected area; a kReceiver link is one link per
+    // face that faces it, from the element to the face's root, weighted by max(0, n_f . (dir +
+    // grad offset_f)) (the solve clamps the sum of a bin's links instead: the same unless links of
+    // one bin light a face from both sides). form_factor x pi x vis_real is the transfer; the
+    // links' real_blocked and samples are not set.
+    std::vector<Link> clusterTransfers() const;
     // Clusters made by buildRealLinks() (RadiosityOptions::cluster_min_faces): the real object of each.
     std::vector<int> clusterObjects() const;
     // Leaves in use for a mode (not buried; virtual leaves only in kAll).

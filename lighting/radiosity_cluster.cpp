@@ -388,6 +388,57 @@ void Radiosity::gatherClusters(const std::vector<Eigen::Vector3d>& radiance, std
     }
 }
 
+std::vector<Link> Radiosity::clusterTransfers() const {
+    std::vector<Link> out;
+    const auto push = [&](int receiver, int source, double transfer, float vis) {
+        if (!(transfer > 0.0) || !(vis > 0.0f)) return;
+        Link l;
+        l.receiver = receiver;
+        l.source = source;
+        l.form_factor = static_cast<float>(transfer / std::numbers::pi);
+        l.vis_real = vis;
+        out.push_back(l);
+    };
+    for (const ClusterLink& l : cluster_links_) {
+        const Cluster& c = clusters_[static_cast<std::size_t>(l.cluster)];
+        if (l.kind == ClusterLink::Kind::kSource) {
+            // The bin's mean radiance: sum_f w_fb L_f / p_b (or the area-weighted mean where no face
+            // sees the bin, as gatherClusters() does).
+            const auto b = static_cast<std::size_t>(l.bin);
+            const double p = c.projected[b];
+            double area = 0.0;
+            if (!(p > 0.0)) {
+                for (int f : c.faces) {
+                    const int root = hierarchy_.root(f);
+                    if (!hierarchy_[root].buried) area += faces_[static_cast<std::size_t>(f)].area * exposure(root);
+                }
+            }
+            for (std::size_t i = 0; i < c.faces.size(); ++i) {
+                const int root = hierarchy_.root(c.faces[i]);
+                if (hierarchy_[root].buried) continue;
+                double share = 0.0;
+                if (p > 0.0) {
+                    for (const auto& [bin, w] : c.face_bins[i]) {
+                        if (bin == l.bin) share = static_cast<double>(w) / p;
+                    }
+                } else if (area > 0.0) {
+                    share = faces_[static_cast<std::size_t>(c.faces[i])].area * exposure(root) / area;
+                }
+                push(l.element, root, static_cast<double>(l.weight) * share, l.vis_real);
+            }
+            continue;
+        }
+        for (int f : c.faces) {
+            const int root = hierarchy_.root(f);
+            if (hierarchy_[root].buried) continue;
+            const Face& face = faces_[static_cast<std::size_t>(f)];
+            const Eigen::Vector3d v = l.dir.cast<double>() + l.grad.cast<double>() * (faceCentroid(face) - c.centre);
+            push(root, l.element, std::max(0.0, face.normal.dot(v)), l.vis_real);
+        }
+    }
+    return out;
+}
+
 void Radiosity::clusterFormFactors(std::vector<double>& own) const {
     for (const ClusterLink& l : cluster_links_) {
         if (l.kind == ClusterLink::Kind::kSource) {
