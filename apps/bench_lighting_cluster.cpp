@@ -125,20 +125,11 @@ double ballErrorOfPeak(const Run& run, const Run& reference, int first_ball) {
 // sphere must change the ratio B/B~ as it does with the sphere unclustered. Measured against the
 // unclustered solve, the ball at three places, beside the difference between two unclustered
 // solves (links refined 2x further): what two valid discretisations of the same scene differ by.
-constexpr const char* kInfluenceScene = R"(
-real:
-  - {name: floor, plane: {size: [2.0, 2.0]}}
-  - {name: wall, plane: {size: [2.0, 1.5]}, world_from_object: {t: [0, 1.0, 0.75], rpy_deg: [90, 0, 0]}}
-  - {name: statue, sphere: {radius: 0.2}, world_from_object: {t: [0.0, 0.3, 0.2]}}
-lights:
-  - {name: lamp, area: {size: [0.3, 0.3]}, world_from_object: {t: [0.3, -0.3, 1.4], rpy_deg: [180, 0, 0]}, radiance: [60, 60, 60]}
-virtual:
-  - {name: ball, sphere: {radius: 0.08}, world_from_object: {t: [0.0, 0.0, 0.1]}}
-lighting: {max_elements: 4000}
-)";
+// The scene: data/scenes/statue.
 
-Result<lighting::LightingSnapshot> influenceSnapshot(int cluster_min_faces, double link_epsilon, const Eigen::Vector3d& ball) {
-    auto scene = parseScene(kInfluenceScene, "bench-cluster-influence.yaml");
+Result<lighting::LightingSnapshot> influenceSnapshot(const std::filesystem::path& file, int cluster_min_faces, double link_epsilon,
+                                                     const Eigen::Vector3d& ball) {
+    auto scene = readScene(file);
     if (!scene) return std::unexpected(scene.error());
     CameraModel camera;
     camera.width = 160;
@@ -162,7 +153,7 @@ Result<lighting::LightingSnapshot> influenceSnapshot(int cluster_min_faces, doub
 
 }  // namespace
 
-Result<nlohmann::json> runClusterCase(const BenchLightingOptions&) {
+Result<nlohmann::json> runClusterCase(const BenchLightingOptions& bench) {
     std::printf("\n== cluster: real mesh proxies (real spheres, 320 triangles each) in a room, with and without clustering\n");
     std::printf("%-6s %-12s %8s %8s %8s %9s %9s %10s %10s %10s %10s\n", "balls", "method", "leaves", "links", "cluster", "setup_ms",
                 "solve_ms", "room_rms%", "room_max%", "ball_rms%", "ball_max%");
@@ -226,6 +217,7 @@ Result<nlohmann::json> runClusterCase(const BenchLightingOptions&) {
     std::printf("%-22s %-7s %8s %13s %13s %13s %13s\n", "ball at", "object", "texels", "clustered_rms", "clustered_max", "finer_rms",
                 "finer_max");
     const double epsilon = RadiosityOptions{}.link_epsilon;
+    const std::filesystem::path statue = bench.source_dir / "data/scenes/statue/scene.yaml";
     nlohmann::json gap = nlohmann::json::array();
     const auto compare = [](const lighting::LightingSnapshot& a, const lighting::LightingSnapshot& b, int object) {
         double sq = 0.0, worst = 0.0;
@@ -243,11 +235,11 @@ Result<nlohmann::json> runClusterCase(const BenchLightingOptions&) {
         return std::tuple{texels, texels > 0 ? std::sqrt(sq / static_cast<double>(texels)) : 0.0, worst};
     };
     for (const Eigen::Vector3d& at : {Eigen::Vector3d(0.0, 0.0, 0.1), Eigen::Vector3d(0.2, 0.05, 0.15), Eigen::Vector3d(-0.25, 0.3, 0.1)}) {
-        auto clustered_run = influenceSnapshot(24, epsilon, at);
+        auto clustered_run = influenceSnapshot(statue, 24, epsilon, at);
         if (!clustered_run) return std::unexpected(clustered_run.error());
-        auto unclustered = influenceSnapshot(0, epsilon, at);
+        auto unclustered = influenceSnapshot(statue, 0, epsilon, at);
         if (!unclustered) return std::unexpected(unclustered.error());
-        auto finer = influenceSnapshot(0, 0.5 * epsilon, at);
+        auto finer = influenceSnapshot(statue, 0, 0.5 * epsilon, at);
         if (!finer) return std::unexpected(finer.error());
         for (const auto& [object, name] : {std::pair{0, "floor"}, std::pair{2, "statue"}}) {
             const auto [texels, rms, worst] = compare(*clustered_run, *unclustered, object);

@@ -14,6 +14,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
 #include <map>
 #include <numbers>
 #include <random>
@@ -473,17 +474,9 @@ TEST(Influence, SmallMovesKeepTheAnswersTheyDoNotReach) {
 // nothing through them: the sphere's ratio was up to 0.3 off), and the incremental state equals
 // the dense and the from-scratch solves.
 TEST(Influence, ClusteredRealMeshIsShadowedAsUnclustered) {
-    const Scene scene = parse(R"(
-real:
-  - {name: floor, plane: {size: [2.0, 2.0]}}
-  - {name: wall, plane: {size: [2.0, 1.5]}, world_from_object: {t: [0, 1.0, 0.75], rpy_deg: [90, 0, 0]}}
-  - {name: statue, sphere: {radius: 0.2}, world_from_object: {t: [0.0, 0.3, 0.2]}}
-lights:
-  - {name: lamp, area: {size: [0.3, 0.3]}, world_from_object: {t: [0.3, -0.3, 1.4], rpy_deg: [180, 0, 0]}, radiance: [60, 60, 60]}
-virtual:
-  - {name: ball, sphere: {radius: 0.08}, material: {albedo: [0.7, 0.7, 0.7]}, world_from_object: {t: [0.0, -0.5, 0.1]}}
-lighting: {max_elements: 3000}
-)");
+    auto read = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/statue/scene.yaml");
+    ASSERT_TRUE(read) << read.error().message;
+    const Scene& scene = *read;
     // The estimator's own element sizes (the tests' coarser ones leave the sphere's faces too
     // coarse to see the ball's indirect shadow on them).
     EstimatorOptions options;
