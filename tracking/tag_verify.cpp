@@ -56,13 +56,25 @@ public:
         // keeps pixels whose centre is at least half a cell inside the drawn square (the outer half
         // of the white border sees the unknown surroundings through the blur).
         uv_.reserve(static_cast<std::size_t>(width * height * kSub));
+        range_.reserve(static_cast<std::size_t>(width * height));
         std::vector<int> mask_lo(static_cast<std::size_t>(height), width), mask_hi(static_cast<std::size_t>(height), -1);
         for (int y = 0; y < height; ++y) {
             for (int x = 0; x < width; ++x) {
+                Eigen::Vector4d range(1e300, -1e300, 1e300, -1e300);
+                bool finite = true;
                 for (int j = 0; j < 3; ++j) {
-                    for (int i = 0; i < 3; ++i)
+                    for (int i = 0; i < 3; ++i) {
                         uv_.push_back(toCells(pixel_to_cells, x0 + x + (i - 1) / 3.0, y0 + y + (j - 1) / 3.0));
+                        const Eigen::Vector2d& q = uv_.back();
+                        finite = finite && q.allFinite();
+                        range = {std::min(range[0], q.x()), std::max(range[1], q.x()), std::min(range[2], q.y()),
+                                 std::max(range[3], q.y())};
+                    }
                 }
+                // A sub-sample at infinity or NaN (a pixel on the tag plane's horizon): extremes
+                // whose floors never agree, so that pixel always takes the sub-sample loop.
+                if (!finite) range = {-1e300, 1e300, -1e300, 1e300};
+                range_.push_back(range);
                 const Eigen::Vector2d c = toCells(pixel_to_cells, x0 + x, y0 + y);
                 const bool inner = c.x() >= 0.5 && c.y() >= 0.5 && c.x() <= total - 0.5 && c.y() <= total - 0.5;
                 if (inner) {
@@ -174,11 +186,25 @@ private:
             for (int x = render_lo_[static_cast<std::size_t>(y)]; x <= render_hi_[static_cast<std::size_t>(y)]; ++x) {
                 const std::size_t p = static_cast<std::size_t>(y * width_ + x);
                 const Eigen::Vector2d* uv = uv_.data() + p * kSub;
+                // The pixel's sub-samples within one cell (their extremes' floors agree: the
+                // subtraction and floor are monotonic, so every sub-sample's does): all of one colour.
+                const Eigen::Vector4d& range = range_[p];
+                const int col_lo = paddedFloor(range[0] - d.x(), total_), col_hi = paddedFloor(range[1] - d.x(), total_);
+                const int row_lo = paddedFloor(range[2] - d.y(), total_), row_hi = paddedFloor(range[3] - d.y(), total_);
                 int count = 0;
-                for (int k = 0; k < kSub; ++k) {
-                    const int col = paddedFloor(uv[k].x() - d.x(), total_);
-                    const int row = paddedFloor(uv[k].y() - d.y(), total_);
-                    count += cells[(row + 1) * padded + col + 1];
+                if (col_lo == col_hi && row_lo == row_hi) {
+                    count = kSub * cells[(row_lo + 1) * padded + col_lo + 1];
+                } else if (col_lo == col_hi) {
+                    for (int k = 0; k < kSub; ++k) count += cells[(paddedFloor(uv[k].y() - d.y(), total_) + 1) * padded + col_lo + 1];
+                } else if (row_lo == row_hi) {
+                    const std::uint8_t* row = cells + (row_lo + 1) * padded + 1;
+                    for (int k = 0; k < kSub; ++k) count += row[paddedFloor(uv[k].x() - d.x(), total_)];
+                } else {
+                    for (int k = 0; k < kSub; ++k) {
+                        const int col = paddedFloor(uv[k].x() - d.x(), total_);
+                        const int row = paddedFloor(uv[k].y() - d.y(), total_);
+                        count += cells[(row + 1) * padded + col + 1];
+                    }
                 }
                 model_[p] = kFraction[static_cast<std::size_t>(count)];
             }
@@ -253,6 +279,7 @@ private:
     int width_, height_;
     std::vector<std::array<double, 5>> kernels_;
     std::vector<Eigen::Vector2d> uv_;
+    std::vector<Eigen::Vector4d> range_;  // per pixel, its sub-samples' min and max u, min and max v
     std::vector<int> mask_, mask_x_, mask_y_;
     // Per row of the box: the columns the horizontal blur computes, and those the model renders
     // (empty when lo > hi).
