@@ -186,14 +186,21 @@ private:
             for (int x = render_lo_[static_cast<std::size_t>(y)]; x <= render_hi_[static_cast<std::size_t>(y)]; ++x) {
                 const std::size_t p = static_cast<std::size_t>(y * width_ + x);
                 const Eigen::Vector2d* uv = uv_.data() + p * kSub;
-                // The pixel's sub-samples within one cell (their extremes' floors agree: the
-                // subtraction and floor are monotonic, so every sub-sample's does): all of one colour.
+                // The pixel's sub-samples lie in the cells between its extremes' (the subtraction
+                // and the floor are monotonic): within one cell, or cells of one colour, the pixel
+                // is that colour without the nine lookups.
                 const Eigen::Vector4d& range = range_[p];
                 const int col_lo = paddedFloor(range[0] - d.x(), total_), col_hi = paddedFloor(range[1] - d.x(), total_);
                 const int row_lo = paddedFloor(range[2] - d.y(), total_), row_hi = paddedFloor(range[3] - d.y(), total_);
                 int count = 0;
+                const std::uint8_t* corner = cells + (row_lo + 1) * padded + col_lo + 1;
                 if (col_lo == col_hi && row_lo == row_hi) {
-                    count = kSub * cells[(row_lo + 1) * padded + col_lo + 1];
+                    count = kSub * corner[0];
+                } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1 && corner[0] == corner[col_hi - col_lo] &&
+                           corner[0] == corner[(row_hi - row_lo) * padded] &&
+                           corner[0] == corner[(row_hi - row_lo) * padded + col_hi - col_lo]) {
+                    // Across a boundary between cells of one colour (up to 2 x 2 cells).
+                    count = kSub * corner[0];
                 } else if (col_lo == col_hi) {
                     for (int k = 0; k < kSub; ++k) count += cells[(paddedFloor(uv[k].y() - d.y(), total_) + 1) * padded + col_lo + 1];
                 } else if (row_lo == row_hi) {
