@@ -4,8 +4,12 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 #include <functional>
 #include <memory>
+#include <utility>
 #include <opencv2/imgproc.hpp>
 
 #include "tracking/tag_detector.h"
@@ -163,14 +167,29 @@ private:
         const cv::Vec3d q = h * cv::Vec3d(x, y, 1.0);
         return {q[0] / q[2], q[1] / q[2]};
     }
-    // floor(v) within [-1, total]: a sub-sample outside the drawn square reads the padding's white
-    // (NaN too). Truncation corrected below zero, after clamping (std::floor is a libm call or a
-    // longer sequence without SSE4.1, and this is the NCC's innermost loop).
-    static int paddedFloor(double v, int total) {
-        v = v > -1.0 ? v : -1.0;
-        v = v < total ? v : static_cast<double>(total);
-        const int i = static_cast<int>(v);
-        return i - (static_cast<double>(i) > v ? 1 : 0);
+    // floor(a - da) and floor(b - db), each within [-1, total]: a sub-sample outside the drawn
+    // square reads the padding's white (NaN too). Truncation corrected below zero, after
+    // clamping; both at once where SSE2 is (std::floor is a libm call or a longer sequence
+    // without SSE4.1, and this is the NCC's innermost loop). The same operations either way, so
+    // the same integers.
+    static std::pair<int, int> paddedFloors(const double* ab, double da, double db, int total) {
+#if defined(__SSE2__)
+        __m128d v = _mm_sub_pd(_mm_loadu_pd(ab), _mm_set_pd(db, da));
+        v = _mm_max_pd(v, _mm_set1_pd(-1.0));  // v > -1 ? v : -1 (NaN: -1)
+        v = _mm_min_pd(v, _mm_set1_pd(static_cast<double>(total)));
+        const __m128d truncated = _mm_cvtepi32_pd(_mm_cvttpd_epi32(v));
+        const __m128d below = _mm_and_pd(_mm_cmpgt_pd(truncated, v), _mm_set1_pd(1.0));
+        const __m128i f = _mm_cvttpd_epi32(_mm_sub_pd(truncated, below));
+        return {_mm_cvtsi128_si32(f), _mm_cvtsi128_si32(_mm_shuffle_epi32(f, 1))};
+#else
+        const auto one = [&](double v) {
+            v = v > -1.0 ? v : -1.0;
+            v = v < total ? v : static_cast<double>(total);
+            const int i = static_cast<int>(v);
+            return i - (static_cast<double>(i) > v ? 1 : 0);
+        };
+        return {one(ab[0] - da), one(ab[1] - db)};
+#endif
     }
     // The template moved by shift_px, blurred by each level in turn: the best NCC.
     double ncc(const Cells& white, const Eigen::Vector2d& shift_px) const {
@@ -189,9 +208,9 @@ private:
                 // The pixel's sub-samples lie in the cells between its extremes' (the subtraction
                 // and the floor are monotonic): within one cell, or cells of one colour, the pixel
                 // is that colour without the nine lookups.
-                const Eigen::Vector4d& range = range_[p];
-                const int col_lo = paddedFloor(range[0] - d.x(), total_), col_hi = paddedFloor(range[1] - d.x(), total_);
-                const int row_lo = paddedFloor(range[2] - d.y(), total_), row_hi = paddedFloor(range[3] - d.y(), total_);
+                const double* range = range_[p].data();
+                const auto [col_lo, col_hi] = paddedFloors(range, d.x(), d.x(), total_);
+                const auto [row_lo, row_hi] = paddedFloors(range + 2, d.y(), d.y(), total_);
                 int count = 0;
                 const std::uint8_t* corner = cells + (row_lo + 1) * padded + col_lo + 1;
                 if (col_lo == col_hi && row_lo == row_hi) {
@@ -201,15 +220,9 @@ private:
                            corner[0] == corner[(row_hi - row_lo) * padded + col_hi - col_lo]) {
                     // Across a boundary between cells of one colour (up to 2 x 2 cells).
                     count = kSub * corner[0];
-                } else if (col_lo == col_hi) {
-                    for (int k = 0; k < kSub; ++k) count += cells[(paddedFloor(uv[k].y() - d.y(), total_) + 1) * padded + col_lo + 1];
-                } else if (row_lo == row_hi) {
-                    const std::uint8_t* row = cells + (row_lo + 1) * padded + 1;
-                    for (int k = 0; k < kSub; ++k) count += row[paddedFloor(uv[k].x() - d.x(), total_)];
                 } else {
                     for (int k = 0; k < kSub; ++k) {
-                        const int col = paddedFloor(uv[k].x() - d.x(), total_);
-                        const int row = paddedFloor(uv[k].y() - d.y(), total_);
+                        const auto [col, row] = paddedFloors(uv[k].data(), d.x(), d.y(), total_);
                         count += cells[(row + 1) * padded + col + 1];
                     }
                 }
