@@ -191,6 +191,15 @@ private:
         return {one(ab[0] - da), one(ab[1] - db)};
 #endif
     }
+    // Bit 0: a - da >= col, bit 1: b - db >= row (the same differences as paddedFloors').
+    static int pastBoundaries(const double* ab, double da, double db, int col, int row) {
+#if defined(__SSE2__)
+        const __m128d v = _mm_sub_pd(_mm_loadu_pd(ab), _mm_set_pd(db, da));
+        return _mm_movemask_pd(_mm_cmpge_pd(v, _mm_set_pd(static_cast<double>(row), static_cast<double>(col))));
+#else
+        return (ab[0] - da >= col ? 1 : 0) | (ab[1] - db >= row ? 2 : 0);
+#endif
+    }
     // The template moved by shift_px, blurred by each level in turn: the best NCC.
     double ncc(const Cells& white, const Eigen::Vector2d& shift_px) const {
         // A pixel sees the tag plane at its position minus the shift.
@@ -220,6 +229,13 @@ private:
                            corner[0] == corner[(row_hi - row_lo) * padded + col_hi - col_lo]) {
                     // Across a boundary between cells of one colour (up to 2 x 2 cells).
                     count = kSub * corner[0];
+                } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1) {
+                    // Within 2 x 2 cells: a sub-sample's cell is the corner one, or the next
+                    // across each boundary it reaches (floor(v) > n - 1 exactly when v >= n).
+                    const std::array<int, 4> colour = {corner[0], corner[col_hi - col_lo], corner[(row_hi - row_lo) * padded],
+                                                       corner[(row_hi - row_lo) * padded + col_hi - col_lo]};
+                    for (int k = 0; k < kSub; ++k)
+                        count += colour[static_cast<std::size_t>(pastBoundaries(uv[k].data(), d.x(), d.y(), col_lo + 1, row_lo + 1))];
                 } else {
                     for (int k = 0; k < kSub; ++k) {
                         const auto [col, row] = paddedFloors(uv[k].data(), d.x(), d.y(), total_);
