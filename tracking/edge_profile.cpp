@@ -1,5 +1,7 @@
 #include "tracking/edge_profile.h"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <vector>
 
@@ -34,10 +36,14 @@ std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, co
                                  const Eigen::Vector2d& n, const Eigen::Vector2d& along, double range) {
     constexpr double kStep = 0.25;
     const int steps = static_cast<int>(std::ceil(range / kStep));
-    // Called for every boundary point of every tag in every frame: the profile's buffer is kept
-    // (per thread) instead of allocated per call.
-    thread_local std::vector<double> values;
-    values.clear();
+    const int count = 2 * steps + 3;
+    // Called for every boundary point of every tag in every frame: the profile lives on the stack
+    // (up to 16 px each way), a longer one in a buffer kept per thread.
+    constexpr int kStack = 131;
+    double stack[kStack];
+    thread_local std::vector<double> heap;
+    if (count > kStack) heap.resize(static_cast<std::size_t>(count));
+    double* const values = count > kStack ? heap.data() : stack;
     // The samples are affine in (k, a): all are inside the image when the four extreme ones are
     // (the image's sampling rectangle is convex), so the bounds are checked once per profile.
     for (const double k : {-steps - 1.0, steps + 1.0}) {
@@ -46,26 +52,27 @@ std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, co
             if (!inside(img, q.x(), q.y())) return std::nullopt;
         }
     }
+    // Three profiles 0.5 px apart along the edge, averaged: less noise, same edge.
+    const std::array<Eigen::Vector2d, 3> offsets = {-0.5 * along, 0.0 * along, 0.5 * along};
+    const double* lut = lin.lut;
     for (int k = -steps - 1; k <= steps + 1; ++k) {
-        // Three profiles 0.5 px apart along the edge, averaged: less noise, same edge.
         const Eigen::Vector2d across = p + (k * kStep) * n;
         double sum = 0.0;
-        for (const double a : {-0.5, 0.0, 0.5}) {
-            const Eigen::Vector2d q = across + a * along;
+        for (const Eigen::Vector2d& offset : offsets) {
+            const Eigen::Vector2d q = across + offset;
             const int x0 = static_cast<int>(q.x()), y0 = static_cast<int>(q.y());
             const double fx = q.x() - x0, fy = q.y() - y0;
-            const std::uint8_t* r0 = img.row(y0) + x0;
-            const std::uint8_t* r1 = img.row(y0 + 1) + x0;
-            sum += (1 - fy) * ((1 - fx) * lin.lut[r0[0]] + fx * lin.lut[r0[1]]) +
-                   fy * ((1 - fx) * lin.lut[r1[0]] + fx * lin.lut[r1[1]]);
+            const std::uint8_t* r0 = img.data + static_cast<std::size_t>(y0) * img.stride + x0;
+            const std::uint8_t* r1 = r0 + img.stride;
+            sum += (1 - fy) * ((1 - fx) * lut[r0[0]] + fx * lut[r0[1]]) + fy * ((1 - fx) * lut[r1[0]] + fx * lut[r1[1]]);
         }
-        values.push_back(sum / 3.0);
+        values[k + steps + 1] = sum / 3.0;
     }
     // Central differences at k = -steps..steps (index i + 1 in values).
     int best = -1;
     double best_d = 0.0;
     for (int i = 0; i < 2 * steps + 1; ++i) {
-        const double d = values[static_cast<std::size_t>(i + 2)] - values[static_cast<std::size_t>(i)];
+        const double d = values[i + 2] - values[i];
         if (d > best_d) {
             best_d = d;
             best = i;
@@ -80,23 +87,18 @@ std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, co
     const int peak = best + 1;  // index into values
     const int margin = static_cast<int>(1.0 / kStep);
     double dark = 0, bright = 0;
-    int n_dark = 0, n_bright = 0;
-    for (int j = 0; j < static_cast<int>(values.size()); ++j) {
-        if (j <= peak - margin) {
-            dark += values[static_cast<std::size_t>(j)];
-            ++n_dark;
-        } else if (j >= peak + margin) {
-            bright += values[static_cast<std::size_t>(j)];
-            ++n_bright;
-        }
-    }
+    const int dark_end = std::min(peak - margin, count - 1);  // the last dark index
+    const int bright_begin = std::max(peak + margin, 0);
+    for (int j = 0; j <= dark_end; ++j) dark += values[j];
+    for (int j = bright_begin; j < count; ++j) bright += values[j];
+    const int n_dark = std::max(dark_end + 1, 0), n_bright = std::max(count - bright_begin, 0);
     if (n_dark == 0 || n_bright == 0) return std::nullopt;
     const double mid = 0.5 * (dark / n_dark + bright / n_bright);
     // The crossing nearest the peak.
     for (int r = 0; r < margin; ++r) {
         for (const int j : {peak - r - 1, peak + r}) {
-            if (j < 0 || j + 1 >= static_cast<int>(values.size())) continue;
-            const double v0 = values[static_cast<std::size_t>(j)], v1 = values[static_cast<std::size_t>(j + 1)];
+            if (j < 0 || j + 1 >= count) continue;
+            const double v0 = values[j], v1 = values[j + 1];
             if (v0 <= mid && v1 > mid) {
                 const double frac = (mid - v0) / (v1 - v0);
                 return (j - steps - 1 + frac) * kStep;
@@ -105,6 +107,5 @@ std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, co
     }
     return std::nullopt;
 }
-
 
 }  // namespace commonlight::tracking

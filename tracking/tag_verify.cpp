@@ -4,8 +4,12 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 #include <functional>
 #include <memory>
+#include <utility>
 #include <opencv2/imgproc.hpp>
 
 #include "tracking/tag_detector.h"
@@ -13,13 +17,17 @@
 namespace commonlight::tracking {
 namespace {
 
-// A template: the drawn tag's cells, `total` x `total`, 1 for white (row 0 at the tag's top).
+// A template: the drawn tag's cells, `total` x `total`, 1 for white (row 0 at the tag's top),
+// padded by one white cell on every side (stored (total + 2) x (total + 2)): the tag is seen on a
+// white surround, so a sub-sample outside the drawn square reads the padding.
 using Cells = std::vector<std::uint8_t>;
 
 Cells cellsOf(int total, const std::function<bool(int, int)>& white) {
-    Cells c(static_cast<std::size_t>(total * total));
+    const int padded = total + 2;
+    Cells c(static_cast<std::size_t>(padded * padded), 1);
     for (int r = 0; r < total; ++r) {
-        for (int col = 0; col < total; ++col) c[static_cast<std::size_t>(r * total + col)] = white(col, r) ? 1 : 0;
+        for (int col = 0; col < total; ++col)
+            c[static_cast<std::size_t>((r + 1) * padded + col + 1)] = white(col, r) ? 1 : 0;
     }
     return c;
 }
@@ -52,19 +60,59 @@ public:
         // keeps pixels whose centre is at least half a cell inside the drawn square (the outer half
         // of the white border sees the unknown surroundings through the blur).
         uv_.reserve(static_cast<std::size_t>(width * height * kSub));
+        range_.reserve(static_cast<std::size_t>(width * height));
+        std::vector<int> mask_lo(static_cast<std::size_t>(height), width), mask_hi(static_cast<std::size_t>(height), -1);
         for (int y = 0; y < height; ++y) {
             for (int x = 0; x < width; ++x) {
+                Eigen::Vector4d range(1e300, -1e300, 1e300, -1e300);
+                bool finite = true;
                 for (int j = 0; j < 3; ++j) {
-                    for (int i = 0; i < 3; ++i)
+                    for (int i = 0; i < 3; ++i) {
                         uv_.push_back(toCells(pixel_to_cells, x0 + x + (i - 1) / 3.0, y0 + y + (j - 1) / 3.0));
+                        const Eigen::Vector2d& q = uv_.back();
+                        finite = finite && q.allFinite();
+                        range = {std::min(range[0], q.x()), std::max(range[1], q.x()), std::min(range[2], q.y()),
+                                 std::max(range[3], q.y())};
+                    }
                 }
+                // A sub-sample at infinity or NaN (a pixel on the tag plane's horizon): extremes
+                // whose floors never agree, so that pixel always takes the sub-sample loop.
+                if (!finite) range = {-1e300, 1e300, -1e300, 1e300};
+                range_.push_back(range);
                 const Eigen::Vector2d c = toCells(pixel_to_cells, x0 + x, y0 + y);
                 const bool inner = c.x() >= 0.5 && c.y() >= 0.5 && c.x() <= total - 0.5 && c.y() <= total - 0.5;
                 if (inner) {
                     mask_.push_back(y * width + x);
+                    mask_x_.push_back(x);
+                    mask_y_.push_back(y);
+                    mask_lo[static_cast<std::size_t>(y)] = std::min(mask_lo[static_cast<std::size_t>(y)], x);
+                    mask_hi[static_cast<std::size_t>(y)] = std::max(mask_hi[static_cast<std::size_t>(y)], x);
                     image_.push_back(lin.lut[gray8.data[static_cast<std::size_t>((y0 + y) * gray8.stride + x0 + x)]] /
                                      255.0);
                 }
+            }
+        }
+        // What the NCC reads (docs/tracking.md, "Speed (issue 13)"): the vertical blur reads the
+        // horizontally blurred rows within 2 px of a mask pixel (clamped rows are within them too),
+        // at the mask's columns; the horizontal blur reads the model within 2 px of those. Each
+        // row's spans cover them (a superset where a row's mask is not one run); the rest of the
+        // box is never read, so it is neither rendered nor blurred.
+        blur_lo_.assign(static_cast<std::size_t>(height), width);
+        blur_hi_.assign(static_cast<std::size_t>(height), -1);
+        render_lo_.assign(static_cast<std::size_t>(height), width);
+        render_hi_.assign(static_cast<std::size_t>(height), -1);
+        for (int y = 0; y < height; ++y) {
+            for (int t = -2; t <= 2; ++t) {
+                const int r = y + t;
+                if (r < 0 || r >= height) continue;
+                blur_lo_[static_cast<std::size_t>(y)] =
+                    std::min(blur_lo_[static_cast<std::size_t>(y)], mask_lo[static_cast<std::size_t>(r)]);
+                blur_hi_[static_cast<std::size_t>(y)] =
+                    std::max(blur_hi_[static_cast<std::size_t>(y)], mask_hi[static_cast<std::size_t>(r)]);
+            }
+            if (blur_lo_[static_cast<std::size_t>(y)] <= blur_hi_[static_cast<std::size_t>(y)]) {
+                render_lo_[static_cast<std::size_t>(y)] = std::max(0, blur_lo_[static_cast<std::size_t>(y)] - 2);
+                render_hi_[static_cast<std::size_t>(y)] = std::min(width - 1, blur_hi_[static_cast<std::size_t>(y)] + 2);
             }
         }
         double mean = 0;
@@ -119,24 +167,84 @@ private:
         const cv::Vec3d q = h * cv::Vec3d(x, y, 1.0);
         return {q[0] / q[2], q[1] / q[2]};
     }
+    // floor(a - da) and floor(b - db), each within [-1, total]: a sub-sample outside the drawn
+    // square reads the padding's white (NaN too). Truncation corrected below zero, after
+    // clamping; both at once where SSE2 is (std::floor is a libm call or a longer sequence
+    // without SSE4.1, and this is the NCC's innermost loop). The same operations either way, so
+    // the same integers.
+    static std::pair<int, int> paddedFloors(const double* ab, double da, double db, int total) {
+#if defined(__SSE2__)
+        __m128d v = _mm_sub_pd(_mm_loadu_pd(ab), _mm_set_pd(db, da));
+        v = _mm_max_pd(v, _mm_set1_pd(-1.0));  // v > -1 ? v : -1 (NaN: -1)
+        v = _mm_min_pd(v, _mm_set1_pd(static_cast<double>(total)));
+        const __m128d truncated = _mm_cvtepi32_pd(_mm_cvttpd_epi32(v));
+        const __m128d below = _mm_and_pd(_mm_cmpgt_pd(truncated, v), _mm_set1_pd(1.0));
+        const __m128i f = _mm_cvttpd_epi32(_mm_sub_pd(truncated, below));
+        return {_mm_cvtsi128_si32(f), _mm_cvtsi128_si32(_mm_shuffle_epi32(f, 1))};
+#else
+        const auto one = [&](double v) {
+            v = v > -1.0 ? v : -1.0;
+            v = v < total ? v : static_cast<double>(total);
+            const int i = static_cast<int>(v);
+            return i - (static_cast<double>(i) > v ? 1 : 0);
+        };
+        return {one(ab[0] - da), one(ab[1] - db)};
+#endif
+    }
+    // Bit 0: a - da >= col, bit 1: b - db >= row (the same differences as paddedFloors').
+    static int pastBoundaries(const double* ab, double da, double db, int col, int row) {
+#if defined(__SSE2__)
+        const __m128d v = _mm_sub_pd(_mm_loadu_pd(ab), _mm_set_pd(db, da));
+        return _mm_movemask_pd(_mm_cmpge_pd(v, _mm_set_pd(static_cast<double>(row), static_cast<double>(col))));
+#else
+        return (ab[0] - da >= col ? 1 : 0) | (ab[1] - db >= row ? 2 : 0);
+#endif
+    }
     // The template moved by shift_px, blurred by each level in turn: the best NCC.
     double ncc(const Cells& white, const Eigen::Vector2d& shift_px) const {
         // A pixel sees the tag plane at its position minus the shift.
         const Eigen::Vector2d d = cells_per_px_ * shift_px;
-        for (std::size_t p = 0; p < model_.size(); ++p) {
-            int count = 0;
-            for (int k = 0; k < kSub; ++k) {
-                const Eigen::Vector2d uv = uv_[p * kSub + static_cast<std::size_t>(k)] - d;
-                const int col = static_cast<int>(std::floor(uv.x()));
-                const int row = static_cast<int>(std::floor(uv.y()));
-                const bool inside = col >= 0 && row >= 0 && col < total_ && row < total_;
-                count += (!inside || white[static_cast<std::size_t>(row * total_ + col)]) ? 1 : 0;
+        // count / 9 for each count, as the division gives it.
+        static constexpr std::array<double, kSub + 1> kFraction = {0.0 / kSub, 1.0 / kSub, 2.0 / kSub, 3.0 / kSub,
+                                                                   4.0 / kSub, 5.0 / kSub, 6.0 / kSub, 7.0 / kSub,
+                                                                   8.0 / kSub, 9.0 / kSub};
+        const int padded = total_ + 2;
+        const std::uint8_t* cells = white.data();
+        for (int y = 0; y < height_; ++y) {
+            for (int x = render_lo_[static_cast<std::size_t>(y)]; x <= render_hi_[static_cast<std::size_t>(y)]; ++x) {
+                const std::size_t p = static_cast<std::size_t>(y * width_ + x);
+                const Eigen::Vector2d* uv = uv_.data() + p * kSub;
+                // The pixel's sub-samples lie in the cells between its extremes' (the subtraction
+                // and the floor are monotonic): within one cell, or cells of one colour, the pixel
+                // is that colour without the nine lookups.
+                const double* range = range_[p].data();
+                const auto [col_lo, col_hi] = paddedFloors(range, d.x(), d.x(), total_);
+                const auto [row_lo, row_hi] = paddedFloors(range + 2, d.y(), d.y(), total_);
+                int count = 0;
+                const std::uint8_t* corner = cells + (row_lo + 1) * padded + col_lo + 1;
+                if (col_lo == col_hi && row_lo == row_hi) {
+                    count = kSub * corner[0];
+                } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1 && corner[0] == corner[col_hi - col_lo] &&
+                           corner[0] == corner[(row_hi - row_lo) * padded] &&
+                           corner[0] == corner[(row_hi - row_lo) * padded + col_hi - col_lo]) {
+                    // Across a boundary between cells of one colour (up to 2 x 2 cells).
+                    count = kSub * corner[0];
+                } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1) {
+                    // Within 2 x 2 cells: a sub-sample's cell is the corner one, or the next
+                    // across each boundary it reaches (floor(v) > n - 1 exactly when v >= n).
+                    const std::array<int, 4> colour = {corner[0], corner[col_hi - col_lo], corner[(row_hi - row_lo) * padded],
+                                                       corner[(row_hi - row_lo) * padded + col_hi - col_lo]};
+                    for (int k = 0; k < kSub; ++k)
+                        count += colour[static_cast<std::size_t>(pastBoundaries(uv[k].data(), d.x(), d.y(), col_lo + 1, row_lo + 1))];
+                } else {
+                    for (int k = 0; k < kSub; ++k) {
+                        const auto [col, row] = paddedFloors(uv[k].data(), d.x(), d.y(), total_);
+                        count += cells[(row + 1) * padded + col + 1];
+                    }
+                }
+                model_[p] = kFraction[static_cast<std::size_t>(count)];
             }
-            model_[p] = count / static_cast<double>(kSub);
         }
-        const auto at = [&](const std::vector<double>& v, int x, int y) {
-            return v[static_cast<std::size_t>(std::clamp(y, 0, height_ - 1) * width_ + std::clamp(x, 0, width_ - 1))];
-        };
         double best = -2.0;
         for (const auto& k : kernels_) {
             double sm = 0;
@@ -147,28 +255,44 @@ private:
                     sm += m_[i];
                 }
             } else {
-                // The optics: the level's Gaussian each way, edges clamped (rows over the box,
-                // columns at the mask's pixels only; the clamping only within 2 px of an edge).
+                // The optics: the level's Gaussian each way, edges clamped (rows over the spans
+                // the vertical pass reads, columns at the mask's pixels only; the clamping only
+                // within 2 px of an edge).
+                const auto clampedTap = [&](const double* row, int x, int t) {
+                    return k[static_cast<std::size_t>(t + 2)] * row[std::clamp(x + t, 0, width_ - 1)];
+                };
                 for (int y = 0; y < height_; ++y) {
                     const double* row = model_.data() + static_cast<std::size_t>(y * width_);
-                    for (int x = 0; x < width_; ++x) {
-                        double v = 0;
-                        if (x >= 2 && x + 2 < width_) {
-                            for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * row[x + t];
-                        } else {
-                            for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * at(model_, x + t, y);
+                    double* out = blurred_.data() + static_cast<std::size_t>(y * width_);
+                    const int lo = blur_lo_[static_cast<std::size_t>(y)], hi = blur_hi_[static_cast<std::size_t>(y)];
+                    const int inner_lo = std::max(lo, 2), inner_hi = std::min(hi, width_ - 3);
+                    for (int x = lo; x <= hi; ++x) {
+                        if (x >= inner_lo && x <= inner_hi) {
+                            // The run without clamping.
+                            for (; x <= inner_hi; ++x) {
+                                double v = 0;
+                                for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * row[x + t];
+                                out[x] = v;
+                            }
+                            if (x > hi) break;
                         }
-                        blurred_[static_cast<std::size_t>(y * width_ + x)] = v;
+                        double v = 0;
+                        for (int t = -2; t <= 2; ++t) v += clampedTap(row, x, t);
+                        out[x] = v;
                     }
                 }
                 for (std::size_t i = 0; i < mask_.size(); ++i) {
                     const int p = mask_[i];
-                    const int x = p % width_, y = p / width_;
+                    const int y = mask_y_[i];
                     double v = 0;
                     if (y >= 2 && y + 2 < height_) {
                         for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * blurred_[static_cast<std::size_t>(p + t * width_)];
                     } else {
-                        for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * at(blurred_, x, y + t);
+                        const int x = mask_x_[i];
+                        for (int t = -2; t <= 2; ++t) {
+                            v += k[static_cast<std::size_t>(t + 2)] *
+                                 blurred_[static_cast<std::size_t>(std::clamp(y + t, 0, height_ - 1) * width_ + x)];
+                        }
                     }
                     m_[i] = v;
                     sm += v;
@@ -191,7 +315,11 @@ private:
     int width_, height_;
     std::vector<std::array<double, 5>> kernels_;
     std::vector<Eigen::Vector2d> uv_;
-    std::vector<int> mask_;
+    std::vector<Eigen::Vector4d> range_;  // per pixel, its sub-samples' min and max u, min and max v
+    std::vector<int> mask_, mask_x_, mask_y_;
+    // Per row of the box: the columns the horizontal blur computes, and those the model renders
+    // (empty when lo > hi).
+    std::vector<int> blur_lo_, blur_hi_, render_lo_, render_hi_;
     std::vector<double> image_;  // linear, minus its mean
     double image_ss_ = 0.0;
     mutable std::vector<double> model_, blurred_, m_;
