@@ -5,8 +5,10 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <memory>
 
 #include "apps/bench_lighting.h"
+#include "apps/bench_lighting_common.h"
 #include "core/scene_io.h"
 #include "lighting/estimator.h"
 #include "lighting/radiosity.h"
@@ -15,6 +17,7 @@ namespace commonlight::apps {
 
 namespace {
 
+using bench_common::percentile;
 using lighting::Face;
 using lighting::Mode;
 using lighting::Radiosity;
@@ -127,10 +130,8 @@ double ballErrorOfPeak(const Run& run, const Run& reference, int first_ball) {
 // solves (links refined 2x further): what two valid discretisations of the same scene differ by.
 // The scene: data/scenes/statue.
 
-Result<lighting::LightingSnapshot> influenceSnapshot(const std::filesystem::path& file, int cluster_min_faces, double link_epsilon,
-                                                     const Eigen::Vector3d& ball) {
-    auto scene = readScene(file);
-    if (!scene) return std::unexpected(scene.error());
+// The statue scene's estimator, solved without the ball's influence yet.
+Result<std::unique_ptr<lighting::Estimator>> statueEstimator(const Scene& scene, int cluster_min_faces, double link_epsilon) {
     CameraModel camera;
     camera.width = 160;
     camera.height = 120;
@@ -141,14 +142,50 @@ Result<lighting::LightingSnapshot> influenceSnapshot(const std::filesystem::path
     o.refine_unobserved = true;
     o.radiosity.cluster_min_faces = cluster_min_faces;
     o.radiosity.link_epsilon = link_epsilon;
-    auto est = lighting::Estimator::create(*scene, camera, {}, o);
+    auto est = lighting::Estimator::create(scene, camera, {}, o);
     if (!est) return std::unexpected(est.error());
     (*est)->setViewer(Rigid3d::fromRpyDeg(Eigen::Vector3d(0.0, -1.5, 1.2), Eigen::Vector3d(-130, 0, 0)).inverse());
-    std::vector<Rigid3d> poses = lighting::SceneLighting::scenePoses(*scene, 0.0);
     const std::vector<Eigen::Vector3d> albedo{Eigen::Vector3d::Constant(0.5), Eigen::Vector3d::Constant(0.7), Eigen::Vector3d::Constant(0.9)};
-    if (auto solved = (*est)->solveWith({*scene->lights[0].emission.value}, albedo, poses); !solved) return std::unexpected(solved.error());
+    if (auto solved = (*est)->solveWith({*scene.lights[0].emission.value}, albedo, lighting::SceneLighting::scenePoses(scene, 0.0)); !solved) {
+        return std::unexpected(solved.error());
+    }
+    return std::move(*est);
+}
+
+Result<lighting::LightingSnapshot> influenceSnapshot(const Scene& scene, int cluster_min_faces, double link_epsilon, const Eigen::Vector3d& ball) {
+    auto est = statueEstimator(scene, cluster_min_faces, link_epsilon);
+    if (!est) return std::unexpected(est.error());
+    std::vector<Rigid3d> poses = lighting::SceneLighting::scenePoses(scene, 0.0);
     poses[0] = Rigid3d::fromRpyDeg(ball, Eigen::Vector3d::Zero());
     return (*est)->update(poses);
+}
+
+// The ball moving towards the statue in 5 mm steps: the update's wall time and the influence's
+// share, per move, and the links the influence carries (element links and cluster transfers).
+struct MoveTiming {
+    double update_ms_p50 = 0.0, influence_ms_p50 = 0.0;
+    std::size_t links = 0, transfers = 0;
+};
+Result<MoveTiming> influenceTiming(const Scene& scene, int cluster_min_faces) {
+    auto est = statueEstimator(scene, cluster_min_faces, RadiosityOptions{}.link_epsilon);
+    if (!est) return std::unexpected(est.error());
+    std::vector<Rigid3d> poses = lighting::SceneLighting::scenePoses(scene, 0.0);
+    std::vector<double> update, influence;
+    for (int step = 0; step <= 40; ++step) {
+        poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(-0.45 + 0.005 * step, 0.3, 0.1), Eigen::Vector3d::Zero());
+        const auto start = std::chrono::steady_clock::now();
+        if (auto s = (*est)->update(poses); !s) return std::unexpected(s.error());
+        const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+        if (step == 0) continue;  // the ball's first placement
+        update.push_back(ms);
+        influence.push_back((*est)->stats().ms_influence);
+    }
+    MoveTiming t;
+    t.update_ms_p50 = percentile(update, 50);
+    t.influence_ms_p50 = percentile(influence, 50);
+    t.links = (*est)->radiosity().links().size();
+    t.transfers = (*est)->radiosity().clusterTransfers().size();
+    return t;
 }
 
 }  // namespace
@@ -217,7 +254,8 @@ Result<nlohmann::json> runClusterCase(const BenchLightingOptions& bench) {
     std::printf("%-22s %-7s %8s %13s %13s %13s %13s\n", "ball at", "object", "texels", "clustered_rms", "clustered_max", "finer_rms",
                 "finer_max");
     const double epsilon = RadiosityOptions{}.link_epsilon;
-    const std::filesystem::path statue = bench.source_dir / "data/scenes/statue/scene.yaml";
+    auto statue = readScene(bench.source_dir / "data/scenes/statue/scene.yaml");
+    if (!statue) return std::unexpected(statue.error());
     nlohmann::json gap = nlohmann::json::array();
     const auto compare = [](const lighting::LightingSnapshot& a, const lighting::LightingSnapshot& b, int object) {
         double sq = 0.0, worst = 0.0;
@@ -235,11 +273,11 @@ Result<nlohmann::json> runClusterCase(const BenchLightingOptions& bench) {
         return std::tuple{texels, texels > 0 ? std::sqrt(sq / static_cast<double>(texels)) : 0.0, worst};
     };
     for (const Eigen::Vector3d& at : {Eigen::Vector3d(0.0, 0.0, 0.1), Eigen::Vector3d(0.2, 0.05, 0.15), Eigen::Vector3d(-0.25, 0.3, 0.1)}) {
-        auto clustered_run = influenceSnapshot(statue, 24, epsilon, at);
+        auto clustered_run = influenceSnapshot(*statue, 24, epsilon, at);
         if (!clustered_run) return std::unexpected(clustered_run.error());
-        auto unclustered = influenceSnapshot(statue, 0, epsilon, at);
+        auto unclustered = influenceSnapshot(*statue, 0, epsilon, at);
         if (!unclustered) return std::unexpected(unclustered.error());
-        auto finer = influenceSnapshot(statue, 0, 0.5 * epsilon, at);
+        auto finer = influenceSnapshot(*statue, 0, 0.5 * epsilon, at);
         if (!finer) return std::unexpected(finer.error());
         for (const auto& [object, name] : {std::pair{0, "floor"}, std::pair{2, "statue"}}) {
             const auto [texels, rms, worst] = compare(*clustered_run, *unclustered, object);
@@ -256,7 +294,20 @@ Result<nlohmann::json> runClusterCase(const BenchLightingOptions& bench) {
                            {"finer_ratio_max", finer_worst}});
         }
     }
-    return nlohmann::json{{"rows", rows}, {"influence_through_clusters", gap}};
+    std::printf("the ball moving towards the statue, 40 moves of 5 mm: per move, p50\n");
+    std::printf("%-12s %10s %13s %12s %10s\n", "method", "update_ms", "influence_ms", "links", "transfers");
+    nlohmann::json moves = nlohmann::json::array();
+    for (const auto& [faces, name] : {std::pair{24, "clustered"}, std::pair{0, "unclustered"}}) {
+        auto t = influenceTiming(*statue, faces);
+        if (!t) return std::unexpected(t.error());
+        std::printf("%-12s %10.2f %13.2f %12zu %10zu\n", name, t->update_ms_p50, t->influence_ms_p50, t->links, t->transfers);
+        moves.push_back({{"method", name},
+                         {"update_ms_p50", t->update_ms_p50},
+                         {"influence_ms_p50", t->influence_ms_p50},
+                         {"links", t->links},
+                         {"cluster_transfers", t->transfers}});
+    }
+    return nlohmann::json{{"rows", rows}, {"influence_through_clusters", gap}, {"moves", moves}};
 }
 
 }  // namespace commonlight::apps
