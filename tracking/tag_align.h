@@ -42,6 +42,10 @@ public:
     struct Edge {
         Eigen::Vector2d a, b;       // end points, tag frame / size
         Eigen::Vector2d to_bright;  // unit normal in the tag plane, from the black cell to the white one
+        // The boundary turns a corner at its end a (b): the two cells beyond that end have one
+        // colour (an L junction: a black or a white region's convex corner), not a straight
+        // continuation or a crossing of four cells.
+        bool corner_a = false, corner_b = false;
     };
     // Draws the tag with libapriltag (apriltag_to_image); kUsage for an unknown family or id.
     static Result<TagPattern> make(const std::string& family, int id);
@@ -86,6 +90,15 @@ struct TagAlignOptions {
     bool estimate_dilation = true;
     double dilation_sigma_cells = 0.2;  // a weak prior on the dilation: zero, this standard deviation
     double max_dilation_cells = 0.3;    // a larger fitted dilation: the alignment is refused
+    // A boundary point nearer an L junction than this (pixels, along the boundary) is not
+    // sampled: the blur rounds a region's convex corner, so the edge found there lies inside the
+    // region by a fraction of the blur, in pixels: a scale error that differs along and across a
+    // foreshortened tag (a tilt error) and that the dilation, in cells, does not absorb. 0: every
+    // point (before issue 13's fix).
+    double corner_clearance_px = 2.0;
+    // On cells under this many pixels every point is sampled (measured: dropping them on cells
+    // of 2.4 px made the pattern choose the wrong candidate of a 19 px tag, tracking/ambiguity).
+    double corner_clearance_min_cell_px = 3.0;
     // The camera\'s response when it is neither sRGB nor linear (--response): replaces `srgb`.
     std::shared_ptr<const Linearizer> linearizer;
 };

@@ -69,14 +69,22 @@ void settleAmbiguousTag(TrackedTag& t, const TagItem& item, const CameraModel& c
     TagPose& p = *t.pose;
     const Rigid3d implied = cam_from_world * item.world_from_tag;
     p.cam_from_tag = implied;
-    p.rms_px = tagReprojectionRms(t.detection.corners, item.size, camera, implied);
     if (p.candidates.size() > 1) {
         if (rotationErrorDeg(p.candidates[1].cam_from_tag, implied) < rotationErrorDeg(p.candidates[0].cam_from_tag, implied)) {
             std::swap(p.candidates[0], p.candidates[1]);
             p.ambiguity_ratio = 1.0 / p.ambiguity_ratio;
+            // The corners go with the candidate: the other one's aligned (or refined) corners.
+            if (t.alternative_corners) {
+                std::swap(t.detection.corners, *t.alternative_corners);
+                std::swap(t.aligned, t.alternative_aligned);
+            }
         }
+        p.rms_px = tagReprojectionRms(t.detection.corners, item.size, camera, implied);
     } else if (!p.candidates.empty()) {
+        p.rms_px = tagReprojectionRms(t.detection.corners, item.size, camera, implied);
         p.candidates[0] = {implied, p.rms_px};
+    } else {
+        p.rms_px = tagReprojectionRms(t.detection.corners, item.size, camera, implied);
     }
     p.choice = choice;
     p.ambiguous = false;
@@ -396,12 +404,22 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             TagAlignResult a[2];
             a[0] = align(*pattern, size, pose->candidates[0].cam_from_tag);
             if (a[0].measured) a[1] = align(*pattern, size, other_start);
-            if (a[0].measured && (a[0].ok || a[1].ok)) {
+            if (a[0].measured && !a[1].measured) {
+                // One-sided: the other candidate's pattern could not be measured (its cells under
+                // min_cell_px), so the pattern chose nothing. The corners' choice stands, with
+                // their ratio and ambiguity, aligned when its alignment passed.
+                const std::array<Eigen::Vector2d, 4> refined_corners = tag.detection.corners;
+                if (a[0].ok && adopt(a[0])) {
+                    pose->candidates[0] = {a[0].cam_from_tag, a[0].rms_px};
+                    if (pose->candidates.size() > 1) tag.alternative_corners = refined_corners;
+                }
+            } else if (a[0].measured && (a[0].ok || a[1].ok)) {
                 const int best = !a[1].ok || (a[0].ok && a[0].rms_px <= a[1].rms_px) ? 0 : 1;
                 const TagAlignResult& chosen = a[best];
                 const TagAlignResult& other = a[1 - best];
                 const double corner_rms_other =
                     best == 0 ? tagReprojectionRms(tag.detection.corners, size, s.camera, other_start) : pose->candidates[0].rms_px;
+                const std::array<Eigen::Vector2d, 4> refined_corners = tag.detection.corners;
                 if (adopt(chosen)) {
                     pose->choice = PoseChoice::kPattern;
                     pose->candidates.assign(1, {chosen.cam_from_tag, chosen.rms_px});
@@ -412,9 +430,21 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                         pose->candidates.push_back({other.cam_from_tag, other.rms_px});
                         pose->ambiguity_ratio = (chosen.rms_px * chosen.rms_px + kFloor) / (other.rms_px * other.rms_px + kFloor);
                         pose->ambiguous = pose->ambiguity_ratio > s.options.tag_pose.ambiguous_pattern_ratio;
+                        // Its corners, should the scene or the edges choose it.
+                        std::array<Eigen::Vector2d, 4> corners;
+                        bool projected = true;
+                        for (int c = 0; c < 4 && projected; ++c) {
+                            const auto px = s.camera.project(other.cam_from_tag * tagCornerInTag(c, size));
+                            if (px) corners[c] = *px;
+                            projected = px.has_value();
+                        }
+                        tag.alternative_corners = projected ? corners : refined_corners;
+                        tag.alternative_aligned = projected;
                     } else if (!other.ok) {
-                        // Refused: not a pose the pattern fits. Kept as the alternative, unaligned.
+                        // Refused: not a pose the pattern fits. Kept as the alternative, unaligned,
+                        // with the refined corners.
                         pose->candidates.push_back({other.cam_from_tag, corner_rms_other});
+                        tag.alternative_corners = refined_corners;
                     }
                     // A tilt the pattern hardly fixes is not a choice either.
                     if (rotationSigmaDeg(chosen.covariance) > s.options.tag_pose.ambiguous_rotation_sigma_deg) {

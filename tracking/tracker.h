@@ -102,6 +102,11 @@ struct TrackedTag {
     TagDetection detection;       // corners refined when the options say so (corners_refined)
     bool corners_refined = false;
     bool aligned = false;         // the pose (and the corners) come from the pattern alignment
+    // The other candidate's corners (pose->candidates[1]'s: its aligned pose's, or the refined
+    // corners when it was not aligned) and whether they are aligned; a tag whose candidate the
+    // scene or the edges switch takes them. nullopt: the same corners as the chosen one's.
+    std::optional<std::array<Eigen::Vector2d, 4>> alternative_corners;
+    bool alternative_aligned = false;
     // Not detected: a scene tag predicted in view and verified there against its pattern
     // (TrackerOptions::verify_predicted); its corners are the verified prediction's.
     bool verified = false;

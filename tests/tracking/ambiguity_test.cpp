@@ -12,6 +12,7 @@
 
 #include "core/scene.h"
 #include "tests/tracking/synthetic_tags.h"
+#include "tracking/tag_align.h"
 #include "tracking/tracker.h"
 
 namespace commonlight::tracking {
@@ -130,6 +131,7 @@ TEST(Ambiguity, ASmallHeadOnTagAloneIsReportedAmbiguous) {
 // no pose is grossly wrong.
 TEST(Ambiguity, ASecondTagInViewChoosesTheCandidate) {
     const TagSet tags = board(true);
+    int stale = 0;
     for (const View& v : smallViews()) {
         const Rigid3d truth = camFromWorld(v.px, v.tilt_deg, v.axis_deg, v.offset_x);
         const Image image = render(tags, truth, v.seed);
@@ -148,11 +150,25 @@ TEST(Ambiguity, ASecondTagInViewChoosesTheCandidate) {
             const double tag_err = rotationErrorDeg(t.pose->cam_from_tag, truth * item->world_from_tag);
             EXPECT_LT(tag_err, 5.0) << "tag " << t.detection.id << " (" << poseChoiceName(t.pose->choice) << "), seed "
                                     << v.seed;
+            // The tag's corners are its chosen candidate's: where that candidate's aligned pose
+            // puts them, not the other candidate's the tag had before the scene chose.
+            if (t.aligned) {
+                double off = 0;
+                for (int c = 0; c < 4; ++c) {
+                    const auto px = testing::syntheticCamera().project(t.pose->candidates[0].cam_from_tag *
+                                                                       tagCornerInTag(c, item->size));
+                    ASSERT_TRUE(px);
+                    off = std::max(off, (*px - t.detection.corners[c]).norm());
+                }
+                EXPECT_LT(off, 1e-6) << "tag " << t.detection.id << ", seed " << v.seed;
+                if (t.pose->choice == PoseChoice::kScene && off > 1e-6) ++stale;
+            }
         }
         std::printf("  seed %llu: camera rotation error %.2f deg; tag choices %s, %s\n",
                     static_cast<unsigned long long>(v.seed), err, poseChoiceName(track->tags[0].pose->choice),
                     poseChoiceName(track->tags[1].pose->choice));
     }
+    std::printf("  scene-chosen tags whose corners were another candidate's: %d\n", stale);
 }
 
 // A steeply tilted tag alone in a sequence: its corners leave one plausible candidate, and once
@@ -263,6 +279,61 @@ TEST(Ambiguity, DISABLED_MeasureSingleTags) {
         }
         std::printf("| %.1f-%.1f deg | %d | %d |\n", sig[b], sig[b + 1], count, gross);
     }
+}
+
+// A one-sided alignment: the corners' choice can be aligned, the other candidate's cells are
+// under min_cell_px, so its pattern cannot be measured. That is no choice between two measured
+// fits: the tag keeps the corners' choice and ratio (aligned), not PoseChoice::kPattern.
+TEST(Ambiguity, AOneSidedAlignmentIsNotThePatternsChoice) {
+    const TagSet tags = board(false);
+    const CameraModel cam = testing::syntheticCamera();
+    auto pattern = TagPattern::make("tag36h11", 3);
+    ASSERT_TRUE(pattern);
+    // The alignment's cell size: the shorter of the two sides from corner 0, over the cells.
+    const auto cellPx = [&](const Rigid3d& cam_from_tag) {
+        const auto c0 = cam.project(cam_from_tag * tagCornerInTag(0, kSize));
+        const auto c1 = cam.project(cam_from_tag * tagCornerInTag(1, kSize));
+        const auto c3 = cam.project(cam_from_tag * tagCornerInTag(3, kSize));
+        return c0 && c1 && c3 ? pattern->cell() * std::min((*c1 - *c0).norm(), (*c3 - *c0).norm()) : 0.0;
+    };
+    int one_sided = 0;
+    for (std::uint64_t seed = 1; seed <= 12; ++seed) {
+        const Rigid3d truth = camFromWorld(36.0 + static_cast<double>(seed), 50.0 + 2.0 * static_cast<double>(seed), 30.0 * static_cast<double>(seed), -0.2);
+        const Image image = render(tags, truth, seed);
+        Tracker first = makeTracker(tags, true);
+        auto track = first.process(image.view(), std::int64_t{0});
+        ASSERT_TRUE(track);
+        if (track->tags.size() != 1 || !track->tags[0].pose) continue;
+        const TagPose& p = *track->tags[0].pose;
+        // A view where the pattern chose between two measured fits, the chosen one's cells larger.
+        if (p.choice != PoseChoice::kPattern || p.candidates.size() < 2) continue;
+        const double own = cellPx(p.candidates[0].cam_from_tag), other = cellPx(p.candidates[1].cam_from_tag);
+        if (own < other + 0.05) continue;
+        // Only the chosen candidate's cells are at least min_cell_px.
+        TrackerOptions options;
+        options.filter = false;
+        options.independent_frames = true;
+        options.align.min_cell_px = 0.5 * (own + other);
+        auto tracker = Tracker::create(cam, tags, nullptr, options);
+        ASSERT_TRUE(tracker);
+        auto again = tracker->process(image.view(), std::int64_t{0});
+        ASSERT_TRUE(again);
+        ASSERT_EQ(again->tags.size(), 1u);
+        const TrackedTag& t = again->tags[0];
+        ASSERT_TRUE(t.pose);
+        std::printf("  seed %llu: cells %.2f / %.2f px, min %.2f: choice %s, ratio %.3f, aligned %d, %.2f deg off\n",
+                    static_cast<unsigned long long>(seed), own, other, options.align.min_cell_px,
+                    poseChoiceName(t.pose->choice), t.pose->ambiguity_ratio, t.aligned ? 1 : 0,
+                    rotationErrorDeg(t.pose->cam_from_tag, truth));
+        // Which candidate the corners chose is theirs to say; the pattern measured one side only.
+        if (rotationErrorDeg(t.pose->candidates[0].cam_from_tag, p.candidates[0].cam_from_tag) > 2.0) continue;
+        ++one_sided;
+        EXPECT_NE(t.pose->choice, PoseChoice::kPattern) << "seed " << seed;
+        EXPECT_TRUE(t.aligned) << "seed " << seed;
+        EXPECT_GT(t.pose->ambiguity_ratio, 0.0) << "the corners' ratio, seed " << seed;
+        EXPECT_EQ(t.pose->candidates.size(), 2u);
+    }
+    EXPECT_GE(one_sided, 1) << "no view made a one-sided alignment: the test would pass without checking";
 }
 
 }  // namespace
