@@ -542,7 +542,9 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                 }
                 obj.cache_shafts[i] = pairShaft(b, what);
             }
-            // (objectBlocks() at b's centroid, the shaft's first end: no look-up of b's shape.)
+            // (objectBlocks() at b's centroid, the shaft's first end: no look-up of b's shape. It is
+            // at most 1, so a share below `item` is never significant: not computed.)
+            if (!(parts[0] > 0.0 ? parts[0] >= item : 0.0 >= item)) continue;
             const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, obj.cache_shafts[i].shaft.a, parts[1]) : 0.0;
             if (sig >= item && cachedPairMeets(obj, i, ball)) kept[i] = sig;
         }
