@@ -167,27 +167,31 @@ bool VirtualInfluence::Impl::lightMeetsBall(int element, int light, const Ball& 
     return hullMeetsBall(e.polygon(), lightPolygon(light), ball);
 }
 
-bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball) const {
-    const auto [element, what] = obj.cache_pairs[i];
-    const ElementShape& e = shape[static_cast<std::size_t>(element)];
-    std::span<const Eigen::Vector3d> other;
+ObjectState::PairShaft VirtualInfluence::Impl::pairShaft(int element, int what) const {
+    ObjectState::PairShaft out;
     if (what < 0) {
         const int light = -1 - what;
         const DirectSource& s = *base.lights[static_cast<std::size_t>(light)].source;
-        if (s.kind != DirectSource::Kind::kPolygon && s.kind != DirectSource::Kind::kPoint) return farLightMeetsBall(element, light, ball);
-        if (!shaftMeetsBall(lightShaft(element, light), ball)) return false;
-        const Eigen::Vector3d& target = s.kind == DirectSource::Kind::kPolygon ? s.polygon->centre : s.position;
-        if (segmentMeetsBall(e.centroid, target, ball)) return true;
-        other = lightPolygon(light);
+        out.far = s.kind != DirectSource::Kind::kPolygon && s.kind != DirectSource::Kind::kPoint;
+        out.shaft = out.far ? Shaft{shape[static_cast<std::size_t>(element)].centroid} : lightShaft(element, light);
     } else {
-        const int source = links[static_cast<std::size_t>(what)].source;
-        if (!shaftMeetsBall(elementShaft(element, source), ball)) return false;
-        const ElementShape& s = shape[static_cast<std::size_t>(source)];
-        if (segmentMeetsBall(e.centroid, s.centroid, ball)) return true;
-        other = s.polygon();
+        out.shaft = elementShaft(element, links[static_cast<std::size_t>(what)].source);
     }
+    return out;
+}
+
+// (The pair's shaft from obj.cache_shafts: its ends are the segment that decides most shafts in a
+// shadow, the base leaf's centroid to the light's centre or the source's centroid.)
+bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball) const {
+    const auto [element, what] = obj.cache_pairs[i];
+    const ObjectState::PairShaft& ps = obj.cache_shafts[i];
+    if (ps.far) return farLightMeetsBall(element, -1 - what, ball);
+    if (!shaftMeetsBall(ps.shaft, ball)) return false;
+    if (segmentMeetsBall(ps.shaft.a, ps.shaft.b, ball)) return true;
     if (!obj.cache_hull_known[i]) {
-        obj.cache_hulls[i] = HullPlanes::of(e.polygon(), other);
+        const std::span<const Eigen::Vector3d> other =
+            what < 0 ? lightPolygon(-1 - what) : shape[static_cast<std::size_t>(links[static_cast<std::size_t>(what)].source)].polygon();
+        obj.cache_hulls[i] = HullPlanes::of(shape[static_cast<std::size_t>(element)].polygon(), other);
         obj.cache_hull_known[i] = 1;
     }
     return obj.cache_hulls[i].meets(ball);
@@ -273,8 +277,12 @@ double VirtualInfluence::Impl::denominator(int element) const {
 
 // The largest fraction of a solid angle `omega` seen from `element` that object o can cover.
 double VirtualInfluence::Impl::objectBlocks(int object, int element, double omega) const {
+    return objectBlocksFrom(object, shape[static_cast<std::size_t>(element)].centroid, omega);
+}
+
+double VirtualInfluence::Impl::objectBlocksFrom(int object, const Eigen::Vector3d& centroid, double omega) const {
     const ObjectState& o = objects[static_cast<std::size_t>(object)];
-    const double covered = ballSolidAngle(o.radius, (o.ball.centre - shape[static_cast<std::size_t>(element)].centroid).norm());
+    const double covered = ballSolidAngle(o.radius, (o.ball.centre - centroid).norm());
     return std::min(1.0, covered / std::max(omega, 1e-12));
 }
 
@@ -506,6 +514,7 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         obj.cache_hulls.resize(obj.cache_pairs.size());
         obj.cache_hull_known.assign(obj.cache_pairs.size(), 0);
         obj.cache_sig.assign(obj.cache_pairs.size(), {0.0, -1.0});
+        obj.cache_shafts.resize(obj.cache_pairs.size());
         std::size_t j = 0;
         for (std::size_t i = 0; i < obj.cache_pairs.size() && j < old_pairs.size(); ++i) {
             while (j < old_pairs.size() && old_pairs[j] < obj.cache_pairs[i]) ++j;
@@ -531,8 +540,12 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                 } else {
                     linkSignificanceParts(b, what, parts[0], parts[1]);
                 }
+                obj.cache_shafts[i] = pairShaft(b, what);
             }
-            const double sig = parts[0] > 0.0 ? parts[0] * objectBlocks(object, b, parts[1]) : 0.0;
+            // (objectBlocks() at b's centroid, the shaft's first end: no look-up of b's shape. It is
+            // at most 1, so a share below `item` is never significant: not computed.)
+            if (!(parts[0] > 0.0 ? parts[0] >= item : 0.0 >= item)) continue;
+            const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, obj.cache_shafts[i].shaft.a, parts[1]) : 0.0;
             if (sig >= item && cachedPairMeets(obj, i, ball)) kept[i] = sig;
         }
     });

@@ -144,6 +144,14 @@ struct ObjectState {
     // Per cache pair, the parts of its significance that do not depend on where the object is
     // (share, solid angle; < 0: not found yet).
     std::vector<std::array<double, 2>> cache_sig;
+    // Per cache pair, its shaft (the base leaf's end first; found with cache_sig), laid out for the
+    // loop over the pairs at every move; `far`: a directional light or a distant cell (only the
+    // shaft's first end, the base leaf's centroid, is set).
+    struct PairShaft {
+        Shaft shaft;
+        bool far = false;
+    };
+    std::vector<PairShaft> cache_shafts;
 };
 
 struct VirtualInfluence::Impl {
@@ -235,11 +243,13 @@ struct VirtualInfluence::Impl {
     bool farLightMeetsBall(int element, int light, const Ball& ball) const;
     // lightMeetsBall() / linkMeetsBall() for pair i of an object's cache, the hull's planes found once.
     bool cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball) const;
+    ObjectState::PairShaft pairShaft(int element, int what) const;
     double radiusOf(int element) const { return shape[static_cast<std::size_t>(element)].radius; }
     void candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links);
     void collectPairs(int object, const Ball& query, bool scan, std::vector<std::pair<int, int>>& pairs);
     double denominator(int element) const;  // B~ (luminance) a change is relative to: floored
     double objectBlocks(int object, int element, double omega) const;  // fraction of a solid angle it can cover
+    double objectBlocksFrom(int object, const Eigen::Vector3d& centroid, double omega) const;  // the same, element given by its centroid
     double lightSignificance(int b, int light, int object) const;
     double linkSignificance(int b, int link, int object) const;
     // Their parts that do not depend on the object: significance = share x objectBlocks(omega).

@@ -160,7 +160,7 @@ double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, 
     int valid = 0, open = 0;
     for (int k = 0; k < pairs; ++k) {
         const SamplePair u = stratifiedPair(seed, k, pairs);
-        const Eigen::Vector3d x = rad.surfacePoint(element, u.first.x(), u.first.y());
+        const Eigen::Vector3d x = rad.surfacePoint(element, g, u.first.x(), u.first.y());
         if (partial && rad.hidden(element, x)) continue;
         const Eigen::Vector3d axis = (x - s.ball.centre).normalized();
         const Eigen::Vector3d e1 = axis.unitOrthogonal(), e2 = axis.cross(e1);

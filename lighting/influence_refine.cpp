@@ -157,7 +157,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     std::uint64_t computed_hidden = 0;
     for (int k = 0; k < n; ++k) {
         const SamplePair pair = stratifiedPair(seed, k, n);
-        const Eigen::Vector3d xr = rad.surfacePoint(c, pair.first.x(), pair.first.y());
+        const Eigen::Vector3d xr = rad.surfacePoint(c, gr, pair.first.x(), pair.first.y());
         if (partial) {
             // A pair starting on the leaf's hidden part (under a box) is none of its light.
             if (known ? ((m.pilot_hidden >> k) & 1u) != 0 : rad.hidden(c, xr)) {
@@ -165,7 +165,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
                 continue;
             }
         }
-        const Eigen::Vector3d xs = rad.surfacePoint(s, pair.second.x(), pair.second.y());
+        const Eigen::Vector3d xs = rad.surfacePoint(s, gs, pair.second.x(), pair.second.y());
         const Eigen::Vector3d dv = xs - xr;
         const double d2 = std::max(dv.squaredNorm(), floor2);
         const double w = std::max(0.0, gr.normal.dot(dv)) * std::max(0.0, -gs.normal.dot(dv)) / (d2 * d2);

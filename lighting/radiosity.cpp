@@ -121,8 +121,9 @@ void Radiosity::setVirtualPoses(const std::vector<Rigid3d>& world_from_object) {
     }
 }
 
-Eigen::Vector3d Radiosity::surfacePoint(int element, double a, double b) const {
-    const ElementGeometry g = geometry(element);
+Eigen::Vector3d Radiosity::surfacePoint(int element, double a, double b) const { return surfacePoint(element, geometry(element), a, b); }
+
+Eigen::Vector3d Radiosity::surfacePoint(int element, const ElementGeometry& g, double a, double b) const {
     // Hard case: a sample on the element's border may lie on the plane of a touching face (a wall
     // corner, a box standing on a table), where a ray grazes that face. Keep samples 0.1% inside.
     constexpr double kMargin = 1e-3;
@@ -560,8 +561,8 @@ void Radiosity::computeLink(Link& link) const {
         blocked_mask = 0;
         for (int k = 0; k < n; ++k) {
             const SamplePair pair = stratifiedPair(pair_seed, k, n);
-            const Eigen::Vector3d xr = surfacePoint(r, pair.first.x(), pair.first.y());
-            const Eigen::Vector3d xs = surfacePoint(s, pair.second.x(), pair.second.y());
+            const Eigen::Vector3d xr = surfacePoint(r, gr, pair.first.x(), pair.first.y());
+            const Eigen::Vector3d xs = surfacePoint(s, gs, pair.second.x(), pair.second.y());
             // The receiver's light is that of its exposed part: a pair starting under a box is
             // no part of it (a source point under a box is blocked by the box, which is right).
             if (receiver_partial && hidden(r, xr)) {

@@ -158,6 +158,8 @@ public:
     // A point of an element at (a, b) of its own parametrisation, on the surface that blocks rays
     // (virtual spheres: pushed out onto the exact sphere).
     Eigen::Vector3d surfacePoint(int element, double a, double b) const;
+    // The same with the element's geometry() given (a loop over many samples of one element).
+    Eigen::Vector3d surfacePoint(int element, const ElementGeometry& g, double a, double b) const;
     // A point of an element's flat polygon moved onto the surface that blocks rays (identity except
     // for virtual spheres, whose facets lie inside the exact sphere).
     Eigen::Vector3d onSurface(int element, const Eigen::Vector3d& x) const;

@@ -166,7 +166,7 @@ double Radiosity::clusterVisibility(int cluster, int element, const Eigen::Vecto
     int valid = 0, open = 0;
     for (int k = 0; k < kVisibilityPairs; ++k) {
         const SamplePair pair = stratifiedPair(seed, k, kVisibilityPairs);
-        const Eigen::Vector3d xe = surfacePoint(element, pair.first.x(), pair.first.y());
+        const Eigen::Vector3d xe = surfacePoint(element, ge, pair.first.x(), pair.first.y());
         if (partial && hidden(element, xe)) continue;
         // The face: stratified over the table; the point on it from a second stream.
         const double u = (k + unitFromHash(hashCombine(seed, static_cast<std::uint64_t>(k) + 77))) / kVisibilityPairs * total;

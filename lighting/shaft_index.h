@@ -62,8 +62,9 @@ bool segmentMeetsBall(const Eigen::Vector3d& p, const Eigen::Vector3d& q, const 
 struct HullPlanes {
     static constexpr int kMax = 24;           // more face planes than this: the first kMax (a looser, still conservative test)
     static constexpr double kPlaneSlack = 1e-5;  // metres
-    std::array<std::array<float, 4>, kMax> planes{};  // unit outward normal, offset: inside is n.x <= offset
+    // (The count first: it shares a cache line with the first planes, read at once after it.)
     std::uint8_t count = 0;
+    std::array<std::array<float, 4>, kMax> planes{};  // unit outward normal, offset: inside is n.x <= offset
     static HullPlanes of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b);
     bool meets(const Ball& ball) const {
         const float cx = static_cast<float>(ball.centre.x()), cy = static_cast<float>(ball.centre.y()), cz = static_cast<float>(ball.centre.z());
