@@ -111,8 +111,12 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
     using Matrix7d = Eigen::Matrix<double, 7, 7>;
     using Vector7d = Eigen::Matrix<double, 7, 1>;
     // Cells too small for a clearance from the L junctions: the blur reaches every point of a
-    // boundary (its middle too), and keeping them all is worth more than dropping some.
-    const bool clear_corners = cell_px >= options.corner_clearance_min_cell_px;
+    // boundary (its middle too), and keeping them all is worth more than dropping some. The same
+    // on a strongly foreshortened tag (its sides' ratio under corner_clearance_min_aspect): its
+    // short boundaries would keep only their midpoints.
+    const double side_a = (*c1 - *c0).norm(), side_b = (*c3 - *c0).norm();
+    const double aspect = std::min(side_a, side_b) / std::max(side_a, side_b);
+    const bool clear_corners = cell_px >= options.corner_clearance_min_cell_px && aspect >= options.corner_clearance_min_aspect;
     Rigid3d pose = cam_from_tag;
     double dilation = 0.0;  // cells
     // The prior on the dilation, in the normal equations' units (pixels^2 per cell^2).

@@ -333,5 +333,33 @@ TEST(TagDilation, PointsNearLJunctionsAreNotSampled) {
     EXPECT_LT(sum_without, 0.75 * sum_with);  // measured: 0.292 -> 0.182 degrees
 }
 
+TEST(TagDilation, StronglyForeshortenedTagsKeepThePointsNearLJunctions) {
+    // Tilted 70 degrees the tag's sides differ by a factor of 3: the clearance would leave its
+    // short boundaries their midpoints alone. There every point is sampled, as with no clearance.
+    auto pattern = TagPattern::make("tag36h11", kId);
+    ASSERT_TRUE(pattern);
+    for (const auto& [tilt, yaw] : {std::pair{70.0, 10.0}, std::pair{72.0, -20.0}}) {
+        const Rigid3d truth = tagPose(0.55, tilt, yaw);
+        const Image image = renderTag(truth, {.blur_sigma_px = 0.8});
+        TagAlignOptions options;
+        options.iterations = 8;
+        TagAlignOptions no_clearance = options;
+        no_clearance.corner_clearance_px = 0.0;
+        TagAlignOptions no_aspect_limit = options;
+        no_aspect_limit.corner_clearance_min_aspect = 0.0;
+        const TagAlignResult a = alignTagPose(image.view(), camera(), *pattern, kSize, truth, no_clearance);
+        const TagAlignResult b = alignTagPose(image.view(), camera(), *pattern, kSize, truth, options);
+        const TagAlignResult c = alignTagPose(image.view(), camera(), *pattern, kSize, truth, no_aspect_limit);
+        ASSERT_TRUE(a.ok && b.ok && c.ok) << a.reason << b.reason << c.reason;
+        std::printf("  tilt %.0f deg, cells %.1f px: points %d with the limit, %d without any clearance, %d with the "
+                    "clearance regardless of the tilt\n",
+                    tilt, b.cell_px, b.points, a.points, c.points);
+        ASSERT_GE(b.cell_px, options.corner_clearance_min_cell_px);  // the aspect alone decides
+        EXPECT_EQ(b.points, a.points);
+        EXPECT_LT(c.points, b.points);
+        EXPECT_TRUE(b.cam_from_tag.translation.isApprox(a.cam_from_tag.translation, 1e-12));
+    }
+}
+
 }  // namespace
 }  // namespace commonlight::tracking
