@@ -365,18 +365,17 @@ void VirtualInfluence::Impl::select(int b) {
         }
         if (best > 0.0) cand.push_back({best, static_cast<int>(k), -1});
     }
-    std::vector<std::pair<int, double>> blocked;  // link, best significance
+    // Each blocked link once, at its best significance over the objects (sorted by link: a base
+    // leaf beside a clustered proxy has a link per face of it, so no linear search per entry).
+    std::vector<std::pair<int, double>> blocked;  // link, significance
     for (const auto& [object, link] : entries[static_cast<std::size_t>(b)]) {
-        if (link < 0) continue;
-        const double sig = linkSignificance(b, link, object);
-        auto it = std::find_if(blocked.begin(), blocked.end(), [&](const auto& x) { return x.first == link; });
-        if (it == blocked.end()) {
-            blocked.emplace_back(link, sig);
-        } else {
-            it->second = std::max(it->second, sig);
-        }
+        if (link >= 0) blocked.emplace_back(link, linkSignificance(b, link, object));
     }
-    for (const auto& [link, sig] : blocked) cand.push_back({sig, -1, link});
+    std::sort(blocked.begin(), blocked.end());
+    for (std::size_t i = 0; i < blocked.size(); ++i) {
+        if (i + 1 < blocked.size() && blocked[i + 1].first == blocked[i].first) continue;  // the last of a link is its largest
+        cand.push_back({blocked[i].second, -1, blocked[i].first});
+    }
     // Keep the strongest; leave out the weakest while their sum stays below link_epsilon.
     std::sort(cand.begin(), cand.end(), [](const Candidate& x, const Candidate& y) {
         return x.significance != y.significance ? x.significance > y.significance : (x.light != y.light ? x.light < y.light : x.link < y.link);
@@ -544,7 +543,7 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             }
             // (objectBlocks() at b's centroid, the shaft's first end: no look-up of b's shape. It is
             // at most 1, so a share below `item` is never significant: not computed.)
-            if (!(parts[0] > 0.0 ? parts[0] >= item : 0.0 >= item)) continue;
+            if (std::max(parts[0], 0.0) < item) continue;
             const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, obj.cache_shafts[i].shaft.a, parts[1]) : 0.0;
             if (sig >= item && cachedPairMeets(obj, i, ball)) kept[i] = sig;
         }
