@@ -111,14 +111,30 @@ struct RayScene::Impl {
     std::vector<Eigen::Vector3d> sphere_centre;    // committed (world)
     std::vector<std::uint32_t> sphere_bit;         // committed: virtualBit(v) of an enabled sphere, else 0
     std::uint32_t mesh_bits = 0;                   // committed: bits of the enabled non-sphere objects
+    // A mesh's bounding ball (object frame centre, radius with a margin for Embree's single
+    // precision): a ray that misses it is not traced through Embree.
+    std::vector<Eigen::Vector3d> mesh_centre_object;  // by virtual index
+    std::vector<double> mesh_radius;                  // by virtual index: > 0 a mesh
+    std::vector<Eigen::Vector3d> pending_mesh_centre; // world, at the next commit
+    std::vector<Eigen::Vector3d> mesh_centre;         // committed (world)
+    std::vector<std::uint32_t> mesh_bit;              // committed: virtualBit(v) of an enabled mesh, else 0
 
     void updateCommitted() {
         mesh_bits = 0;
         for (std::size_t v = 0; v < sphere_radius.size(); ++v) {
             const std::uint32_t bit = RayScene::virtualBit(static_cast<int>(v));
             sphere_bit[v] = enabled[v] && sphere_radius[v] > 0.0 ? bit : 0u;
-            if (enabled[v] && !(sphere_radius[v] > 0.0)) mesh_bits |= bit;
+            mesh_bit[v] = enabled[v] && !(sphere_radius[v] > 0.0) ? bit : 0u;
+            mesh_bits |= mesh_bit[v];
         }
+    }
+
+    // Whether the segment origin + t direction (unit), 0 <= t <= tfar, meets the solid ball.
+    static bool segmentMeetsBall(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar,
+                                 const Eigen::Vector3d& centre, double radius) {
+        const Eigen::Vector3d oc = centre - origin;
+        const double t = std::clamp(direction.dot(oc), 0.0, tfar);
+        return (oc - t * direction).squaredNorm() <= radius * radius;
     }
 
     // Whether the ray origin + t direction (unit), 0 <= t <= tfar, meets the sphere's surface (as
@@ -141,7 +157,11 @@ struct RayScene::Impl {
         for (std::size_t v = 0; v < sphere_bit.size(); ++v) {
             if ((sphere_bit[v] & mask) != 0u && segmentMeetsSphere(origin, direction, tfar, sphere_centre[v], sphere_radius[v])) return true;
         }
-        const std::uint32_t rest = mask & mesh_bits;
+        std::uint32_t rest = mask & mesh_bits;
+        if (rest == 0u) return false;
+        for (std::size_t v = 0; v < mesh_bit.size(); ++v) {
+            if ((mesh_bit[v] & rest) != 0u && !segmentMeetsBall(origin, direction, tfar, mesh_centre[v], mesh_radius[v])) rest &= ~mesh_bit[v];
+        }
         return rest != 0u && occluded(virtual_top, origin, direction, tfar, rest);
     }
 
@@ -302,6 +322,20 @@ Result<std::unique_ptr<RayScene>> RayScene::build(const std::vector<Face>& real_
             for (std::size_t i = 0; i < shape.faces.size(); ++i) {
                 appendTriangles(shape.faces[i], static_cast<int>(i), vt, impl->virtual_face_of_prim[v]);
             }
+            Eigen::AlignedBox3d box;
+            for (const auto& t : vt) {
+                for (const Eigen::Vector3d& p : t) box.extend(p);
+            }
+            const Eigen::Vector3d centre = box.isEmpty() ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : Eigen::Vector3d(box.center());
+            double radius = 0.0;
+            for (const auto& t : vt) {
+                for (const Eigen::Vector3d& p : t) radius = std::max(radius, (p - centre).norm());
+            }
+            // The margin covers the vertices' and the rays' rounding to single precision.
+            impl->mesh_centre_object.resize(virtual_shapes.size(), Eigen::Vector3d::Zero());
+            impl->mesh_radius.resize(virtual_shapes.size(), 0.0);
+            impl->mesh_centre_object[v] = centre;
+            impl->mesh_radius[v] = radius * (1.0 + 1e-4) + 1e-4 * (1.0 + centre.norm());
             RTCGeometry g = trianglesGeometry(impl->device, vt);
             rtcAttachGeometry(scene, g);
             rtcReleaseGeometry(g);
@@ -350,6 +384,11 @@ Result<std::unique_ptr<RayScene>> RayScene::build(const std::vector<Face>& real_
     impl->pending_centre.assign(virtual_shapes.size(), Eigen::Vector3d::Zero());
     impl->sphere_centre.assign(virtual_shapes.size(), Eigen::Vector3d::Zero());
     impl->sphere_bit.assign(virtual_shapes.size(), 0u);
+    impl->mesh_centre_object.resize(virtual_shapes.size(), Eigen::Vector3d::Zero());
+    impl->mesh_radius.resize(virtual_shapes.size(), 0.0);
+    impl->pending_mesh_centre = impl->mesh_centre_object;
+    impl->mesh_centre = impl->mesh_centre_object;
+    impl->mesh_bit.assign(virtual_shapes.size(), 0u);
     impl->updateCommitted();
     rtcCommitScene(impl->real_top);
     rtcCommitScene(impl->virtual_top);
@@ -367,6 +406,7 @@ void RayScene::setVirtualPose(int index, const Rigid3d& world_from_object) {
     const auto i = static_cast<std::size_t>(index);
     impl_->pending_poses.at(i) = world_from_object.matrix().cast<float>();
     impl_->pending_centre[i] = world_from_object.translation;
+    impl_->pending_mesh_centre[i] = world_from_object * impl_->mesh_centre_object[i];
     impl_->pose_dirty[i] = true;
 }
 
@@ -398,6 +438,7 @@ Result<void> RayScene::commitVirtual() {
             rtcCommitGeometry(inst);
         }
         impl_->sphere_centre[i] = impl_->pending_centre[i];
+        impl_->mesh_centre[i] = impl_->pending_mesh_centre[i];
         impl_->pose_dirty[i] = false;
         any = true;
     }

@@ -1,6 +1,7 @@
 // lighting/ray_scene.h: a virtual sphere's visibility in closed form against Embree's own sphere
 // (the same object traced through its instance by intersectVirtual()), with a mesh object beside
-// it (still traced by Embree), masks, a disabled object and a moved one.
+// it (still traced by Embree), masks, a disabled object and a moved one; a mesh traced only where a
+// segment meets its bounding ball, with Embree's answer.
 #include "lighting/ray_scene.h"
 
 #include <gtest/gtest.h>
@@ -22,14 +23,14 @@ std::vector<Face> floorFace() {
     return {f};
 }
 
-// A cube of side 0.4 centred on its origin, as six faces (outward normals).
-VirtualShape cube() {
+// A cube of side 0.4 centred on `at` in its object frame, as six faces (outward normals).
+VirtualShape cube(const Eigen::Vector3d& at = Eigen::Vector3d::Zero()) {
     VirtualShape s;
     const double h = 0.2;
     const auto face = [&](Eigen::Vector3d o, Eigen::Vector3d es, Eigen::Vector3d et) {
         Face f;
         f.owner = FaceOwner::kVirtual;
-        f.origin = o;
+        f.origin = o + at;
         f.edge_s = es;
         f.edge_t = et;
         f.normal = es.cross(et).normalized();
@@ -111,6 +112,53 @@ TEST(RayScene, SphereInClosedFormAgreesWithEmbree) {
     rays.setVirtualEnabled(0, true);
     ASSERT_TRUE(rays.commitVirtual());
     EXPECT_TRUE(rays.occludedVirtual(s, Eigen::Vector3d::Zero(), t, Eigen::Vector3d::Zero(), ~0u));
+}
+
+// A mesh is traced through Embree only where a segment meets its bounding ball: the answer is
+// Embree's own (intersectVirtual() has no such test) for segments through the cube, past its
+// corners (which lie on the ball) and from inside it, with the cube off its object origin, rotated
+// and moved.
+TEST(RayScene, MeshBoundingBallKeepsEmbreesAnswer) {
+    const Eigen::Vector3d offset(0.5, -0.3, 0.2);
+    auto built = RayScene::build(floorFace(), {}, {cube(offset)});
+    ASSERT_TRUE(built) << built.error().message;
+    RayScene& rays = **built;
+    const std::uint32_t bit = RayScene::virtualBit(0);
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    for (int pose = 0; pose < 3; ++pose) {
+        const Eigen::Quaterniond q = Eigen::Quaterniond(Eigen::AngleAxisd(0.7 * pose + 0.3, Eigen::Vector3d(1, 2, 3).normalized()));
+        const Rigid3d world_from_object(q, Eigen::Vector3d(1.0 * pose, 2.0, -0.5 * pose));
+        rays.setVirtualPose(0, world_from_object);
+        ASSERT_TRUE(rays.commitVirtual());
+        const Eigen::Vector3d centre = world_from_object * offset;
+        int blocked = 0, open = 0;
+        for (int k = 0; k < 6000; ++k) {
+            Eigen::Vector3d a, b;
+            if (k % 3 == 0) {  // towards a corner: past it or just through it
+                const Eigen::Vector3d corner = world_from_object * (offset + 0.2 * Eigen::Vector3d(k % 2 ? 1 : -1, k % 5 ? 1 : -1, k % 7 ? 1 : -1));
+                a = centre + 2.0 * Eigen::Vector3d(u(rng), u(rng), u(rng));
+                b = corner + 0.02 * Eigen::Vector3d(u(rng), u(rng), u(rng)) + 0.5 * (corner - a);
+            } else {  // around the cube, from inside it too
+                a = centre + 0.6 * Eigen::Vector3d(u(rng), u(rng), u(rng));
+                b = centre + 0.6 * Eigen::Vector3d(u(rng), u(rng), u(rng));
+            }
+            const double length = (b - a).norm();
+            if (length < 1e-3) continue;
+            const RayHit hit = rays.intersectVirtual(a, (b - a) / length, length - rays.epsilon());
+            const bool embree = hit.kind == HitKind::kVirtual && hit.index == 0;
+            ASSERT_EQ(rays.occludedVirtual(a, Eigen::Vector3d::Zero(), b, Eigen::Vector3d::Zero(), bit), embree)
+                << "pose " << pose << " segment " << k << " from " << a.transpose() << " to " << b.transpose();
+            (embree ? blocked : open)++;
+        }
+        EXPECT_GT(blocked, 1000);
+        EXPECT_GT(open, 1000);
+        // A segment through the cube's centre is blocked; one that misses its ball is not.
+        const Eigen::Vector3d side = q * Eigen::Vector3d::UnitX();
+        EXPECT_TRUE(rays.occludedVirtual(centre - side, Eigen::Vector3d::Zero(), centre + side, Eigen::Vector3d::Zero(), bit));
+        const Eigen::Vector3d away = q * Eigen::Vector3d::UnitZ();
+        EXPECT_FALSE(rays.occludedVirtual(centre + away - side, Eigen::Vector3d::Zero(), centre + away + side, Eigen::Vector3d::Zero(), bit));
+    }
 }
 
 }  // namespace
