@@ -129,6 +129,23 @@ struct RayScene::Impl {
         }
     }
 
+    // Whether the segment a-b may meet a virtual object in `mask`: it passes within `margin` of a
+    // sphere's or a mesh's bounding ball. (A cheap test on the segment before it is lifted off its
+    // surfaces: the lifted one lies within the lift of it.)
+    bool segmentMayMeet(const Eigen::Vector3d& a, const Eigen::Vector3d& b, std::uint32_t mask, double margin) const {
+        const Eigen::Vector3d d = b - a;
+        const double dd = d.squaredNorm();
+        for (std::size_t v = 0; v < sphere_bit.size(); ++v) {
+            const bool sphere = (sphere_bit[v] & mask) != 0u;
+            if (!sphere && (mesh_bit[v] & mask) == 0u) continue;
+            const Eigen::Vector3d oc = (sphere ? sphere_centre[v] : mesh_centre[v]) - a;
+            const double r = (sphere ? sphere_radius[v] : mesh_radius[v]) + margin;
+            const double t = dd > 0.0 ? std::clamp(oc.dot(d) / dd, 0.0, 1.0) : 0.0;
+            if ((oc - t * d).squaredNorm() <= r * r) return true;
+        }
+        return false;
+    }
+
     // Whether the segment origin + t direction (unit), 0 <= t <= tfar, meets the solid ball.
     static bool segmentMeetsBall(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar,
                                  const Eigen::Vector3d& centre, double radius) {
@@ -486,6 +503,9 @@ bool RayScene::occludedReal(const Eigen::Vector3d& from, const Eigen::Vector3d& 
 bool RayScene::occludedVirtual(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
                                const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal, std::uint32_t mask) const {
     if (mask == 0u) return false;
+    // The lift moves each end by epsilon times its normal (unit, or zero).
+    const double lift = epsilon_ * std::sqrt(std::max({1.0, from_normal.squaredNorm(), to_normal.squaredNorm()}));
+    if (!impl_->segmentMayMeet(from, to, mask, 2.0 * lift)) return false;
     return occludedSegment(true, from, from_normal, to, to_normal, mask);
 }
 

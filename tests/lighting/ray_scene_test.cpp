@@ -97,6 +97,13 @@ TEST(RayScene, SphereInClosedFormAgreesWithEmbree) {
     const Eigen::Vector3d p = cube_at - Eigen::Vector3d(1, 0, 0), q = cube_at + Eigen::Vector3d(1, 0, 0);
     EXPECT_TRUE(rays.occludedVirtual(p, Eigen::Vector3d::Zero(), q, Eigen::Vector3d::Zero(), cube_bit));
     EXPECT_FALSE(rays.occludedVirtual(p, Eigen::Vector3d::Zero(), q, Eigen::Vector3d::Zero(), sphere_bit));
+    // A segment lifted off its surfaces (normals -y: the lift moves it epsilon towards -y) grazes
+    // the sphere that the segment itself passes half an epsilon from: blocked.
+    const double eps = rays.epsilon();
+    const Eigen::Vector3d graze(0, 0.3 + 0.5 * eps, 0), down(0, -1, 0);
+    EXPECT_FALSE(rays.occludedVirtual(centre + graze - Eigen::Vector3d(1, 0, 0), Eigen::Vector3d::Zero(), centre + graze + Eigen::Vector3d(1, 0, 0),
+                                      Eigen::Vector3d::Zero(), sphere_bit));
+    EXPECT_TRUE(rays.occludedVirtual(centre + graze - Eigen::Vector3d(1, 0, 0), down, centre + graze + Eigen::Vector3d(1, 0, 0), down, sphere_bit));
     // Moved: the answer follows the committed pose only.
     const Eigen::Vector3d s = centre - Eigen::Vector3d(1, 0, 0), t = centre + Eigen::Vector3d(1, 0, 0);
     EXPECT_TRUE(rays.occludedVirtual(s, Eigen::Vector3d::Zero(), t, Eigen::Vector3d::Zero(), sphere_bit));
