@@ -21,9 +21,20 @@ bool shaftMeetsBall(const Shaft& shaft, const Ball& ball) {
     const Eigen::Vector3d d = shaft.b - shaft.a;
     const Eigen::Vector3d q = ball.centre - shaft.a;
     const double dr = shaft.rb - shaft.ra;
+    const double A = d.squaredNorm(), B = q.dot(d), C = q.squaredNorm();
+    // Most calls are decided by the distance s from the centre to the axis segment, without a
+    // square root: min g lies between s - max(ra, rb) and s - min(ra, rb). (Margins of 1e-9,
+    // far above round-off, leave the close calls to the exact minimum below.)
+    {
+        const double u = A > 0.0 ? std::clamp(B / A, 0.0, 1.0) : 0.0;
+        const double s2 = (q - u * d).squaredNorm();
+        const double far = std::max(shaft.ra, shaft.rb) + ball.radius;
+        if (s2 > far * far * (1.0 + 1e-9)) return false;
+        const double near = std::min(shaft.ra, shaft.rb) + ball.radius;
+        if (near > 0.0 && s2 < near * near * (1.0 - 1e-9)) return true;
+    }
     const auto g = [&](double u) { return (q - u * d).norm() - (shaft.ra + u * dr); };
     double best = std::min(g(0.0), g(1.0));
-    const double A = d.squaredNorm(), B = q.dot(d), C = q.squaredNorm();
     if (A > dr * dr && A > 0.0) {
         const double u = B / A + dr * std::sqrt(std::max(0.0, A * C - B * B)) / (A * std::sqrt(A - dr * dr));
         if (u > 0.0 && u < 1.0) best = std::min(best, g(u));

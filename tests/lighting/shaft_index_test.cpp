@@ -45,6 +45,37 @@ TEST(ShaftIndex, QueryEqualsABruteForceScan) {
     EXPECT_TRUE(none.empty());
 }
 
+// shaftMeetsBall() against the minimum over the axis, sampled densely, of the distance to the
+// centre of the cone's ball there minus that ball's radius: shafts whose ends' balls hold each
+// other or nearly so, zero-length ones, and balls near the axis, near the surface and far.
+TEST(ShaftIndex, ShaftTestEqualsTheSampledMinimum) {
+    std::mt19937 rng(13);
+    std::uniform_real_distribution<double> u(-1.0, 1.0), r(0.0, 0.5);
+    int met = 0, missed = 0;
+    for (int trial = 0; trial < 20000; ++trial) {
+        Shaft s;
+        s.a = {u(rng), u(rng), u(rng)};
+        s.b = trial % 10 == 0 ? s.a : s.a + (trial % 7 == 0 ? 0.05 : 1.0) * Eigen::Vector3d(u(rng), u(rng), u(rng));
+        s.ra = r(rng);
+        s.rb = trial % 5 == 0 ? 0.0 : r(rng);
+        const Ball ball{s.a + 0.5 * (s.b - s.a) + 0.5 * Eigen::Vector3d(u(rng), u(rng), u(rng)), trial % 3 == 0 ? 0.0 : 0.3 * r(rng)};
+        double best = 1e300;
+        constexpr int kSteps = 4000;
+        for (int k = 0; k <= kSteps; ++k) {
+            const double t = static_cast<double>(k) / kSteps;
+            best = std::min(best, (ball.centre - (s.a + t * (s.b - s.a))).norm() - (s.ra + t * (s.rb - s.ra)));
+        }
+        // (The sampled minimum is within a step's slope of the true one: close calls are left out.)
+        const double slack = 2.0 * ((s.b - s.a).norm() + std::abs(s.rb - s.ra)) / kSteps + 1e-9;
+        if (std::abs(best - ball.radius) < slack) continue;
+        const bool expected = best < ball.radius;
+        ASSERT_EQ(shaftMeetsBall(s, ball), expected) << "trial " << trial;
+        (expected ? met : missed)++;
+    }
+    EXPECT_GT(met, 3000);
+    EXPECT_GT(missed, 3000);
+}
+
 // Hard case of conservativeness: every point of the hull of two squares (random convex
 // combinations of their points), with a tiny ball around it, is reported as meeting the shaft.
 TEST(ShaftIndex, ConeOfBallsHoldsTheHullOfTheTwoEnds) {
