@@ -500,9 +500,15 @@ void buildFaceModulations(const Radiosity& radiosity, const Scene& scene, const 
                           const std::vector<Eigen::Vector3d>& with, const std::vector<Eigen::Vector3d>& rho, const std::vector<int>& faces,
                           std::vector<FaceBuild>& builds, double tolerance, int max_texels, const TexelDirect* texel_direct) {
     builds.resize(radiosity.realFaceCount());
-    for (int f : faces) {
+    // Faces in parallel (each its own FaceBuild, TexelDirectCache locks per face): most faces that
+    // change are small, and one at a time their texels would not fill the threads.
+    std::vector<int> list(faces);
+    std::sort(list.begin(), list.end());
+    list.erase(std::unique(list.begin(), list.end()), list.end());
+    tbb::parallel_for(std::size_t{0}, list.size(), [&](std::size_t i) {
+        const int f = list[i];
         buildFaceModulation(radiosity, scene, f, without, with, rho, max_texels, texel_direct, tolerance, builds[static_cast<std::size_t>(f)]);
-    }
+    });
 }
 
 ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3d& p, int object,
