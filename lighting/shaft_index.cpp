@@ -73,6 +73,21 @@ bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Ve
             if (segmentMeetsBall(ca, y, ball)) return true;
         }
     }
+    // The vertices' spread along any unit normal is at most `spread` (twice their largest distance
+    // from their mean): a vertex beyond 1e-9 max(1, spread) on the ball's side of a plane shows at
+    // once that the plane does not separate (the tolerance below is at most that).
+    double spread = 0.0;
+    {
+        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+        for (const Eigen::Vector3d& x : a) mean += x;
+        for (const Eigen::Vector3d& x : b) mean += x;
+        mean /= static_cast<double>(std::max<std::size_t>(1, a.size() + b.size()));
+        double far2 = 0.0;
+        for (const Eigen::Vector3d& x : a) far2 = std::max(far2, (x - mean).squaredNorm());
+        for (const Eigen::Vector3d& x : b) far2 = std::max(far2, (x - mean).squaredNorm());
+        spread = 2.0 * std::sqrt(far2) * (1.0 + 1e-9);
+    }
+    const double early = 1e-9 * std::max(1.0, spread);
     const auto separates = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
         const double length2 = n.squaredNorm();
         if (!(length2 > 1e-30)) return false;
@@ -84,14 +99,18 @@ bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Ve
         n /= length;
         c /= length;
         // A face plane has every vertex on one side (a tolerance for round-off: ends that touch).
+        // The ball is on the side of sign(c): a vertex clearly on that side ends the test.
+        const double side = c > 0.0 ? 1.0 : -1.0;
         double lo = 0.0, hi = 0.0;
         for (const Eigen::Vector3d& x : a) {
             const double s = (x - origin).dot(n);
+            if (side * s > early) return false;
             lo = std::min(lo, s);
             hi = std::max(hi, s);
         }
         for (const Eigen::Vector3d& x : b) {
             const double s = (x - origin).dot(n);
+            if (side * s > early) return false;
             lo = std::min(lo, s);
             hi = std::max(hi, s);
         }
