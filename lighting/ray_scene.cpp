@@ -419,6 +419,22 @@ Result<std::unique_ptr<RayScene>> RayScene::build(const std::vector<Face>& real_
 
 std::size_t RayScene::virtualCount() const noexcept { return impl_->virtual_scenes.size(); }
 
+bool RayScene::virtualBall(int index, Eigen::Vector3d& centre, double& radius) const {
+    const auto v = static_cast<std::size_t>(index);
+    if (index < 0 || v >= impl_->sphere_bit.size()) return false;
+    if (impl_->sphere_bit[v] != 0u) {
+        centre = impl_->sphere_centre[v];
+        radius = impl_->sphere_radius[v];
+        return true;
+    }
+    if (impl_->mesh_bit[v] != 0u) {
+        centre = impl_->mesh_centre[v];
+        radius = impl_->mesh_radius[v];
+        return true;
+    }
+    return false;
+}
+
 void RayScene::setVirtualPose(int index, const Rigid3d& world_from_object) {
     const auto i = static_cast<std::size_t>(index);
     impl_->pending_poses.at(i) = world_from_object.matrix().cast<float>();

@@ -91,6 +91,11 @@ public:
     // least 10 um.
     double epsilon() const noexcept { return epsilon_; }
     std::size_t virtualCount() const noexcept;
+    // Virtual object `index` as committed: false when disabled; else a ball that holds all of it
+    // (a sphere's own; a mesh's bounding ball, with a margin for single precision). A segment
+    // that stays `lift` or more outside every such ball is open (occludedVirtual() lifts each end
+    // by epsilon() times its normal).
+    bool virtualBall(int index, Eigen::Vector3d& centre, double& radius) const;
 
 private:
     bool occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,

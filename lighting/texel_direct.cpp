@@ -1,6 +1,7 @@
 #include "lighting/texel_direct.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 
@@ -15,6 +16,7 @@ void TexelDirectCache::reset(std::vector<Light> lights, std::vector<Face> faces)
     for (const Light& l : lights_) {
         double radius = 0.0;
         for (const Eigen::Vector3d& c : l.polygon->polygon) radius = std::max(radius, (c - l.polygon->centre).norm());
+        if (l.polygon->disc) radius = std::max(radius, l.polygon->radius);  // (sampled on the disc itself)
         light_radius_.push_back(radius);
     }
     faces_.assign(faces.size(), FaceState{});
@@ -98,6 +100,18 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
     // real part is traced once per point; a move traces the virtual rays of the open pairs.
     constexpr double kPi = std::numbers::pi;
     const int pairs = std::clamp(pairs_, 1, 64);
+    // The virtual objects' balls, widened by both ends' lift and a margin for round-off: a light
+    // whose cone from x (every segment from x to a point of its ball) meets none of them has
+    // every pair open to them, so `with` takes the real answer (the same sum in the same order).
+    std::array<Ball, 32> balls;
+    std::size_t ball_count = 0;
+    for (std::size_t v = 0; v < rays_.virtualCount() && ball_count < balls.size(); ++v) {
+        Ball b;
+        if (!rays_.virtualBall(static_cast<int>(v), b.centre, b.radius)) continue;
+        b.radius += 2.0 * rays_.epsilon() + 1e-6 * (1.0 + b.radius);
+        balls[ball_count++] = b;
+    }
+    const bool all_balls = rays_.virtualCount() <= balls.size();
     if (!same_point) without.setZero();
     with.setZero();
     for (std::size_t k = 0; k < nl; ++k) {
@@ -109,6 +123,13 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             part.form = pointToPolygon(x, normal, light.polygon, light.normal);
         }
         if (!(part.form > 0.0)) continue;
+        const Shaft cone{x, light.centre, 0.0, light_radius_[k] * (1.0 + 1e-9) + 1e-12};
+        const bool clear = all_balls && std::none_of(balls.begin(), balls.begin() + static_cast<std::ptrdiff_t>(ball_count),
+                                                     [&](const Ball& b) { return shaftMeetsBall(cone, b); });
+        if (same_point && clear) {
+            if (part.all > 0.0) with += kPi * part.form * (part.open / part.all) * lights_[k].emission;
+            continue;
+        }
         double open_real = 0.0, open_both = 0.0;
         for (int j = 0; j < pairs; ++j) {
             const std::uint64_t bit = std::uint64_t{1} << j;
@@ -126,8 +147,9 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
                 part.all += w;
             }
             open_real += w;
-            if (!rays_.occludedVirtual(x, normal, q, light.normal)) open_both += w;
+            if (clear || !rays_.occludedVirtual(x, normal, q, light.normal)) open_both += w;
         }
+        if (!same_point) part.open = open_real;
         if (!(part.all > 0.0)) continue;
         if (!same_point) without += kPi * part.form * (open_real / part.all) * lights_[k].emission;
         with += kPi * part.form * (open_both / part.all) * lights_[k].emission;

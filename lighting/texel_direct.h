@@ -68,6 +68,7 @@ private:
         double form = 0.0;           // point-to-polygon form factor
         double all = 0.0;            // kernel weight of the pairs
         std::uint64_t blocked = 0;   // pairs the real scene blocks (bit j), or with no weight
+        double open = 0.0;           // kernel weight of the pairs it leaves open (summed in order)
     };
     struct FaceState {
         lighting::Face geometry;

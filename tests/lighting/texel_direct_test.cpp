@@ -329,5 +329,91 @@ TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
     EXPECT_GT(listed_total, 400) << "the moves reached texels";
 }
 
+// The texels whose cone to the lamp meets no virtual object skip its virtual rays (their direct
+// light with the objects is the one without, exactly); the others trace them. A ball over the
+// floor, traced fresh and again after it went away and came back (the kept real part): texels far
+// from its shadow have with == without to the bit, texels of which a brute-force count finds a
+// third of the lamp or more hidden are darker (a cone too narrow, e.g. to the lamp's centre
+// alone, would take the penumbra's outer texels as clear), and with the ball away every texel
+// has with == without.
+TEST(TexelDirect, TexelsWhoseConeMissesEveryObjectSkipItsRays) {
+    Face floor;
+    floor.origin = {-0.3, -0.3, 0.0};
+    floor.edge_s = {0.6, 0, 0};
+    floor.edge_t = {0, 0.6, 0};
+    floor.normal = {0, 0, 1};
+    floor.area = 0.36;
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.05;
+    auto rays = RayScene::build({floor}, {}, {sphere});
+    ASSERT_TRUE(rays) << rays.error().message;
+    RayScene& scene = **rays;
+    LightGeometry lamp;
+    lamp.world_from_object = Rigid3d::fromRpyDeg(Eigen::Vector3d(0.0, 0.0, 0.6), Eigen::Vector3d(180, 0, 0));
+    lamp.size = {0.2, 0.2};
+    lamp.centre = lamp.world_from_object.translation;
+    lamp.normal = {0, 0, -1};
+    lamp.area = 0.04;
+    for (const auto& [x, y] : {std::pair{-0.1, -0.1}, {0.1, -0.1}, {0.1, 0.1}, {-0.1, 0.1}}) lamp.polygon.push_back(lamp.world_from_object * Eigen::Vector3d(x, y, 0));
+    const Eigen::Vector3d at(0.02, -0.01, 0.2), away(5.0, 5.0, 5.0);
+    const auto place = [&](const Eigen::Vector3d& c) {
+        scene.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), c));
+        ASSERT_TRUE(scene.commitVirtual());
+    };
+    constexpr int kSide = 40;
+    std::vector<Eigen::Vector3d> points;
+    for (int j = 0; j < kSide; ++j) {
+        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
+    }
+    // The lamp's hidden fraction at each point, by 32 x 32 segments to the lamp's points.
+    std::vector<double> hidden(points.size(), 0.0);
+    for (std::size_t k = 0; k < points.size(); ++k) {
+        int blocked = 0;
+        for (int a = 0; a < 32; ++a) {
+            for (int b = 0; b < 32; ++b) {
+                const Eigen::Vector3d q = lamp.world_from_object * Eigen::Vector3d(-0.1 + 0.2 * (a + 0.5) / 32, -0.1 + 0.2 * (b + 0.5) / 32, 0);
+                const Eigen::Vector3d d = q - points[k];
+                const Eigen::Vector3d oc = at - points[k];
+                const double t = std::clamp(oc.dot(d) / d.squaredNorm(), 0.0, 1.0);
+                blocked += (oc - t * d).norm() < sphere.sphere_radius ? 1 : 0;
+            }
+        }
+        hidden[k] = blocked / 1024.0;
+    }
+    TexelDirectCache cache(scene, 64);
+    cache.reset({{&lamp, Eigen::Vector3d::Constant(50.0)}}, {floor});
+    const auto check = [&](const char* pass, bool present) {
+        int clear = 0, dark = 0;
+        for (std::size_t k = 0; k < points.size(); ++k) {
+            Eigen::Vector3d d0, d1;
+            cache.at(0, k, kSide, kSide, points[k], floor.normal, d0, d1);
+            ASSERT_GT(d0.x(), 0.0) << pass << " texel " << k;
+            if (!present || hidden[k] == 0.0) {
+                // (A point whose every segment misses the ball by a margin: its cone may still
+                // graze it, so only those far from the shadow are counted as clear.)
+                if (!present || shaftMeetsBall(Shaft{points[k], lamp.centre, 0.0, 0.15}, Ball{at, 0.06}) == false) {
+                    ASSERT_EQ(d1, d0) << pass << " texel " << k;
+                    ++clear;
+                }
+            } else if (hidden[k] >= 1.0 / 3.0) {
+                ASSERT_LT(d1.x(), 0.9 * d0.x()) << pass << " texel " << k << " hidden " << hidden[k];
+                ++dark;
+            }
+        }
+        if (present) {
+            EXPECT_GT(clear, 200) << pass;
+            EXPECT_GT(dark, 20) << pass;
+        }
+    };
+    place(at);
+    check("fresh", true);
+    place(away);
+    cache.forget({Ball{at, 0.05}});
+    check("away", false);
+    place(at);
+    cache.forget({Ball{away, 0.05}, Ball{at, 0.05}});
+    check("back", true);
+}
+
 }  // namespace
 }  // namespace commonlight::lighting
