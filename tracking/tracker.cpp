@@ -161,6 +161,8 @@ struct Tracker::State {
     std::vector<TagDetection> last_detections;
     std::map<int, Rigid3d> last_cam_from_tag;
     std::optional<double> last_dilation_cells;  // the last frame's tags' dilation (FrameTrack::dilation_cells)
+    // Where the last frame's tags (detected or verified) were centred, by id (verify_trust_last_frame).
+    std::map<int, Eigen::Vector2d> last_centres;
 
     State(const CameraModel& c, const TagSet& t, const TrackerOptions& o, TagDetector d)
         : camera(c), tags(t), options(o), detector(std::move(d)), patterns(o.detector.family), filter(o.filter_options) {}
@@ -540,6 +542,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             tag.detection.corners = v.corners;
             tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
             tag.verified = true;
+            tag.verified_known = v.alternatives_skipped;
             auto pose = solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
             if (pose) {
                 tag.pose = std::move(*pose);
@@ -548,6 +551,12 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             }
             out.tags.push_back(std::move(tag));
             return true;
+        };
+        // Where the last frame reported the tag, when that may spare its alternatives.
+        const auto knownAt = [&](int id) -> const Eigen::Vector2d* {
+            if (!s.options.verify_trust_last_frame) return nullptr;
+            const auto it = s.last_centres.find(id);
+            return it == s.last_centres.end() ? nullptr : &it->second;
         };
         for (int pass = 0; pass < 2; ++pass) {
             std::optional<Rigid3d> basis;
@@ -594,7 +603,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                     if (hidden >= 3) continue;
                 }
                 const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *pattern, others, item.size,
-                                                             predicted_cam_from_tag, s.options.verify);
+                                                             predicted_cam_from_tag, s.options.verify, knownAt(item.id));
                 if (v.wide_enough_to_detect && s.full_res_detector) {
                     to_detect.push_back({&item, v.corners, v.span_px, predicted_cam_from_tag, std::move(others)});
                     continue;
@@ -641,7 +650,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                     TagVerifyOptions all = s.options.verify;
                     all.max_foreshortened_span_px = all.max_side_px;
                     const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *s.patterns.get(t.item->id), t.others,
-                                                                 t.item->size, t.cam_from_tag, all);
+                                                                 t.item->size, t.cam_from_tag, all, knownAt(t.item->id));
                     if (accept(v, *t.item, t.cam_from_tag)) {
                         added = true;
                     } else if (v.ncc >= s.options.verify.retry_min_ncc && v.ncc < s.options.verify.min_ncc) {
@@ -766,8 +775,10 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
     // For the next frame.
     s.last_detections = std::move(detections);
     s.last_cam_from_tag.clear();
+    s.last_centres.clear();
     for (const TrackedTag& t : out.tags) {
         if (t.pose && !t.pose->ambiguous) s.last_cam_from_tag[t.detection.id] = t.pose->cam_from_tag;
+        if (!s.options.independent_frames) s.last_centres[t.detection.id] = t.detection.center;
     }
     if (measurement) s.last_measurement_instant = instant;
     s.last_timestamp = timestamp_ns;

@@ -58,6 +58,11 @@ struct TrackerOptions {
     // A verified tag's corners in the bundle weigh this much against a detected tag's: they are
     // the prediction moved by a shift on a 0.25 px grid, about 3x the refined corners' error.
     double verify_bundle_weight = 0.1;
+    // A predicted tag the last frame reported (detected or verified) where it is predicted now is
+    // verified on its pattern's correlation alone, without comparing the plain square and the
+    // other ids (tag_verify.h, `known_at_px`): a third of the verification's correlations. Not
+    // in independent frames (nothing is carried from one to the next).
+    bool verify_trust_last_frame = true;
     // Predicted foreshortened tags the verification leaves to the detector (shorter span over
     // TagVerifyOptions::max_foreshortened_span_px) that the frame's detector missed (decimated):
     // detected again at full resolution (decimate 1) in a window around each, a detected tag like
@@ -110,6 +115,9 @@ struct TrackedTag {
     // Not detected: a scene tag predicted in view and verified there against its pattern
     // (TrackerOptions::verify_predicted); its corners are the verified prediction's.
     bool verified = false;
+    // Verified on its pattern's correlation alone: the last frame reported it where it was
+    // predicted (TrackerOptions::verify_trust_last_frame).
+    bool verified_known = false;
     // Detected late: a scene tag the frame's (decimated) detector missed, found by the detector at
     // full resolution in a window around its prediction (TrackerOptions::verify_redetect_full_res).
     bool detected_late = false;
