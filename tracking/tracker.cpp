@@ -20,6 +20,14 @@ double threadCpuMs() {
     return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
 }
 
+// A tag the last frame detected, predicted where it was and missed by the decimated detector, is
+// aligned from the prediction instead of detected again at full resolution only when its shorter
+// projected side is at least this fraction of its longer: on tags turned 75-80 degrees (`bench
+// tracking --cases tiny75`, spans of 14-20 px) the alignment alone accepted tags the detector
+// misses there, with corners 1.0 px from the truth (p50) against 0.88 for the detected ones, and
+// the camera pose was 12 % worse (docs/tracking.md, "Speed (issue 13)", sixth round).
+constexpr double kMinAspectAlignedKnown = 0.5;
+
 // The box around image points, grown by `margin` of its size and at least `min_px` pixels.
 PixelWindow grownBox(const std::array<Eigen::Vector2d, 4>& pts, double margin, int min_px) {
     Eigen::Vector2d lo = pts[0], hi = pts[0];
@@ -161,8 +169,10 @@ struct Tracker::State {
     std::vector<TagDetection> last_detections;
     std::map<int, Rigid3d> last_cam_from_tag;
     std::optional<double> last_dilation_cells;  // the last frame's tags' dilation (FrameTrack::dilation_cells)
-    // Where the last frame's tags (detected or verified) were centred, by id (verify_trust_last_frame).
+    // Where the last frame's tags (detected or verified) were centred, by id (verify_trust_last_frame),
+    // and the ids of those detected (not verified).
     std::map<int, Eigen::Vector2d> last_centres;
+    std::vector<int> last_detected;
 
     State(const CameraModel& c, const TagSet& t, const TrackerOptions& o, TagDetector d)
         : camera(c), tags(t), options(o), detector(std::move(d)), patterns(o.detector.family), filter(o.filter_options) {}
@@ -617,6 +627,61 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             // The foreshortened tags left to the detector: at full resolution in a window around
             // each; a tag found there (its id, near the prediction) is solved as a detected one
             // (step 2), one missed there is verified after all.
+            // Step 2's split of the CPU time is for step 2's tags: this step's solves count as verify's.
+            const double refine_cpu = out.times.refine_cpu_ms, align_cpu = out.times.align_cpu_ms;
+            if (pass == 0 && s.options.redetect_align_known && s.options.align_tags && !to_detect.empty()) {
+                // A tag the last frame reported where it is predicted now: its pattern aligned from the
+                // prediction (as a detected tag's is from its corners' pose), without the detector;
+                // one whose alignment fails is detected like the others.
+                std::vector<ToDetect> rest;
+                for (ToDetect& t : to_detect) {
+                    const Eigen::Vector2d centre = 0.25 * (t.corners[0] + t.corners[1] + t.corners[2] + t.corners[3]);
+                    const auto known = s.last_centres.find(t.item->id);
+                    const Eigen::Vector2d* last = known == s.last_centres.end() ? nullptr : &known->second;
+                    const TagPattern* pattern = s.patterns.get(t.item->id);
+                    const bool detected_last = std::find(s.last_detected.begin(), s.last_detected.end(), t.item->id) !=
+                                               s.last_detected.end();
+                    // The black square's shorter projected side over its longer (opposite sides averaged).
+                    const double side_a = 0.5 * ((t.corners[1] - t.corners[0]).norm() + (t.corners[2] - t.corners[3]).norm());
+                    const double side_b = 0.5 * ((t.corners[3] - t.corners[0]).norm() + (t.corners[2] - t.corners[1]).norm());
+                    const double aspect = std::min(side_a, side_b) / std::max(side_a, side_b);
+                    if (!last || !detected_last || (centre - *last).norm() > 0.5 * t.span_px || !pattern ||
+                        !(aspect >= kMinAspectAlignedKnown)) {
+                        rest.push_back(std::move(t));
+                        continue;
+                    }
+                    const TagAlignResult a = align(*pattern, t.item->size, t.cam_from_tag);
+                    std::array<Eigen::Vector2d, 4> corners;
+                    bool projected = a.ok;
+                    for (int c = 0; c < 4 && projected; ++c) {
+                        const auto px = s.camera.project(a.cam_from_tag * tagCornerInTag(c, t.item->size));
+                        if (px) corners[static_cast<std::size_t>(c)] = *px;
+                        projected = px.has_value();
+                    }
+                    if (!projected) {
+                        rest.push_back(std::move(t));
+                        continue;
+                    }
+                    TrackedTag tag;
+                    tag.detection.id = t.item->id;
+                    tag.detection.corners = corners;
+                    tag.detection.center = 0.25 * (corners[0] + corners[1] + corners[2] + corners[3]);
+                    tag.aligned = true;
+                    tag.detected_late = true;
+                    tag.aligned_known = true;
+                    TagPose pose;
+                    pose.id = t.item->id;
+                    pose.cam_from_tag = a.cam_from_tag;
+                    pose.rms_px = a.rms_px;
+                    pose.choice = PoseChoice::kPrediction;
+                    pose.candidates = {{a.cam_from_tag, a.rms_px}};
+                    pose.covariance = a.covariance;
+                    tag.pose = std::move(pose);
+                    out.tags.push_back(std::move(tag));
+                    added = true;
+                }
+                to_detect = std::move(rest);
+            }
             if (!to_detect.empty()) {
                 std::vector<PixelWindow> windows;
                 for (const ToDetect& t : to_detect) {
@@ -630,8 +695,6 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                 if (pass == 0) {
                     CL_TRY(found, s.full_res_detector->detectInWindows(gray8, mergeOverlapping(std::move(windows))));
                 }
-                // Step 2's split of the CPU time is for step 2's tags: this step's solves count as verify's.
-                const double refine_cpu = out.times.refine_cpu_ms, align_cpu = out.times.align_cpu_ms;
                 for (ToDetect& t : to_detect) {
                     const Eigen::Vector2d centre = 0.25 * (t.corners[0] + t.corners[1] + t.corners[2] + t.corners[3]);
                     const auto d = std::find_if(found.begin(), found.end(), [&](const TagDetection& f) {
@@ -657,9 +720,9 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                         close.push_back(t.item->id);
                     }
                 }
-                out.times.refine_cpu_ms = refine_cpu;
-                out.times.align_cpu_ms = align_cpu;
             }
+            out.times.refine_cpu_ms = refine_cpu;
+            out.times.align_cpu_ms = align_cpu;
             if (added) runBundle();
             // A second pass only when the first moved the bundle and left close ones.
             if (!added || close.empty()) break;
@@ -776,9 +839,12 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
     s.last_detections = std::move(detections);
     s.last_cam_from_tag.clear();
     s.last_centres.clear();
+    s.last_detected.clear();
     for (const TrackedTag& t : out.tags) {
         if (t.pose && !t.pose->ambiguous) s.last_cam_from_tag[t.detection.id] = t.pose->cam_from_tag;
-        if (!s.options.independent_frames) s.last_centres[t.detection.id] = t.detection.center;
+        if (s.options.independent_frames) continue;
+        s.last_centres[t.detection.id] = t.detection.center;
+        if (!t.verified) s.last_detected.push_back(t.detection.id);
     }
     if (measurement) s.last_measurement_instant = instant;
     s.last_timestamp = timestamp_ns;

@@ -68,6 +68,12 @@ struct TrackerOptions {
     // detected again at full resolution (decimate 1) in a window around each, a detected tag like
     // any other; one missed there too is verified. Without this they are not tried at all.
     bool verify_redetect_full_res = true;
+    // ... except a tag the last frame detected (by either detector), predicted within half its
+    // shorter span of where it was, whose shorter projected side is at least half its longer: its
+    // pattern is aligned from the prediction instead (as a detected tag's is from its corners'
+    // pose), without the detector (TrackedTag::aligned_known); one whose alignment fails is
+    // detected as the others. Not in independent frames.
+    bool redetect_align_known = true;
     // Tracking mode: detect only in windows around the predicted tags.
     bool tracking_mode = false;
     int redetect_every = 15;      // full-frame detection every N frames in tracking mode (>= 1)
@@ -121,6 +127,9 @@ struct TrackedTag {
     // Detected late: a scene tag the frame's (decimated) detector missed, found by the detector at
     // full resolution in a window around its prediction (TrackerOptions::verify_redetect_full_res).
     bool detected_late = false;
+    // ... found late without the detector: the last frame detected it where it is predicted now,
+    // and its pattern aligned from the prediction (TrackerOptions::redetect_align_known).
+    bool aligned_known = false;
     std::optional<TagPose> pose;  // nullopt: unknown size, or the solver refused (see error)
     std::string error;            // why there is no pose
 };
