@@ -1,5 +1,7 @@
 #include "tracking/tracker.h"
 
+#include "tracking/tracker_support.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -8,6 +10,8 @@
 
 namespace commonlight::tracking {
 namespace {
+
+using namespace tracker_support;
 
 using Clock = std::chrono::steady_clock;
 double msSince(Clock::time_point start) {
@@ -18,54 +22,6 @@ double threadCpuMs() {
     timespec t{};
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
     return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
-}
-
-// A tag the last frame detected, predicted where it was and missed by the decimated detector, is
-// aligned from the prediction instead of detected again at full resolution only when its shorter
-// projected side is at least this fraction of its longer: on tags turned 75-80 degrees (`bench
-// tracking --cases tiny75`, spans of 14-20 px) the alignment alone accepted tags the detector
-// misses there, with corners 1.0 px from the truth (p50) against 0.88 for the detected ones, and
-// the camera pose was 12 % worse (docs/tracking.md, "Speed (issue 13)", sixth round).
-constexpr double kMinAspectAlignedKnown = 0.5;
-
-// The box around image points, grown by `margin` of its size and at least `min_px` pixels.
-PixelWindow grownBox(const std::array<Eigen::Vector2d, 4>& pts, double margin, int min_px) {
-    Eigen::Vector2d lo = pts[0], hi = pts[0];
-    for (const auto& p : pts) {
-        lo = lo.cwiseMin(p);
-        hi = hi.cwiseMax(p);
-    }
-    const double grow = std::max(margin * (hi - lo).maxCoeff(), static_cast<double>(min_px));
-    const int x0 = static_cast<int>(std::floor(lo.x() - grow));
-    const int y0 = static_cast<int>(std::floor(lo.y() - grow));
-    const int x1 = static_cast<int>(std::ceil(hi.x() + grow));
-    const int y1 = static_cast<int>(std::ceil(hi.y() + grow));
-    return {x0, y0, x1 - x0, y1 - y0};
-}
-
-bool overlap(const PixelWindow& a, const PixelWindow& b) {
-    return a.x < b.x + b.width && b.x < a.x + a.width && a.y < b.y + b.height && b.y < a.y + a.height;
-}
-
-// Overlapping windows (the tags of one board) become their bounding box: the detector then
-// sees each tag once, whole, and pays its per-call cost once.
-std::vector<PixelWindow> mergeOverlapping(std::vector<PixelWindow> windows) {
-    bool merged = true;
-    while (merged) {
-        merged = false;
-        for (std::size_t i = 0; i < windows.size() && !merged; ++i) {
-            for (std::size_t j = i + 1; j < windows.size() && !merged; ++j) {
-                if (!overlap(windows[i], windows[j])) continue;
-                const int x0 = std::min(windows[i].x, windows[j].x), y0 = std::min(windows[i].y, windows[j].y);
-                const int x1 = std::max(windows[i].x + windows[i].width, windows[j].x + windows[j].width);
-                const int y1 = std::max(windows[i].y + windows[i].height, windows[j].y + windows[j].height);
-                windows[i] = {x0, y0, x1 - x0, y1 - y0};
-                windows.erase(windows.begin() + static_cast<std::ptrdiff_t>(j));
-                merged = true;
-            }
-        }
-    }
-    return windows;
 }
 
 // An ambiguous tag settled by the camera pose the scene's other tags (step 3) or the proxies'
@@ -641,43 +597,18 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                     const TagPattern* pattern = s.patterns.get(t.item->id);
                     const bool detected_last = std::find(s.last_detected.begin(), s.last_detected.end(), t.item->id) !=
                                                s.last_detected.end();
-                    // The black square's shorter projected side over its longer (opposite sides averaged).
-                    const double side_a = 0.5 * ((t.corners[1] - t.corners[0]).norm() + (t.corners[2] - t.corners[3]).norm());
-                    const double side_b = 0.5 * ((t.corners[3] - t.corners[0]).norm() + (t.corners[2] - t.corners[1]).norm());
-                    const double aspect = std::min(side_a, side_b) / std::max(side_a, side_b);
                     if (!last || !detected_last || (centre - *last).norm() > 0.5 * t.span_px || !pattern ||
-                        !(aspect >= kMinAspectAlignedKnown)) {
+                        !(squareAspect(t.corners) >= kMinAspectAlignedKnown)) {
                         rest.push_back(std::move(t));
                         continue;
                     }
-                    const TagAlignResult a = align(*pattern, t.item->size, t.cam_from_tag);
-                    std::array<Eigen::Vector2d, 4> corners;
-                    bool projected = a.ok;
-                    for (int c = 0; c < 4 && projected; ++c) {
-                        const auto px = s.camera.project(a.cam_from_tag * tagCornerInTag(c, t.item->size));
-                        if (px) corners[static_cast<std::size_t>(c)] = *px;
-                        projected = px.has_value();
-                    }
-                    if (!projected) {
+                    std::optional<TrackedTag> tag =
+                        alignedKnownTag(align(*pattern, t.item->size, t.cam_from_tag), t.item->id, t.item->size, s.camera);
+                    if (!tag) {
                         rest.push_back(std::move(t));
                         continue;
                     }
-                    TrackedTag tag;
-                    tag.detection.id = t.item->id;
-                    tag.detection.corners = corners;
-                    tag.detection.center = 0.25 * (corners[0] + corners[1] + corners[2] + corners[3]);
-                    tag.aligned = true;
-                    tag.detected_late = true;
-                    tag.aligned_known = true;
-                    TagPose pose;
-                    pose.id = t.item->id;
-                    pose.cam_from_tag = a.cam_from_tag;
-                    pose.rms_px = a.rms_px;
-                    pose.choice = PoseChoice::kPrediction;
-                    pose.candidates = {{a.cam_from_tag, a.rms_px}};
-                    pose.covariance = a.covariance;
-                    tag.pose = std::move(pose);
-                    out.tags.push_back(std::move(tag));
+                    out.tags.push_back(std::move(*tag));
                     added = true;
                 }
                 to_detect = std::move(rest);
