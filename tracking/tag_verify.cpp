@@ -329,7 +329,8 @@ private:
 
 TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& camera, const TagPattern& pattern,
                                    const std::vector<const TagPattern*>& others, double size,
-                                   const Rigid3d& cam_from_tag, const TagVerifyOptions& options) {
+                                   const Rigid3d& cam_from_tag, const TagVerifyOptions& options,
+                                   const Eigen::Vector2d* known_at_px) {
     TagVerifyResult out;
     if (gray8.format != PixelFormat::kGray8 || !cam_from_tag.isValid() || !(size > 0) || pattern.total() <= 0) {
         out.reason = "bad input";
@@ -432,6 +433,11 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
     const auto square = [&](int c, int r) { return c < b0 || r < b0 || c >= b0 + border || r >= b0 + border; };
     if (ncc < options.min_ncc) {
         out.reason = "the pattern does not match the image";
+        return out;
+    }
+    if (known_at_px && (centre - *known_at_px).norm() <= 0.5 * out.span_px) {
+        out.alternatives_skipped = true;
+        out.ok = true;
         return out;
     }
     out.ncc_square = matcher->bestAround(cellsOf(total, square), shift);

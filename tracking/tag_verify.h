@@ -71,6 +71,9 @@ struct TagVerifyResult {
     double ncc = 0.0;                                    // the tag's pattern at the best shift
     double ncc_square = 0.0;                             // the plain black square at its best shift
     double ncc_other = -1.0;                             // the best of the other ids
+    // Step 3 skipped: the tag was reported at this place in the last frame (`known_at_px`), so
+    // ncc_square and ncc_other were not measured.
+    bool alternatives_skipped = false;
     double side_px = 0.0;                                // the predicted black square's mean side
     double span_px = 0.0;                                // its shorter span (the range's measure)
     // Not tried: a foreshortened tag whose shorter span is over max_foreshortened_span_px (but in
@@ -79,8 +82,15 @@ struct TagVerifyResult {
 };
 
 // `pattern`: the predicted tag's; `others`: patterns of other ids of the family (may be empty).
+// `known_at_px`: where the tag's black square was centred when it was last reported (detected or
+// verified in the previous frame of a sequence), or null. When the predicted square's centre is
+// within half its shorter span of it, the alternatives (step 3: the plain square, the other ids)
+// are not compared: what they guard against, a place where another id or no tag is, is excluded
+// by the tag having been there a frame ago; the pattern's own correlation (min_ncc) still
+// decides, so a tag covered or gone since is refused as before.
 TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& camera, const TagPattern& pattern,
                                    const std::vector<const TagPattern*>& others, double size,
-                                   const Rigid3d& cam_from_tag, const TagVerifyOptions& options = {});
+                                   const Rigid3d& cam_from_tag, const TagVerifyOptions& options = {},
+                                   const Eigen::Vector2d* known_at_px = nullptr);
 
 }  // namespace commonlight::tracking

@@ -1,5 +1,7 @@
 #include "tracking/tracker.h"
 
+#include "tracking/tracker_support.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -8,6 +10,8 @@
 
 namespace commonlight::tracking {
 namespace {
+
+using namespace tracker_support;
 
 using Clock = std::chrono::steady_clock;
 double msSince(Clock::time_point start) {
@@ -18,46 +22,6 @@ double threadCpuMs() {
     timespec t{};
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
     return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
-}
-
-// The box around image points, grown by `margin` of its size and at least `min_px` pixels.
-PixelWindow grownBox(const std::array<Eigen::Vector2d, 4>& pts, double margin, int min_px) {
-    Eigen::Vector2d lo = pts[0], hi = pts[0];
-    for (const auto& p : pts) {
-        lo = lo.cwiseMin(p);
-        hi = hi.cwiseMax(p);
-    }
-    const double grow = std::max(margin * (hi - lo).maxCoeff(), static_cast<double>(min_px));
-    const int x0 = static_cast<int>(std::floor(lo.x() - grow));
-    const int y0 = static_cast<int>(std::floor(lo.y() - grow));
-    const int x1 = static_cast<int>(std::ceil(hi.x() + grow));
-    const int y1 = static_cast<int>(std::ceil(hi.y() + grow));
-    return {x0, y0, x1 - x0, y1 - y0};
-}
-
-bool overlap(const PixelWindow& a, const PixelWindow& b) {
-    return a.x < b.x + b.width && b.x < a.x + a.width && a.y < b.y + b.height && b.y < a.y + a.height;
-}
-
-// Overlapping windows (the tags of one board) become their bounding box: the detector then
-// sees each tag once, whole, and pays its per-call cost once.
-std::vector<PixelWindow> mergeOverlapping(std::vector<PixelWindow> windows) {
-    bool merged = true;
-    while (merged) {
-        merged = false;
-        for (std::size_t i = 0; i < windows.size() && !merged; ++i) {
-            for (std::size_t j = i + 1; j < windows.size() && !merged; ++j) {
-                if (!overlap(windows[i], windows[j])) continue;
-                const int x0 = std::min(windows[i].x, windows[j].x), y0 = std::min(windows[i].y, windows[j].y);
-                const int x1 = std::max(windows[i].x + windows[i].width, windows[j].x + windows[j].width);
-                const int y1 = std::max(windows[i].y + windows[i].height, windows[j].y + windows[j].height);
-                windows[i] = {x0, y0, x1 - x0, y1 - y0};
-                windows.erase(windows.begin() + static_cast<std::ptrdiff_t>(j));
-                merged = true;
-            }
-        }
-    }
-    return windows;
 }
 
 // An ambiguous tag settled by the camera pose the scene's other tags (step 3) or the proxies'
@@ -161,6 +125,10 @@ struct Tracker::State {
     std::vector<TagDetection> last_detections;
     std::map<int, Rigid3d> last_cam_from_tag;
     std::optional<double> last_dilation_cells;  // the last frame's tags' dilation (FrameTrack::dilation_cells)
+    // Where the last frame's tags (detected or verified) were centred, by id (verify_trust_last_frame),
+    // and the ids of those detected (not verified).
+    std::map<int, Eigen::Vector2d> last_centres;
+    std::vector<int> last_detected;
 
     State(const CameraModel& c, const TagSet& t, const TrackerOptions& o, TagDetector d)
         : camera(c), tags(t), options(o), detector(std::move(d)), patterns(o.detector.family), filter(o.filter_options) {}
@@ -540,6 +508,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             tag.detection.corners = v.corners;
             tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
             tag.verified = true;
+            tag.verified_known = v.alternatives_skipped;
             auto pose = solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
             if (pose) {
                 tag.pose = std::move(*pose);
@@ -548,6 +517,12 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             }
             out.tags.push_back(std::move(tag));
             return true;
+        };
+        // Where the last frame reported the tag, when that may spare its alternatives.
+        const auto knownAt = [&](int id) -> const Eigen::Vector2d* {
+            if (!s.options.verify_trust_last_frame) return nullptr;
+            const auto it = s.last_centres.find(id);
+            return it == s.last_centres.end() ? nullptr : &it->second;
         };
         for (int pass = 0; pass < 2; ++pass) {
             std::optional<Rigid3d> basis;
@@ -594,7 +569,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                     if (hidden >= 3) continue;
                 }
                 const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *pattern, others, item.size,
-                                                             predicted_cam_from_tag, s.options.verify);
+                                                             predicted_cam_from_tag, s.options.verify, knownAt(item.id));
                 if (v.wide_enough_to_detect && s.full_res_detector) {
                     to_detect.push_back({&item, v.corners, v.span_px, predicted_cam_from_tag, std::move(others)});
                     continue;
@@ -608,6 +583,36 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             // The foreshortened tags left to the detector: at full resolution in a window around
             // each; a tag found there (its id, near the prediction) is solved as a detected one
             // (step 2), one missed there is verified after all.
+            // Step 2's split of the CPU time is for step 2's tags: this step's solves count as verify's.
+            const double refine_cpu = out.times.refine_cpu_ms, align_cpu = out.times.align_cpu_ms;
+            if (pass == 0 && s.options.redetect_align_known && s.options.align_tags && !to_detect.empty()) {
+                // A tag the last frame reported where it is predicted now: its pattern aligned from the
+                // prediction (as a detected tag's is from its corners' pose), without the detector;
+                // one whose alignment fails is detected like the others.
+                std::vector<ToDetect> rest;
+                for (ToDetect& t : to_detect) {
+                    const Eigen::Vector2d centre = 0.25 * (t.corners[0] + t.corners[1] + t.corners[2] + t.corners[3]);
+                    const auto known = s.last_centres.find(t.item->id);
+                    const Eigen::Vector2d* last = known == s.last_centres.end() ? nullptr : &known->second;
+                    const TagPattern* pattern = s.patterns.get(t.item->id);
+                    const bool detected_last = std::find(s.last_detected.begin(), s.last_detected.end(), t.item->id) !=
+                                               s.last_detected.end();
+                    if (!last || !detected_last || (centre - *last).norm() > 0.5 * t.span_px || !pattern ||
+                        !(squareAspect(t.corners) >= kMinAspectAlignedKnown)) {
+                        rest.push_back(std::move(t));
+                        continue;
+                    }
+                    std::optional<TrackedTag> tag =
+                        alignedKnownTag(align(*pattern, t.item->size, t.cam_from_tag), t.item->id, t.item->size, s.camera);
+                    if (!tag) {
+                        rest.push_back(std::move(t));
+                        continue;
+                    }
+                    out.tags.push_back(std::move(*tag));
+                    added = true;
+                }
+                to_detect = std::move(rest);
+            }
             if (!to_detect.empty()) {
                 std::vector<PixelWindow> windows;
                 for (const ToDetect& t : to_detect) {
@@ -621,8 +626,6 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                 if (pass == 0) {
                     CL_TRY(found, s.full_res_detector->detectInWindows(gray8, mergeOverlapping(std::move(windows))));
                 }
-                // Step 2's split of the CPU time is for step 2's tags: this step's solves count as verify's.
-                const double refine_cpu = out.times.refine_cpu_ms, align_cpu = out.times.align_cpu_ms;
                 for (ToDetect& t : to_detect) {
                     const Eigen::Vector2d centre = 0.25 * (t.corners[0] + t.corners[1] + t.corners[2] + t.corners[3]);
                     const auto d = std::find_if(found.begin(), found.end(), [&](const TagDetection& f) {
@@ -641,16 +644,16 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                     TagVerifyOptions all = s.options.verify;
                     all.max_foreshortened_span_px = all.max_side_px;
                     const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *s.patterns.get(t.item->id), t.others,
-                                                                 t.item->size, t.cam_from_tag, all);
+                                                                 t.item->size, t.cam_from_tag, all, knownAt(t.item->id));
                     if (accept(v, *t.item, t.cam_from_tag)) {
                         added = true;
                     } else if (v.ncc >= s.options.verify.retry_min_ncc && v.ncc < s.options.verify.min_ncc) {
                         close.push_back(t.item->id);
                     }
                 }
-                out.times.refine_cpu_ms = refine_cpu;
-                out.times.align_cpu_ms = align_cpu;
             }
+            out.times.refine_cpu_ms = refine_cpu;
+            out.times.align_cpu_ms = align_cpu;
             if (added) runBundle();
             // A second pass only when the first moved the bundle and left close ones.
             if (!added || close.empty()) break;
@@ -766,8 +769,13 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
     // For the next frame.
     s.last_detections = std::move(detections);
     s.last_cam_from_tag.clear();
+    s.last_centres.clear();
+    s.last_detected.clear();
     for (const TrackedTag& t : out.tags) {
         if (t.pose && !t.pose->ambiguous) s.last_cam_from_tag[t.detection.id] = t.pose->cam_from_tag;
+        if (s.options.independent_frames) continue;
+        s.last_centres[t.detection.id] = t.detection.center;
+        if (!t.verified) s.last_detected.push_back(t.detection.id);
     }
     if (measurement) s.last_measurement_instant = instant;
     s.last_timestamp = timestamp_ns;

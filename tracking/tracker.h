@@ -58,11 +58,22 @@ struct TrackerOptions {
     // A verified tag's corners in the bundle weigh this much against a detected tag's: they are
     // the prediction moved by a shift on a 0.25 px grid, about 3x the refined corners' error.
     double verify_bundle_weight = 0.1;
+    // A predicted tag the last frame reported (detected or verified) where it is predicted now is
+    // verified on its pattern's correlation alone, without comparing the plain square and the
+    // other ids (tag_verify.h, `known_at_px`): a third of the verification's correlations. Not
+    // in independent frames (nothing is carried from one to the next).
+    bool verify_trust_last_frame = true;
     // Predicted foreshortened tags the verification leaves to the detector (shorter span over
     // TagVerifyOptions::max_foreshortened_span_px) that the frame's detector missed (decimated):
     // detected again at full resolution (decimate 1) in a window around each, a detected tag like
     // any other; one missed there too is verified. Without this they are not tried at all.
     bool verify_redetect_full_res = true;
+    // ... except a tag the last frame detected (by either detector), predicted within half its
+    // shorter span of where it was, whose shorter projected side is at least half its longer: its
+    // pattern is aligned from the prediction instead (as a detected tag's is from its corners'
+    // pose), without the detector (TrackedTag::aligned_known); one whose alignment fails is
+    // detected as the others. Not in independent frames.
+    bool redetect_align_known = true;
     // Tracking mode: detect only in windows around the predicted tags.
     bool tracking_mode = false;
     int redetect_every = 15;      // full-frame detection every N frames in tracking mode (>= 1)
@@ -110,9 +121,15 @@ struct TrackedTag {
     // Not detected: a scene tag predicted in view and verified there against its pattern
     // (TrackerOptions::verify_predicted); its corners are the verified prediction's.
     bool verified = false;
+    // Verified on its pattern's correlation alone: the last frame reported it where it was
+    // predicted (TrackerOptions::verify_trust_last_frame).
+    bool verified_known = false;
     // Detected late: a scene tag the frame's (decimated) detector missed, found by the detector at
     // full resolution in a window around its prediction (TrackerOptions::verify_redetect_full_res).
     bool detected_late = false;
+    // ... found late without the detector: the last frame detected it where it is predicted now,
+    // and its pattern aligned from the prediction (TrackerOptions::redetect_align_known).
+    bool aligned_known = false;
     std::optional<TagPose> pose;  // nullopt: unknown size, or the solver refused (see error)
     std::string error;            // why there is no pose
 };

@@ -14,3 +14,6 @@ commonlight_test(tracking ambiguity_edges SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/am
 # Tiny tags (7-10 px): verified at their predicted place; absent, occluded or wrong ones refused.
 commonlight_test(tracking tiny_tags SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/tiny_tags_test.cpp
                  DEPS commonlight::tracking commonlight_test_synthetic_tags)
+# ... and in a sequence: a tag the last frame reported is verified on its pattern alone.
+commonlight_test(tracking tiny_tags_sequence SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/tiny_tags_sequence_test.cpp
+                 DEPS commonlight::tracking commonlight_test_synthetic_tags)

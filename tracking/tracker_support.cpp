@@ -1,0 +1,81 @@
+#include "tracking/tracker_support.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+
+namespace commonlight::tracking::tracker_support {
+namespace {
+
+bool overlap(const PixelWindow& a, const PixelWindow& b) {
+    return a.x < b.x + b.width && b.x < a.x + a.width && a.y < b.y + b.height && b.y < a.y + a.height;
+}
+
+}  // namespace
+
+PixelWindow grownBox(const std::array<Eigen::Vector2d, 4>& pts, double margin, int min_px) {
+    Eigen::Vector2d lo = pts[0], hi = pts[0];
+    for (const auto& p : pts) {
+        lo = lo.cwiseMin(p);
+        hi = hi.cwiseMax(p);
+    }
+    const double grow = std::max(margin * (hi - lo).maxCoeff(), static_cast<double>(min_px));
+    const int x0 = static_cast<int>(std::floor(lo.x() - grow));
+    const int y0 = static_cast<int>(std::floor(lo.y() - grow));
+    const int x1 = static_cast<int>(std::ceil(hi.x() + grow));
+    const int y1 = static_cast<int>(std::ceil(hi.y() + grow));
+    return {x0, y0, x1 - x0, y1 - y0};
+}
+
+std::vector<PixelWindow> mergeOverlapping(std::vector<PixelWindow> windows) {
+    bool merged = true;
+    while (merged) {
+        merged = false;
+        for (std::size_t i = 0; i < windows.size() && !merged; ++i) {
+            for (std::size_t j = i + 1; j < windows.size() && !merged; ++j) {
+                if (!overlap(windows[i], windows[j])) continue;
+                const int x0 = std::min(windows[i].x, windows[j].x), y0 = std::min(windows[i].y, windows[j].y);
+                const int x1 = std::max(windows[i].x + windows[i].width, windows[j].x + windows[j].width);
+                const int y1 = std::max(windows[i].y + windows[i].height, windows[j].y + windows[j].height);
+                windows[i] = {x0, y0, x1 - x0, y1 - y0};
+                windows.erase(windows.begin() + static_cast<std::ptrdiff_t>(j));
+                merged = true;
+            }
+        }
+    }
+    return windows;
+}
+
+double squareAspect(const std::array<Eigen::Vector2d, 4>& c) {
+    const double side_a = 0.5 * ((c[1] - c[0]).norm() + (c[2] - c[3]).norm());
+    const double side_b = 0.5 * ((c[3] - c[0]).norm() + (c[2] - c[1]).norm());
+    const double longer = std::max(side_a, side_b);
+    return longer > 0 ? std::min(side_a, side_b) / longer : 0.0;
+}
+
+std::optional<TrackedTag> alignedKnownTag(const TagAlignResult& aligned, int id, double size, const CameraModel& camera) {
+    if (!aligned.ok) return std::nullopt;
+    TrackedTag tag;
+    for (int c = 0; c < 4; ++c) {
+        const auto px = camera.project(aligned.cam_from_tag * tagCornerInTag(c, size));
+        if (!px) return std::nullopt;
+        tag.detection.corners[static_cast<std::size_t>(c)] = *px;
+    }
+    const auto& corners = tag.detection.corners;
+    tag.detection.id = id;
+    tag.detection.center = 0.25 * (corners[0] + corners[1] + corners[2] + corners[3]);
+    tag.aligned = true;
+    tag.detected_late = true;
+    tag.aligned_known = true;
+    TagPose pose;
+    pose.id = id;
+    pose.cam_from_tag = aligned.cam_from_tag;
+    pose.rms_px = aligned.rms_px;
+    pose.choice = PoseChoice::kPrediction;
+    pose.candidates = {{aligned.cam_from_tag, aligned.rms_px}};
+    pose.covariance = aligned.covariance;
+    tag.pose = std::move(pose);
+    return tag;
+}
+
+}  // namespace commonlight::tracking::tracker_support
