@@ -274,22 +274,35 @@ TEST(TexelDirect, HeldSnapshotsKeepTheirTexturesWhileLaterMovesAreBuilt) {
 // forget() culls by tiles of texels before testing each texel's shafts: the texels it lists (and
 // only those) are the ones whose shaft to the light meets a moved ball, against a scan of every
 // texel; the first list after reset() is "any" (false), and a texel traced again is kept again.
-TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
+// A square floor of side 2 h about the origin (z = 0, facing up), and a square lamp of side `side`
+// facing down, centred at `centre`.
+Face squareFloor(double h) {
     Face floor;
-    floor.origin = {-0.6, -0.6, 0.0};
-    floor.edge_s = {1.2, 0, 0};
-    floor.edge_t = {0, 1.2, 0};
+    floor.origin = {-h, -h, 0.0};
+    floor.edge_s = {2 * h, 0, 0};
+    floor.edge_t = {0, 2 * h, 0};
     floor.normal = {0, 0, 1};
-    floor.area = 1.44;
+    floor.area = 4 * h * h;
+    return floor;
+}
+
+LightGeometry squareLamp(const Eigen::Vector3d& centre, double side) {
+    LightGeometry lamp;
+    lamp.world_from_object = Rigid3d::fromRpyDeg(centre, Eigen::Vector3d(180, 0, 0));
+    lamp.size = {side, side};
+    lamp.centre = centre;
+    lamp.normal = {0, 0, -1};
+    lamp.area = side * side;
+    const double h = 0.5 * side;
+    for (const auto& [x, y] : {std::pair{-h, -h}, {h, -h}, {h, h}, {-h, h}}) lamp.polygon.push_back(lamp.world_from_object * Eigen::Vector3d(x, y, 0));
+    return lamp;
+}
+
+TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
+    const Face floor = squareFloor(0.6);
     auto rays = RayScene::build({floor}, {}, {});
     ASSERT_TRUE(rays) << rays.error().message;
-    LightGeometry lamp;
-    lamp.world_from_object = Rigid3d::fromRpyDeg(Eigen::Vector3d(0.05, 0.0, 0.8), Eigen::Vector3d(180, 0, 0));
-    lamp.size = {0.12, 0.12};
-    lamp.centre = lamp.world_from_object.translation;
-    lamp.normal = {0, 0, -1};
-    lamp.area = 0.0144;
-    for (const auto& [x, y] : {std::pair{-0.06, -0.06}, {0.06, -0.06}, {0.06, 0.06}, {-0.06, 0.06}}) lamp.polygon.push_back(lamp.world_from_object * Eigen::Vector3d(x, y, 0));
+    const LightGeometry lamp = squareLamp({0.05, 0.0, 0.8}, 0.12);
     constexpr int kSide = 50;  // (not a multiple of the tiles' 16: partial tiles at two edges)
     TexelDirectCache cache(**rays, 4);
     cache.reset({{&lamp, Eigen::Vector3d::Constant(100.0)}}, {floor});
@@ -337,24 +350,13 @@ TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
 // alone, would take the penumbra's outer texels as clear), and with the ball away every texel
 // has with == without.
 TEST(TexelDirect, TexelsWhoseConeMissesEveryObjectSkipItsRays) {
-    Face floor;
-    floor.origin = {-0.3, -0.3, 0.0};
-    floor.edge_s = {0.6, 0, 0};
-    floor.edge_t = {0, 0.6, 0};
-    floor.normal = {0, 0, 1};
-    floor.area = 0.36;
+    const Face floor = squareFloor(0.3);
     VirtualShape sphere;
     sphere.sphere_radius = 0.05;
     auto rays = RayScene::build({floor}, {}, {sphere});
     ASSERT_TRUE(rays) << rays.error().message;
     RayScene& scene = **rays;
-    LightGeometry lamp;
-    lamp.world_from_object = Rigid3d::fromRpyDeg(Eigen::Vector3d(0.0, 0.0, 0.6), Eigen::Vector3d(180, 0, 0));
-    lamp.size = {0.2, 0.2};
-    lamp.centre = lamp.world_from_object.translation;
-    lamp.normal = {0, 0, -1};
-    lamp.area = 0.04;
-    for (const auto& [x, y] : {std::pair{-0.1, -0.1}, {0.1, -0.1}, {0.1, 0.1}, {-0.1, 0.1}}) lamp.polygon.push_back(lamp.world_from_object * Eigen::Vector3d(x, y, 0));
+    const LightGeometry lamp = squareLamp({0.0, 0.0, 0.6}, 0.2);
     const Eigen::Vector3d at(0.02, -0.01, 0.2), away(5.0, 5.0, 5.0);
     const auto place = [&](const Eigen::Vector3d& c) {
         scene.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), c));
