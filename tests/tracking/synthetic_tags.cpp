@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
@@ -111,6 +112,15 @@ Image renderSyntheticTagsBlurred(const CameraModel& camera,
     for (int k = 0; k < time_samples; ++k) accumulate(camera, tags_at((k + 0.5) / time_samples), options, sum);
     sum /= static_cast<double>(time_samples);
     return encode(camera, sum, options);
+}
+
+void addForeshortenedGrid(TagSet& tags, double turn0_deg, double turn_step_deg, double size0, double size_step) {
+    for (int k = 0; k < 8; ++k) {
+        const double turn = (turn0_deg + turn_step_deg * (k % 3)) * std::numbers::pi / 180.0;
+        const Eigen::Quaterniond q(Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitY()));
+        tags.items.push_back({30 + k, size0 + size_step * k,
+                              Rigid3d(q, Eigen::Vector3d(-0.18 + 0.12 * (k % 4), k < 4 ? -0.12 : 0.12, 0)), 0.04, 0.8});
+    }
 }
 
 }  // namespace commonlight::tracking::testing

@@ -11,6 +11,7 @@
 #include "core/camera_model.h"
 #include "core/image.h"
 #include "core/pose.h"
+#include "core/scene.h"
 
 namespace commonlight::tracking::testing {
 
@@ -30,6 +31,11 @@ struct SyntheticImageOptions {
 
 // A 640 x 480 pinhole camera, f = 500 px, principal point at the centre, no distortion.
 CameraModel syntheticCamera();
+
+// Eight foreshortened tags, ids 30-37, in a 4 x 2 grid about the origin of the tag plane (x at
+// -0.18 + 0.12 i, y at -+0.12), each turned about its y axis by turn0 + turn_step (k mod 3)
+// degrees, sized size0 + size_step k metres, appended to `tags`.
+void addForeshortenedGrid(TagSet& tags, double turn0_deg, double turn_step_deg, double size0, double size_step);
 
 // The tags at one instant.
 Image renderSyntheticTags(const CameraModel& camera, const std::vector<SyntheticTag>& tags,

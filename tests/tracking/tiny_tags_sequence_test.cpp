@@ -215,11 +215,7 @@ TEST(TinyTagsSequence, ATagDetectedInTheLastFrameIsAlignedWithoutTheDetector) {
     tags.family = "tag36h11";
     tags.items.push_back({0, 0.1, at(-0.3, 0.0), 0.04, 0.8});
     tags.items.push_back({1, 0.1, at(0.3, 0.0), 0.04, 0.8});
-    for (int k = 0; k < 8; ++k) {
-        const Eigen::Quaterniond q(Eigen::AngleAxisd((55.0 + 1.25 * (k % 3)) * M_PI / 180, Eigen::Vector3d::UnitY()));
-        tags.items.push_back({30 + k, 0.045 + 0.003 * k,
-                              Rigid3d(q, Eigen::Vector3d(-0.18 + 0.12 * (k % 4), k < 4 ? -0.12 : 0.12, 0)), 0.04, 0.8});
-    }
+    testing::addForeshortenedGrid(tags, 55.0, 1.25, 0.045, 0.003);
     const auto make = [&](bool trust, bool independent) {
         TrackerOptions options;
         options.filter = false;

@@ -510,12 +510,7 @@ TEST(TinyTags, ForeshortenedTagsAreTriedByTheirShorterSpan) {
 // decimated detector's are found.
 TEST(TinyTags, ForeshortenedTagsTheDecimatedDetectorMissesAreDetectedAtFullResolution) {
     TagSet tags = twoLargeTags(0.3);
-    for (int k = 0; k < 8; ++k) {
-        const double turn = (55.0 + 2.5 * (k % 3)) * M_PI / 180;
-        const Eigen::Quaterniond q(Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitY()));
-        tags.items.push_back({30 + k, 0.05 + 0.004 * k,
-                              Rigid3d(q, Eigen::Vector3d(-0.18 + 0.12 * (k % 4), k < 4 ? -0.12 : 0.12, 0)), 0.04, 0.8});
-    }
+    testing::addForeshortenedGrid(tags, 55.0, 2.5, 0.05, 0.004);
     const auto make = [&](bool redetect) {
         TrackerOptions options;
         options.filter = false;
