@@ -34,6 +34,12 @@ struct SimScene::Geometry {
     struct Decal {
         int tag = -1;     // index into tags_
         int object = -1;  // the tag's object id
+        // The tag's printed normal, and a ball around its printed square (with the plane's
+        // tolerance): a hit outside the ball cannot be on the tag, so most hits on a surface
+        // carrying many tags are rejected without a transform into each tag's frame.
+        Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();
+        Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+        double reach_squared = 0.0;
     };
     std::vector<Decal> decal_tags;  // tags lying on this surface
 };
@@ -366,7 +372,13 @@ Result<SimScene> SimScene::build(const Scene& scene, const SimSceneOptions& opti
             }
             const Eigen::Vector3d margin = Eigen::Vector3d::Constant(2.0 * out.ray_epsilon_);
             const Eigen::AlignedBox3d grown(geometry.box.min() - margin, geometry.box.max() + margin);
-            if (grown.intersects(tag_box)) geometry.decal_tags.push_back({static_cast<int>(t), tag_objects[t]});
+            if (!grown.intersects(tag_box)) continue;
+            // |q| of a point on the square within the plane's tolerance is at most
+            // sqrt(2 h^2 + eps^2); the factor leaves room for rounding in the transform.
+            const double reach_squared =
+                (2.0 * tag.half_extent * tag.half_extent + out.ray_epsilon_ * out.ray_epsilon_) * (1.0 + 1e-9) + 1e-24;
+            geometry.decal_tags.push_back({static_cast<int>(t), tag_objects[t], tag.world_from_tag.rotation * Eigen::Vector3d::UnitZ(),
+                                           tag.world_from_tag.translation, reach_squared});
         }
     }
 
@@ -509,10 +521,10 @@ SurfaceHit SimScene::makeHit(const RTCRayHit& ray_hit, const Eigen::Vector3d& or
 
 void SimScene::applyDecal(const Geometry& geometry, SurfaceHit& hit, const Eigen::Vector3d& dir) const {
     for (const Geometry::Decal& decal : geometry.decal_tags) {
+        if ((hit.p - decal.centre).squaredNorm() > decal.reach_squared) continue;
         const PlacedTag& tag = tags_[decal.tag];
-        const Eigen::Vector3d tag_normal = tag.world_from_tag.rotation * Eigen::Vector3d::UnitZ();
         // Only the printed side, only surfaces parallel to the tag, only points on its plane.
-        if (dir.dot(tag_normal) >= 0.0 || std::abs(hit.n.dot(tag_normal)) < 0.999) continue;
+        if (dir.dot(decal.normal) >= 0.0 || std::abs(hit.n.dot(decal.normal)) < 0.999) continue;
         const Eigen::Vector3d q = tag.tag_from_world * hit.p;
         if (std::abs(q.z()) > ray_epsilon_ || !tag.contains(q.x(), q.y())) continue;
         hit.bsdf = Bsdf::lambertian(Eigen::Vector3d::Constant(tag.albedoAt(q.x(), q.y())));
