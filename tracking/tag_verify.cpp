@@ -8,6 +8,7 @@
 #include <emmintrin.h>
 #endif
 #include <functional>
+#include <limits>
 #include <memory>
 #include <utility>
 #include <opencv2/imgproc.hpp>
@@ -127,18 +128,53 @@ public:
     std::size_t samples() const { return mask_.size(); }
     double imageStddev() const { return std::sqrt(image_ss_ / static_cast<double>(image_.size())); }
     // The best NCC (over the blur levels) over shifts of the template within +- search px (0.5 px
-    // grid, then 0.25).
-    std::pair<double, Eigen::Vector2d> best(const Cells& white, double search) const {
+    // grid, then 0.25). `ascent`: the 0.5 px grid is climbed from the prediction (each step to the
+    // best of the 3 x 3 shifts around the current one, until none is better) instead of tried
+    // whole; where the correlation has one peak over the grid, as it has around a tag predicted
+    // within the search, both end on the same shift. `evaluated`: the grid shifts tried.
+    std::pair<double, Eigen::Vector2d> best(const Cells& white, double search, bool ascent, int* evaluated = nullptr) const {
         double best_ncc = -2.0;
         Eigen::Vector2d best_shift = Eigen::Vector2d::Zero();
         const int steps = static_cast<int>(std::floor(search / 0.5 + 1e-9));
-        for (int sy = -steps; sy <= steps; ++sy) {
-            for (int sx = -steps; sx <= steps; ++sx) {
-                const Eigen::Vector2d shift(0.5 * sx, 0.5 * sy);
-                const double v = ncc(white, shift);
-                if (v > best_ncc) best_ncc = v, best_shift = shift;
+        const int side = 2 * steps + 1;
+        int tried = 0;
+        if (!ascent) {
+            for (int sy = -steps; sy <= steps; ++sy) {
+                for (int sx = -steps; sx <= steps; ++sx) {
+                    const Eigen::Vector2d shift(0.5 * sx, 0.5 * sy);
+                    const double v = ncc(white, shift);
+                    ++tried;
+                    if (v > best_ncc) best_ncc = v, best_shift = shift;
+                }
             }
+        } else {
+            // Each grid shift at most once (NaN: not tried yet).
+            std::vector<double> grid(static_cast<std::size_t>(side * side), std::numeric_limits<double>::quiet_NaN());
+            const auto at_grid = [&](int sx, int sy) {
+                double& v = grid[static_cast<std::size_t>((sy + steps) * side + sx + steps)];
+                if (std::isnan(v)) {
+                    v = ncc(white, Eigen::Vector2d(0.5 * sx, 0.5 * sy));
+                    ++tried;
+                }
+                return v;
+            };
+            int cx = 0, cy = 0;
+            best_ncc = at_grid(0, 0);
+            for (;;) {
+                int nx = cx, ny = cy;
+                double next = best_ncc;
+                for (int sy = std::max(cy - 1, -steps); sy <= std::min(cy + 1, steps); ++sy) {
+                    for (int sx = std::max(cx - 1, -steps); sx <= std::min(cx + 1, steps); ++sx) {
+                        const double v = at_grid(sx, sy);
+                        if (v > next) next = v, nx = sx, ny = sy;
+                    }
+                }
+                if (nx == cx && ny == cy) break;  // strictly better each step: it ends
+                cx = nx, cy = ny, best_ncc = next;
+            }
+            best_shift = Eigen::Vector2d(0.5 * cx, 0.5 * cy);
         }
+        if (evaluated) *evaluated = tried;
         const Eigen::Vector2d coarse = best_shift;
         for (int sy = -1; sy <= 1; ++sy) {
             for (int sx = -1; sx <= 1; ++sx) {
@@ -423,7 +459,7 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
     }
     // Step 2: the tag's pattern.
     const Cells own = cellsOf(total, [&](int c, int r) { return pattern.white(c, r); });
-    const auto [ncc, shift] = matcher->best(own, options.search_px);
+    const auto [ncc, shift] = matcher->best(own, options.search_px, options.search_ascent, &out.grid_shifts_tried);
     for (auto& c : out.corners) c += shift;
     out.ncc = ncc;
     out.shift_px = shift;

@@ -3,10 +3,12 @@
 // alone (tag_verify.h `known_at_px`, TrackerOptions::verify_trust_last_frame); the plain square
 // and the other ids are compared only for a tag not seen there a frame ago. A foreshortened tag
 // the decimated detector missed but the last frame detected is aligned from its prediction
-// instead of detected again at full resolution (TrackerOptions::redetect_align_known). Synthetic
+// instead of detected again at full resolution (TrackerOptions::redetect_align_known). The
+// correlation's search climbs its grid from the prediction (seventh round). Synthetic
 // frames (tests/tracking/synthetic_tags.h) with exact poses.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <vector>
@@ -290,6 +292,71 @@ TEST(TinyTagsSequence, ATagDetectedInTheLastFrameIsAlignedWithoutTheDetector) {
     EXPECT_EQ(aligned_known_other, 0);
     EXPECT_EQ(same_found, compared);
     EXPECT_LE(worst_known, 0.5);
+}
+
+// verifyPredictedTag's search climbs its 0.5 px grid from the prediction (TagVerifyOptions::
+// search_ascent): wherever the tag is predicted within the search (up to 0.9 px off either way),
+// it ends on the whole grid's shift, correlation and decision. Predicted far enough off, the best
+// shift lies beyond the first 3 x 3 shifts: a climb that stopped there would differ from the grid.
+// Where the prediction is within 0.2 px, it tries fewer than the grid's 25 shifts. Tags replaced by
+// another id or covered are refused either way.
+TEST(TinyTagsSequence, TheSearchClimbsToTheGridsShiftFromAnyPredictionWithinIt) {
+    const TagSet tags = scene();
+    const CameraModel cam = testing::syntheticCamera();
+    TagPatternCache patterns("tag36h11");
+    const Rigid3d truth = camFromWorld(0);
+    const Image image = render(placed(tags, truth), 11);
+    Image wrong = render(placed(tags, truth, 4), 12);
+    coverTag(wrong, *tags.find(5), truth);
+    TagVerifyOptions grid;
+    grid.search_ascent = false;
+    int compared = 0, accepted = 0, near = 0, near_tried = 0, beyond_first_ring = 0;
+    for (const TagItem& item : tags.items) {
+        if (item.id < 2) continue;
+        std::vector<const TagPattern*> others;
+        for (int k = 1; k <= 8; ++k) others.push_back(patterns.get(item.id + 100 + k));
+        const Rigid3d cam_from_tag = truth * item.world_from_tag;
+        const double z = cam_from_tag.translation.z();
+        for (const double dy : {-0.9, -0.4, 0.0, 0.2, 0.6}) {
+            for (const double dx : {-0.6, -0.2, 0.0, 0.4, 0.9}) {
+                // The tag predicted (dx, dy) px off in the image: moved across the line of sight.
+                const Rigid3d off(Eigen::Quaterniond::Identity(), Eigen::Vector3d(dx * z / cam.fx, dy * z / cam.fy, 0.0));
+                const Rigid3d predicted = off * cam_from_tag;
+                const TagVerifyResult all =
+                    verifyPredictedTag(image.view(), cam, *patterns.get(item.id), others, item.size, predicted, grid);
+                const TagVerifyResult climbed =
+                    verifyPredictedTag(image.view(), cam, *patterns.get(item.id), others, item.size, predicted);
+                ++compared;
+                EXPECT_EQ(climbed.ok, all.ok) << item.id << " " << dx << " " << dy;
+                EXPECT_EQ(climbed.ncc, all.ncc) << item.id << " " << dx << " " << dy;
+                EXPECT_EQ(climbed.shift_px, all.shift_px) << item.id << " " << dx << " " << dy;
+                EXPECT_EQ(climbed.ncc_square, all.ncc_square) << item.id << " " << dx << " " << dy;
+                EXPECT_EQ(all.grid_shifts_tried, 25);
+                if (!climbed.ok) continue;
+                ++accepted;
+                if (std::abs(dx) <= 0.2 && std::abs(dy) <= 0.2) {
+                    ++near;
+                    near_tried += climbed.grid_shifts_tried;
+                }
+                // The 0.5 px grid's best beyond +-0.5 px (the fine step adds at most 0.25).
+                beyond_first_ring += climbed.shift_px.cwiseAbs().maxCoeff() > 0.75 + 1e-9 ? 1 : 0;
+            }
+        }
+        if (item.id == 4 || item.id == 5) {
+            const TagVerifyResult v = verifyPredictedTag(wrong.view(), cam, *patterns.get(item.id), others, item.size, cam_from_tag);
+            const TagVerifyResult g =
+                verifyPredictedTag(wrong.view(), cam, *patterns.get(item.id), others, item.size, cam_from_tag, grid);
+            EXPECT_FALSE(v.ok) << item.id;
+            EXPECT_EQ(v.ncc, g.ncc) << item.id;
+        }
+    }
+    std::printf("predictions compared: %d, accepted %d; within 0.2 px: %.1f grid shifts tried on average (of 25); "
+                "best shift beyond the first 3 x 3: %d\n",
+                compared, accepted, near ? static_cast<double>(near_tried) / near : 0.0, beyond_first_ring);
+    EXPECT_GE(accepted, compared * 7 / 10);
+    EXPECT_GE(near, 6);
+    EXPECT_LT(near_tried, 20 * near);
+    EXPECT_GE(beyond_first_ring, 10);
 }
 
 }  // namespace
