@@ -9,9 +9,9 @@
 // over a tag this small). Step 2 renders the expected image of the pattern pixel by pixel (each
 // pixel the white fraction of 3 x 3 sub-samples), blurs it by each of `blur_sigma_px` in turn and
 // takes the best normalized cross-correlation (NCC) with the image in linear light, over shifts
-// of the whole prediction within +- `search_px` (0.5 px steps, climbed from the prediction, then
-// 0.25 around the best). Step 3
-// does the same with the plain black square (no inner cells) on a 3 x 3 grid of 0.5 px around the
+// of the whole prediction within +- `search_px` (`search_step_px` steps, climbed from the
+// prediction, then half a step around the best). Step 3
+// does the same with the plain black square (no inner cells) on a 3 x 3 grid of steps around the
 // pattern's best shift, and with `other ids` of the family at that shift (skipped when the
 // pattern already fails). The tag is accepted when its
 // pattern's NCC reaches `min_ncc` and beats each alternative by its margin:
@@ -44,11 +44,14 @@ struct TagVerifyOptions {
     double max_foreshortened_span_px = 12.0;
     double edge_margin_px = 3.0;  // the drawn square (white border included) this far inside the image
     double search_px = 1.0;       // the prediction's error this verification absorbs, +- pixels
-    // The 0.5 px grid of step 2 climbed from the prediction (to the best of the 3 x 3 shifts around
-    // the current one, until none is better) instead of tried whole: 9-16 of its 25 shifts where
-    // the prediction is within a quarter pixel or so, the same shift wherever the correlation has
-    // one peak over the grid (docs/tracking.md, "Speed (issue 13)", seventh round). A tag predicted
-    // up to search_px off is still found: the climb walks there.
+    // The grid of shifts (step 2; step 3's plain square on 3 x 3 of them), then half of it around
+    // its best.
+    double search_step_px = 0.25;
+    // The grid of step 2 climbed from the prediction (to the best of the 3 x 3 shifts around the
+    // current one, until none is better) instead of tried whole: 9-20 of its 81 shifts where the
+    // prediction is within half a pixel, the same shift wherever the correlation has one peak over
+    // the grid (docs/tracking.md, "Speed (issue 13)", seventh round). A tag predicted up to
+    // search_px off is still found: the climb walks there.
     bool search_ascent = true;
     // The pattern's normalized cross-correlation with the image: measured on synthetic 7-20 px
     // tags (blur 0.8 px, noise 1.5 grey levels) 0.95-0.99 at the truth; another id printed in
