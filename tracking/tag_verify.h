@@ -48,8 +48,8 @@ struct TagVerifyOptions {
     // its best.
     double search_step_px = 0.25;
     // The grid of step 2 climbed from the prediction (to the best of the 3 x 3 shifts around the
-    // current one, until none is better) instead of tried whole: 9-20 of its 81 shifts where the
-    // prediction is within half a pixel, the same shift wherever the correlation has one peak over
+    // current one, until none is better) instead of tried whole: about 12 of its 81 shifts where
+    // the prediction is within 0.2 px, the same shift wherever the correlation has one peak over
     // the grid (docs/tracking.md, "Speed (issue 13)", seventh round). A tag predicted up to
     // search_px off is still found: the climb walks there.
     bool search_ascent = true;
