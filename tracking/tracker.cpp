@@ -90,7 +90,8 @@ Result<void> TrackerOptions::validate() const {
             v.other_ids < 0 || !(v.edge_margin_px >= 0) || !(v.min_contrast >= 0) || v.blur_sigma_px.empty() ||
             !(verify_bundle_weight > 0 && verify_bundle_weight <= 1) ||
             std::any_of(v.blur_sigma_px.begin(), v.blur_sigma_px.end(), [](double b) { return !(b >= 0 && b <= 2); })) {
-            return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px in steps of 0.05-1 px, min_ncc in (0, 1], "
+            return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px in steps of 0.05-1 px, "
+                                           "min_ncc in (0, 1], "
                                            "max_foreshortened_span_px >= min_side_px, margins >= 0, blur_sigma_px: one or more in [0, 2], verify_bundle_weight in (0, 1])");
         }
     }

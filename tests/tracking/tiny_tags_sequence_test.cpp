@@ -324,7 +324,8 @@ TEST(TinyTagsSequence, TheSearchClimbsToTheGridsShiftFromAnyPredictionWithinIt) 
         for (const double dy : {-0.9, -0.4, 0.0, 0.2, 0.6}) {
             for (const double dx : {-0.6, -0.2, 0.0, 0.4, 0.9}) {
                 // The tag predicted (dx, dy) px off in the image: moved across the line of sight.
-                const Rigid3d off(Eigen::Quaterniond::Identity(), Eigen::Vector3d(dx * z / cam.fx, dy * z / cam.fy, 0.0));
+                const Rigid3d off(Eigen::Quaterniond::Identity(),
+                                  Eigen::Vector3d(dx * z / cam.fx, dy * z / cam.fy, 0.0));
                 const Rigid3d predicted = off * cam_from_tag;
                 const TagVerifyResult all =
                     verifyPredictedTag(image.view(), cam, *patterns.get(item.id), others, item.size, predicted, grid);
@@ -355,7 +356,8 @@ TEST(TinyTagsSequence, TheSearchClimbsToTheGridsShiftFromAnyPredictionWithinIt) 
             }
         }
         if (item.id == 4 || item.id == 5) {
-            const TagVerifyResult v = verifyPredictedTag(wrong.view(), cam, *patterns.get(item.id), others, item.size, cam_from_tag);
+            const TagVerifyResult v =
+                verifyPredictedTag(wrong.view(), cam, *patterns.get(item.id), others, item.size, cam_from_tag);
             const TagVerifyResult g =
                 verifyPredictedTag(wrong.view(), cam, *patterns.get(item.id), others, item.size, cam_from_tag, grid);
             EXPECT_FALSE(v.ok) << item.id;
