@@ -8,6 +8,7 @@
 #include <emmintrin.h>
 #endif
 #include <functional>
+#include <limits>
 #include <memory>
 #include <utility>
 #include <opencv2/imgproc.hpp>
@@ -126,24 +127,61 @@ public:
     }
     std::size_t samples() const { return mask_.size(); }
     double imageStddev() const { return std::sqrt(image_ss_ / static_cast<double>(image_.size())); }
-    // The best NCC (over the blur levels) over shifts of the template within +- search px (0.5 px
-    // grid, then 0.25).
-    std::pair<double, Eigen::Vector2d> best(const Cells& white, double search) const {
+    // The best NCC (over the blur levels) over shifts of the template within +- search px (a grid
+    // of `step` px, then step / 2 around its best). `ascent`: the grid is climbed from the
+    // prediction (each step to the
+    // best of the 3 x 3 shifts around the current one, until none is better) instead of tried
+    // whole; where the correlation has one peak over the grid, as it has around a tag predicted
+    // within the search, both end on the same shift. `evaluated`: the grid shifts tried.
+    std::pair<double, Eigen::Vector2d> best(const Cells& white, double search, double step, bool ascent,
+                                            int* evaluated = nullptr) const {
         double best_ncc = -2.0;
         Eigen::Vector2d best_shift = Eigen::Vector2d::Zero();
-        const int steps = static_cast<int>(std::floor(search / 0.5 + 1e-9));
-        for (int sy = -steps; sy <= steps; ++sy) {
-            for (int sx = -steps; sx <= steps; ++sx) {
-                const Eigen::Vector2d shift(0.5 * sx, 0.5 * sy);
-                const double v = ncc(white, shift);
-                if (v > best_ncc) best_ncc = v, best_shift = shift;
+        const int steps = static_cast<int>(std::floor(search / step + 1e-9));
+        const int side = 2 * steps + 1;
+        int tried = 0;
+        if (!ascent) {
+            for (int sy = -steps; sy <= steps; ++sy) {
+                for (int sx = -steps; sx <= steps; ++sx) {
+                    const Eigen::Vector2d shift(step * sx, step * sy);
+                    const double v = ncc(white, shift);
+                    ++tried;
+                    if (v > best_ncc) best_ncc = v, best_shift = shift;
+                }
             }
+        } else {
+            // Each grid shift at most once (NaN: not tried yet).
+            std::vector<double> grid(static_cast<std::size_t>(side * side), std::numeric_limits<double>::quiet_NaN());
+            const auto at_grid = [&](int sx, int sy) {
+                double& v = grid[static_cast<std::size_t>((sy + steps) * side + sx + steps)];
+                if (std::isnan(v)) {
+                    v = ncc(white, Eigen::Vector2d(step * sx, step * sy));
+                    ++tried;
+                }
+                return v;
+            };
+            int cx = 0, cy = 0;
+            best_ncc = at_grid(0, 0);
+            for (;;) {
+                int nx = cx, ny = cy;
+                double next = best_ncc;
+                for (int sy = std::max(cy - 1, -steps); sy <= std::min(cy + 1, steps); ++sy) {
+                    for (int sx = std::max(cx - 1, -steps); sx <= std::min(cx + 1, steps); ++sx) {
+                        const double v = at_grid(sx, sy);
+                        if (v > next) next = v, nx = sx, ny = sy;
+                    }
+                }
+                if (nx == cx && ny == cy) break;  // strictly better each step: it ends
+                cx = nx, cy = ny, best_ncc = next;
+            }
+            best_shift = Eigen::Vector2d(step * cx, step * cy);
         }
+        if (evaluated) *evaluated = tried;
         const Eigen::Vector2d coarse = best_shift;
         for (int sy = -1; sy <= 1; ++sy) {
             for (int sx = -1; sx <= 1; ++sx) {
                 if (sx == 0 && sy == 0) continue;
-                const Eigen::Vector2d shift = coarse + Eigen::Vector2d(0.25 * sx, 0.25 * sy);
+                const Eigen::Vector2d shift = coarse + Eigen::Vector2d(0.5 * step * sx, 0.5 * step * sy);
                 const double v = ncc(white, shift);
                 if (v > best_ncc) best_ncc = v, best_shift = shift;
             }
@@ -152,12 +190,12 @@ public:
     }
     // The NCC at one shift.
     double at(const Cells& white, const Eigen::Vector2d& shift_px) const { return ncc(white, shift_px); }
-    // The best NCC on a 3 x 3 grid of 0.5 px around `centre`.
-    double bestAround(const Cells& white, const Eigen::Vector2d& centre) const {
+    // The best NCC on a 3 x 3 grid of `step` px around `centre`.
+    double bestAround(const Cells& white, const Eigen::Vector2d& centre, double step) const {
         double best_ncc = -2.0;
         for (int sy = -1; sy <= 1; ++sy) {
             for (int sx = -1; sx <= 1; ++sx)
-                best_ncc = std::max(best_ncc, ncc(white, centre + Eigen::Vector2d(0.5 * sx, 0.5 * sy)));
+                best_ncc = std::max(best_ncc, ncc(white, centre + Eigen::Vector2d(step * sx, step * sy)));
         }
         return best_ncc;
     }
@@ -406,9 +444,11 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
             const cv::Vec3d q = h * cv::Vec3d(p.x(), p.y(), 1.0);
             return Eigen::Vector2d(q[0] / q[2], q[1] / q[2]);
         };
+        // Cells per pixel: the difference over one pixel (centre +- 0.5 px). Until the seventh round
+        // it was halved, so that a shift moved the template by half of what it moved the corners.
         Eigen::Matrix2d jac;
-        jac.col(0) = 0.5 * (cellsAt(centre + Eigen::Vector2d(0.5, 0)) - cellsAt(centre - Eigen::Vector2d(0.5, 0)));
-        jac.col(1) = 0.5 * (cellsAt(centre + Eigen::Vector2d(0, 0.5)) - cellsAt(centre - Eigen::Vector2d(0, 0.5)));
+        jac.col(0) = cellsAt(centre + Eigen::Vector2d(0.5, 0)) - cellsAt(centre - Eigen::Vector2d(0.5, 0));
+        jac.col(1) = cellsAt(centre + Eigen::Vector2d(0, 0.5)) - cellsAt(centre - Eigen::Vector2d(0, 0.5));
         return std::make_unique<Matcher>(gray8, Linearizer::get(options.srgb), h, total, jac, x0, y0, x1 - x0 + 1,
                                          y1 - y0 + 1, kernels);
     };
@@ -423,7 +463,8 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
     }
     // Step 2: the tag's pattern.
     const Cells own = cellsOf(total, [&](int c, int r) { return pattern.white(c, r); });
-    const auto [ncc, shift] = matcher->best(own, options.search_px);
+    const auto [ncc, shift] = matcher->best(own, options.search_px, options.search_step_px, options.search_ascent,
+                                             &out.grid_shifts_tried);
     for (auto& c : out.corners) c += shift;
     out.ncc = ncc;
     out.shift_px = shift;
@@ -440,7 +481,7 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
         out.ok = true;
         return out;
     }
-    out.ncc_square = matcher->bestAround(cellsOf(total, square), shift);
+    out.ncc_square = matcher->bestAround(cellsOf(total, square), shift, options.search_step_px);
     if (ncc - out.ncc_square < options.min_margin_square) {
         out.reason = "a plain black square matches as well";
         return out;

@@ -9,8 +9,9 @@
 // over a tag this small). Step 2 renders the expected image of the pattern pixel by pixel (each
 // pixel the white fraction of 3 x 3 sub-samples), blurs it by each of `blur_sigma_px` in turn and
 // takes the best normalized cross-correlation (NCC) with the image in linear light, over shifts
-// of the whole prediction within +- `search_px` (0.5 px steps, then 0.25 around the best). Step 3
-// does the same with the plain black square (no inner cells) on a 3 x 3 grid of 0.5 px around the
+// of the whole prediction within +- `search_px` (`search_step_px` steps, climbed from the
+// prediction, then half a step around the best). Step 3
+// does the same with the plain black square (no inner cells) on a 3 x 3 grid of steps around the
 // pattern's best shift, and with `other ids` of the family at that shift (skipped when the
 // pattern already fails). The tag is accepted when its
 // pattern's NCC reaches `min_ncc` and beats each alternative by its margin:
@@ -43,6 +44,15 @@ struct TagVerifyOptions {
     double max_foreshortened_span_px = 12.0;
     double edge_margin_px = 3.0;  // the drawn square (white border included) this far inside the image
     double search_px = 1.0;       // the prediction's error this verification absorbs, +- pixels
+    // The grid of shifts (step 2; step 3's plain square on 3 x 3 of them), then half of it around
+    // its best.
+    double search_step_px = 0.25;
+    // The grid of step 2 climbed from the prediction (to the best of the 3 x 3 shifts around the
+    // current one, until none is better) instead of tried whole: about 12 of its 81 shifts where
+    // the prediction is within 0.2 px, the same shift wherever the correlation has one peak over
+    // the grid (docs/tracking.md, "Speed (issue 13)", seventh round). A tag predicted up to
+    // search_px off is still found: the climb walks there.
+    bool search_ascent = true;
     // The pattern's normalized cross-correlation with the image: measured on synthetic 7-20 px
     // tags (blur 0.8 px, noise 1.5 grey levels) 0.95-0.99 at the truth; another id printed in
     // the tag's place, 0.8-0.87 (the black square and the border dominate both).
@@ -69,6 +79,7 @@ struct TagVerifyResult {
     std::array<Eigen::Vector2d, 4> corners{};            // the black square's, distorted pixels (tag_detector.h order)
     Eigen::Vector2d shift_px = Eigen::Vector2d::Zero();  // from the predicted corners
     double ncc = 0.0;                                    // the tag's pattern at the best shift
+    int grid_shifts_tried = 0;                           // of step 2's 0.5 px grid (search_ascent)
     double ncc_square = 0.0;                             // the plain black square at its best shift
     double ncc_other = -1.0;                             // the best of the other ids
     // Step 3 skipped: the tag was reported at this place in the last frame (`known_at_px`), so

@@ -85,12 +85,13 @@ Result<void> TrackerOptions::validate() const {
     if (verify_predicted) {
         const TagVerifyOptions& v = verify;
         if (!(v.min_side_px > 0) || !(v.max_side_px >= v.min_side_px) || !(v.max_foreshortened_span_px >= v.min_side_px) ||
-            !(v.search_px >= 0 && v.search_px <= 3) ||
+            !(v.search_px >= 0 && v.search_px <= 3) || !(v.search_step_px >= 0.05 && v.search_step_px <= 1) ||
             !(v.min_ncc > 0 && v.min_ncc <= 1) || !(v.min_margin_square >= 0) || !(v.min_margin_other >= 0) ||
             v.other_ids < 0 || !(v.edge_margin_px >= 0) || !(v.min_contrast >= 0) || v.blur_sigma_px.empty() ||
             !(verify_bundle_weight > 0 && verify_bundle_weight <= 1) ||
             std::any_of(v.blur_sigma_px.begin(), v.blur_sigma_px.end(), [](double b) { return !(b >= 0 && b <= 2); })) {
-            return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px, min_ncc in (0, 1], "
+            return fail(ErrorCode::kUsage, "verify options out of range (sides > 0, search 0-3 px in steps of 0.05-1 px, "
+                                           "min_ncc in (0, 1], "
                                            "max_foreshortened_span_px >= min_side_px, margins >= 0, blur_sigma_px: one or more in [0, 2], verify_bundle_weight in (0, 1])");
         }
     }

@@ -3,10 +3,12 @@
 // alone (tag_verify.h `known_at_px`, TrackerOptions::verify_trust_last_frame); the plain square
 // and the other ids are compared only for a tag not seen there a frame ago. A foreshortened tag
 // the decimated detector missed but the last frame detected is aligned from its prediction
-// instead of detected again at full resolution (TrackerOptions::redetect_align_known). Synthetic
+// instead of detected again at full resolution (TrackerOptions::redetect_align_known). The
+// correlation's search climbs its grid from the prediction (seventh round). Synthetic
 // frames (tests/tracking/synthetic_tags.h) with exact poses.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <vector>
@@ -290,6 +292,90 @@ TEST(TinyTagsSequence, ATagDetectedInTheLastFrameIsAlignedWithoutTheDetector) {
     EXPECT_EQ(aligned_known_other, 0);
     EXPECT_EQ(same_found, compared);
     EXPECT_LE(worst_known, 0.5);
+}
+
+// verifyPredictedTag's search climbs its grid of 0.25 px from the prediction (TagVerifyOptions::
+// search_ascent): wherever the tag is predicted within the search (up to 0.9 px off either way),
+// it ends on the whole grid's decision, and where it accepts on the grid's shift and correlation,
+// and the shift it reports undoes the
+// prediction's error (to within the fine step): the template moves by the shift the corners move
+// by. A climb that stopped after the first 3 x 3 shifts would differ from the grid beyond 0.375 px,
+// and a template moved by half the shift (as until the seventh round) would leave the corners off
+// by half the prediction's error. Where the prediction is within 0.2 px, it tries a quarter of the
+// grid's 81 shifts or fewer. Tags replaced by another id or covered are refused either way.
+TEST(TinyTagsSequence, TheSearchClimbsToTheGridsShiftFromAnyPredictionWithinIt) {
+    const TagSet tags = scene();
+    const CameraModel cam = testing::syntheticCamera();
+    TagPatternCache patterns("tag36h11");
+    const Rigid3d truth = camFromWorld(0);
+    const Image image = render(placed(tags, truth), 11);
+    Image wrong = render(placed(tags, truth, 4), 12);
+    coverTag(wrong, *tags.find(5), truth);
+    TagVerifyOptions grid;
+    grid.search_ascent = false;
+    int compared = 0, accepted = 0, near = 0, near_tried = 0, beyond_first_ring = 0, far = 0, far_found = 0;
+    double worst_undo = 0.0;
+    for (const TagItem& item : tags.items) {
+        if (item.id < 2) continue;
+        std::vector<const TagPattern*> others;
+        for (int k = 1; k <= 8; ++k) others.push_back(patterns.get(item.id + 100 + k));
+        const Rigid3d cam_from_tag = truth * item.world_from_tag;
+        const double z = cam_from_tag.translation.z();
+        for (const double dy : {-0.9, -0.4, 0.0, 0.2, 0.6}) {
+            for (const double dx : {-0.6, -0.2, 0.0, 0.4, 0.9}) {
+                // The tag predicted (dx, dy) px off in the image: moved across the line of sight.
+                const Rigid3d off(Eigen::Quaterniond::Identity(),
+                                  Eigen::Vector3d(dx * z / cam.fx, dy * z / cam.fy, 0.0));
+                const Rigid3d predicted = off * cam_from_tag;
+                const TagVerifyResult all =
+                    verifyPredictedTag(image.view(), cam, *patterns.get(item.id), others, item.size, predicted, grid);
+                const TagVerifyResult climbed =
+                    verifyPredictedTag(image.view(), cam, *patterns.get(item.id), others, item.size, predicted);
+                ++compared;
+                EXPECT_EQ(climbed.ok, all.ok) << item.id << " " << dx << " " << dy;
+                EXPECT_EQ(all.grid_shifts_tried, 81);
+                if (!climbed.ok) continue;
+                // Refused, the climb may end on a lower peak than the grid's (a correlation under
+                // min_ncc has more than one); accepted, on the grid's.
+                EXPECT_EQ(climbed.ncc, all.ncc) << item.id << " " << dx << " " << dy;
+                EXPECT_EQ(climbed.shift_px, all.shift_px) << item.id << " " << dx << " " << dy;
+                EXPECT_EQ(climbed.ncc_square, all.ncc_square) << item.id << " " << dx << " " << dy;
+                ++accepted;
+                if (std::abs(dx) <= 0.2 && std::abs(dy) <= 0.2) {
+                    ++near;
+                    near_tried += climbed.grid_shifts_tried;
+                }
+                const double undo = (climbed.shift_px + Eigen::Vector2d(dx, dy)).norm();
+                worst_undo = std::max(worst_undo, undo);
+                // The grid's best beyond its first ring (+-0.25 px; the fine step adds at most 0.125).
+                beyond_first_ring += climbed.shift_px.cwiseAbs().maxCoeff() > 0.375 + 1e-9 ? 1 : 0;
+                if (std::abs(dx) >= 0.9 || std::abs(dy) >= 0.9) {
+                    ++far;
+                    far_found += undo <= 0.4 ? 1 : 0;
+                }
+            }
+        }
+        if (item.id == 4 || item.id == 5) {
+            const TagVerifyResult v =
+                verifyPredictedTag(wrong.view(), cam, *patterns.get(item.id), others, item.size, cam_from_tag);
+            const TagVerifyResult g =
+                verifyPredictedTag(wrong.view(), cam, *patterns.get(item.id), others, item.size, cam_from_tag, grid);
+            EXPECT_FALSE(v.ok) << item.id;
+            EXPECT_EQ(v.ncc, g.ncc) << item.id;
+        }
+    }
+    std::printf("predictions compared: %d, accepted %d; the prediction's error undone to %.3f px at worst; within "
+                "0.2 px: %.1f grid shifts tried on average (of 81); best shift beyond the first 3 x 3: %d; 0.9 px off: "
+                "%d, found there %d\n",
+                compared, accepted, worst_undo, near ? static_cast<double>(near_tried) / near : 0.0, beyond_first_ring,
+                far, far_found);
+    EXPECT_GE(accepted, compared * 7 / 10);
+    EXPECT_LE(worst_undo, 0.4);
+    EXPECT_GE(near, 6);
+    EXPECT_LE(near_tried, 20 * near);
+    EXPECT_GE(beyond_first_ring, 20);
+    EXPECT_GE(far, 10);
+    EXPECT_EQ(far_found, far);
 }
 
 }  // namespace
