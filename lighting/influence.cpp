@@ -645,6 +645,8 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
         s.touched.erase(std::unique(s.touched.begin(), s.touched.end()), s.touched.end());
         touched.insert(touched.end(), s.touched.begin(), s.touched.end());
     }
+    // The cluster links' shared answers the move reached (their faces walked again if they changed).
+    d.refreshNodes(touched, false);
     if (viewer_changed) {
         // The camera changes no link: only the resolution the influenced leaves need.
         for (const ObjectState& s : d.objects) {
@@ -703,6 +705,10 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
         s.cluster_leaves.clear();
         s.cluster_links.clear();
     }
+    for (ClusterNode& node : d.nodes) {
+        node.valid = false;
+        node.blocked_faces.clear();
+    }
     d.viewer = viewer;
     // Step 2: every object from scratch, candidates by scanning every shaft.
     const auto tc = std::chrono::steady_clock::now();
@@ -724,6 +730,7 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
         s.touched.erase(std::unique(s.touched.begin(), s.touched.end()), s.touched.end());
         touched.insert(touched.end(), s.touched.begin(), s.touched.end());
     }
+    d.refreshNodes(touched, true);
     std::sort(touched.begin(), touched.end());
     touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
     stats_.ms_candidates = msSince(tc);

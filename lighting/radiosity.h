@@ -21,6 +21,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -231,8 +232,11 @@ public:
     // face that faces it, from the element to the face's root, weighted by max(0, n_f . (dir +
     // grad offset_f)) (the solve clamps the sum of a bin's links instead: the same unless links of
     // one bin light a face from both sides). form_factor x pi x vis_real is the transfer; the
-    // links' real_blocked and samples are not set.
-    std::vector<Link> clusterTransfers() const;
+    // links' real_blocked and samples are not set. `origin`: for each transfer, the index of the
+    // cluster link (clusterLinks()) it comes from.
+    std::vector<Link> clusterTransfers(std::vector<int>* origin = nullptr) const;
+    // A cluster's bounding ball (centre, radius), world.
+    std::pair<Eigen::Vector3d, double> clusterBall(int cluster) const;
     // Clusters made by buildRealLinks() (RadiosityOptions::cluster_min_faces): the real object of each.
     std::vector<int> clusterObjects() const;
     // Leaves in use for a mode (not buried; virtual leaves only in kAll).
