@@ -85,6 +85,7 @@ void VirtualInfluence::Impl::nodePairs(int k, ClusterNode& node) const {
     for (std::size_t t = 0; t < node.transfers.size(); ++t) {
         node.hulls[t] = HullPlanes::of(shape[static_cast<std::size_t>(links[static_cast<std::size_t>(node.transfers[t])].receiver)].polygon(), source);
     }
+    node.pair_offsets.assign(node.transfers.size() + 1, 0);
     if (cdf.empty() || !(total > 0.0)) return;
     const int n = std::clamp(16 * self.options_.link_pairs, 1, 1024);
     const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0xc1a5ull, h.key(node.source)), static_cast<std::uint64_t>(k));
@@ -103,6 +104,10 @@ void VirtualInfluence::Impl::nodePairs(int k, ClusterNode& node) const {
         if (self.rays_.occludedReal(xr, gr.normal, xs, gs.normal)) continue;
         node.pairs.push_back(ClusterNode::Pair{static_cast<int>(t), xr, xs});
     }
+    // (The faces were drawn in order of their cumulative weights: the pairs are sorted by transfer.)
+    node.pair_offsets.assign(node.transfers.size() + 1, 0);
+    for (const ClusterNode::Pair& p : node.pairs) ++node.pair_offsets[static_cast<std::size_t>(p.transfer) + 1];
+    for (std::size_t t = 1; t < node.pair_offsets.size(); ++t) node.pair_offsets[t] += node.pair_offsets[t - 1];
 }
 
 // The objects whose bounds meet the node's shaft, the faces whose own shaft meets one of them
@@ -128,13 +133,15 @@ void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
     }
     if (out.mask == 0) return;
     const Eigen::Vector3d& to = shape[static_cast<std::size_t>(node.source)].centroid;
+    const double to_radius = shape[static_cast<std::size_t>(node.source)].radius;
     std::vector<int> face_class(node.transfers.size(), -1);
+    std::vector<int> blocked_transfers;
     for (std::size_t t = 0; t < node.transfers.size(); ++t) {
         const int root = links[static_cast<std::size_t>(node.transfers[t])].receiver;
         const ElementShape& es = shape[static_cast<std::size_t>(root)];
         int best = kClasses;
         for (const Ball* ball : balls) {
-            if (!shaftMeetsBall(Shaft{es.centroid, to, es.radius, shape[static_cast<std::size_t>(node.source)].radius}, *ball)) continue;
+            if (!shaftMeetsBall(Shaft{es.centroid, to, es.radius, to_radius}, *ball)) continue;
             if (!node.hulls[t].meets(*ball)) continue;
             // How near the centroids' segment passes to the ball's centre, over its radius.
             const Eigen::Vector3d d = to - es.centroid;
@@ -144,6 +151,7 @@ void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
         }
         if (best == kClasses) continue;
         face_class[t] = best;
+        blocked_transfers.push_back(static_cast<int>(t));
         out.blocked_faces.emplace_back(h[root].face, best);
     }
     std::sort(out.blocked_faces.begin(), out.blocked_faces.end());
@@ -151,18 +159,20 @@ void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
     const Eigen::Vector3d ns = rad.geometry(node.source).normal;
     std::array<double, kClasses + 1> open_real{}, open_all{};  // by class, then pooled
     std::array<bool, kClasses + 1> any_blocked{}, any_open{};
-    for (const ClusterNode::Pair& p : node.pairs) {
-        const int cls = face_class[static_cast<std::size_t>(p.transfer)];
-        if (cls < 0) continue;
-        const Eigen::Vector3d nr = rad.face(h[links[static_cast<std::size_t>(node.transfers[static_cast<std::size_t>(p.transfer)])].receiver].face).normal;
-        const bool blocked = rays.occludedVirtual(p.from, nr, p.to, ns, out.mask);
-        for (const auto i : {static_cast<std::size_t>(cls), static_cast<std::size_t>(kClasses)}) {
-            open_real[i] += 1.0;
-            if (blocked) {
-                any_blocked[i] = true;
-            } else {
-                any_open[i] = true;
-                open_all[i] += 1.0;
+    for (int t : blocked_transfers) {
+        const auto cls = static_cast<std::size_t>(face_class[static_cast<std::size_t>(t)]);
+        const Eigen::Vector3d& nr = rad.face(h[links[static_cast<std::size_t>(node.transfers[static_cast<std::size_t>(t)])].receiver].face).normal;
+        for (int i = node.pair_offsets[static_cast<std::size_t>(t)]; i < node.pair_offsets[static_cast<std::size_t>(t) + 1]; ++i) {
+            const ClusterNode::Pair& p = node.pairs[static_cast<std::size_t>(i)];
+            const bool blocked = rays.occludedVirtual(p.from, nr, p.to, ns, out.mask);
+            for (const std::size_t j : {cls, static_cast<std::size_t>(kClasses)}) {
+                open_real[j] += 1.0;
+                if (blocked) {
+                    any_blocked[j] = true;
+                } else {
+                    any_open[j] = true;
+                    open_all[j] += 1.0;
+                }
             }
         }
     }

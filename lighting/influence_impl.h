@@ -145,7 +145,8 @@ struct ClusterNode {
         Eigen::Vector3d to = Eigen::Vector3d::Zero();    // on the source
     };
     bool pairs_made = false;
-    std::vector<Pair> pairs;
+    std::vector<Pair> pairs;          // by transfer (their faces were drawn in order)
+    std::vector<int> pair_offsets;    // per transfer: its pairs are pairs[pair_offsets[t], pair_offsets[t + 1])
     std::vector<HullPlanes> hulls;  // per transfer: the hull of its face and the source (made with the pairs)
 };
 
