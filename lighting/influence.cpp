@@ -545,7 +545,14 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             // at most 1, so a share below `item` is never significant: not computed.)
             if (std::max(parts[0], 0.0) < item) continue;
             const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, obj.cache_shafts[i].shaft.a, parts[1]) : 0.0;
-            if (sig >= item && cachedPairMeets(obj, i, ball)) kept[i] = sig;
+            if (!(sig >= item)) continue;
+            // (A face's transfer through a shared cluster link: its node found whether the object
+            // meets the face's shaft, the face's root's, which holds the base leaf's.)
+            const ClusterNode* node = what >= 0 ? sharedNode(what) : nullptr;
+            const bool meets = node ? (node->transfer_objects[static_cast<std::size_t>(link_position[static_cast<std::size_t>(what)])] &
+                                       RayScene::virtualBit(object)) != 0
+                                    : cachedPairMeets(obj, i, ball);
+            if (meets) kept[i] = sig;
         }
     });
     for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
@@ -634,6 +641,9 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
         for (int o : moved) poses[static_cast<std::size_t>(o)] = d.objects[static_cast<std::size_t>(o)].pose;
         radiosity_.setVirtualPoses(poses);
     }
+    // The cluster links' shared answers the move reached (their faces walked again if they
+    // changed; the candidates read which faces' shafts each object meets from them).
+    d.refreshNodes(touched, false);
     for (int o : moved) {
         ObjectState& s = d.objects[static_cast<std::size_t>(o)];
         s.touched.clear();
@@ -645,8 +655,6 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
         s.touched.erase(std::unique(s.touched.begin(), s.touched.end()), s.touched.end());
         touched.insert(touched.end(), s.touched.begin(), s.touched.end());
     }
-    // The cluster links' shared answers the move reached (their faces walked again if they changed).
-    d.refreshNodes(touched, false);
     if (viewer_changed) {
         // The camera changes no link: only the resolution the influenced leaves need.
         for (const ObjectState& s : d.objects) {
@@ -720,6 +728,7 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
         for (std::size_t o = 0; o < d.objects.size(); ++o) poses[o] = d.objects[o].pose;
         radiosity_.setVirtualPoses(poses);
     }
+    d.refreshNodes(touched, true);
     for (std::size_t o = 0; o < d.objects.size(); ++o) {
         ObjectState& s = d.objects[o];
         if (!s.present) continue;
@@ -730,7 +739,6 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
         s.touched.erase(std::unique(s.touched.begin(), s.touched.end()), s.touched.end());
         touched.insert(touched.end(), s.touched.begin(), s.touched.end());
     }
-    d.refreshNodes(touched, true);
     std::sort(touched.begin(), touched.end());
     touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
     stats_.ms_candidates = msSince(tc);

@@ -24,6 +24,7 @@ void VirtualInfluence::Impl::buildNodes(const std::vector<int>& origin, std::siz
     const std::vector<ClusterLink>& cluster_links = rad.clusterLinks();
     nodes.clear();
     link_node.assign(links.size(), -1);
+    link_position.assign(links.size(), -1);
     std::vector<int> node_of(cluster_links.size(), -1);
     std::vector<int> under;
     for (std::size_t i = 0; i < origin.size(); ++i) {
@@ -39,6 +40,7 @@ void VirtualInfluence::Impl::buildNodes(const std::vector<int>& origin, std::siz
         }
         const std::size_t li = first_transfer + i;
         ClusterNode& n = nodes[static_cast<std::size_t>(node_of[ci])];
+        link_position[li] = static_cast<int>(n.transfers.size());
         n.transfers.push_back(static_cast<int>(li));
         link_node[li] = node_of[ci];
         const int root = links[li].receiver;
@@ -122,14 +124,17 @@ void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
     constexpr int kClasses = ClusterNode::kClasses;
     out.mask = 0;
     out.blocked_faces.clear();
+    out.transfer_objects.assign(node.transfers.size(), 0u);
     out.mixed.fill(false);
     out.transmission.fill(1.0);
     const Shaft shaft = nodeShaft(node);
     std::vector<const Ball*> balls;
+    std::vector<int> ball_object;
     for (std::size_t o = 0; o < objects.size(); ++o) {
         if (!objects[o].present || !shaftMeetsBall(shaft, objects[o].ball)) continue;
         out.mask |= RayScene::virtualBit(static_cast<int>(o));
         balls.push_back(&objects[o].ball);
+        ball_object.push_back(static_cast<int>(o));
     }
     if (out.mask == 0) return;
     const Eigen::Vector3d& to = shape[static_cast<std::size_t>(node.source)].centroid;
@@ -140,9 +145,11 @@ void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
         const int root = links[static_cast<std::size_t>(node.transfers[t])].receiver;
         const ElementShape& es = shape[static_cast<std::size_t>(root)];
         int best = kClasses;
-        for (const Ball* ball : balls) {
+        for (std::size_t j = 0; j < balls.size(); ++j) {
+            const Ball* ball = balls[j];
             if (!shaftMeetsBall(Shaft{es.centroid, to, es.radius, to_radius}, *ball)) continue;
             if (!node.hulls[t].meets(*ball)) continue;
+            out.transfer_objects[t] |= RayScene::virtualBit(ball_object[j]);
             // How near the centroids' segment passes to the ball's centre, over its radius.
             const Eigen::Vector3d d = to - es.centroid;
             const double u = std::clamp((ball->centre - es.centroid).dot(d) / std::max(d.squaredNorm(), 1e-300), 0.0, 1.0);
@@ -197,6 +204,7 @@ void VirtualInfluence::Impl::refreshNodes(std::vector<int>& touched, bool all) {
         const bool same = node.valid && fresh.mask == node.mask && fresh.blocked_faces == node.blocked_faces &&
                           fresh.transmission == node.transmission && fresh.mixed == node.mixed;
         node.valid = true;
+        node.transfer_objects = std::move(fresh.transfer_objects);
         if (same) return;
         node.changed = true;
         before[k] = std::move(node.blocked_faces);

@@ -133,6 +133,7 @@ struct ClusterNode {
     // a shadow's core and its edge are not averaged together. (face, class), sorted.
     static constexpr int kClasses = 3;
     std::vector<std::pair<int, int>> blocked_faces;
+    std::vector<std::uint32_t> transfer_objects;  // per transfer: the objects whose bounds meet its face's shaft
     std::array<bool, kClasses> mixed{};
     std::array<double, kClasses> transmission{1.0, 1.0, 1.0};
     // Its visibility pairs, made at the first answer that needs them: faces chosen by their
@@ -231,6 +232,7 @@ struct VirtualInfluence::Impl {
     // node (-1: none).
     std::vector<ClusterNode> nodes;
     std::vector<int> link_node;
+    std::vector<int> link_position;  // by base link of a node: its place in the node's transfers
     // Base links by source (CSR), corrections by source (rebuilt after each refinement).
     std::vector<int> link_offsets, link_by_source;
     std::vector<int> corr_offsets;
