@@ -547,11 +547,15 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, obj.cache_shafts[i].shaft.a, parts[1]) : 0.0;
             if (!(sig >= item)) continue;
             // (A face's transfer through a shared cluster link: its node found whether the object
-            // meets the face's shaft, the face's root's, which holds the base leaf's.)
+            // meets the shaft of the face's root, which holds the base leaf's: the answer when the
+            // base leaf is the root, a sure "no" otherwise.)
             const ClusterNode* node = what >= 0 ? sharedNode(what) : nullptr;
-            const bool meets = node ? (node->transfer_objects[static_cast<std::size_t>(link_position[static_cast<std::size_t>(what)])] &
-                                       RayScene::virtualBit(object)) != 0
-                                    : cachedPairMeets(obj, i, ball);
+            bool meets = false;
+            if (!node) {
+                meets = cachedPairMeets(obj, i, ball);
+            } else if ((node->transfer_objects[static_cast<std::size_t>(link_position[static_cast<std::size_t>(what)])] & RayScene::virtualBit(object)) != 0) {
+                meets = links[static_cast<std::size_t>(what)].receiver == b || cachedPairMeets(obj, i, ball);
+            }
             if (meets) kept[i] = sig;
         }
     });
