@@ -79,11 +79,10 @@ struct RadiosityOptions {
     // direction pushed to each face by its own cosine. A link opens the cluster into its faces
     // when its receiver (or source) is closer than cluster_distance radii, or when the form
     // factor's variation over the cluster's extent, times the radiance, exceeds link_epsilon.
-    // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default: the
-    // virtual objects' influence (lighting/influence.h) takes each cluster link as its faces'
-    // transfers (clusterTransfers(); one node per link that lights a proxy: influence_cluster.cpp)
-    // and still costs 15-17% more CPU per move with a 320-face proxy clustered than without
-    // (docs/lighting.md, `cluster` case); 24 is the setting the tests and that case use.
+    // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default: with a
+    // 320-face proxy clustered the virtual objects' influence (lighting/influence.h, clusterTransfers())
+    // costs 15-17% more CPU per move than without (docs/lighting.md, `cluster` case); 24 is the
+    // setting the tests and `bench lighting --cases cluster` use.
     int cluster_min_faces = 0;
     double cluster_small_radius = 0.0;
     double cluster_max_fraction = 0.25;
