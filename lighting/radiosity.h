@@ -81,7 +81,7 @@ struct RadiosityOptions {
     // factor's variation over the cluster's extent, times the radiance, exceeds link_epsilon.
     // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default: with a
     // 320-face proxy clustered the virtual objects' influence (lighting/influence.h, clusterTransfers())
-    // costs 15-17% more CPU per move than without (docs/lighting.md, `cluster` case); 24 is the
+    // costs 13-16% more CPU per move than without (docs/lighting.md, `cluster` case); 24 is the
     // setting the tests and `bench lighting --cases cluster` use.
     int cluster_min_faces = 0;
     double cluster_small_radius = 0.0;
