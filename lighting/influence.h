@@ -80,7 +80,7 @@ struct InfluenceOptions {
     int partial_pairs = 64;         // ... and when the pilot finds a penumbra
     int link_pairs = 16;            // per leaf and blocked link
     // A clustered real proxy's faces receiving through one cluster link (Radiosity::clusterTransfers()):
-    // one shaft test and one transmission per cluster link, shared by the faces it blocks, with
+    // one shaft test per link and one transmission per class of the faces it blocks, shared, from
     // the pairs among 16 x link_pairs over its faces that fall on them (false: one transmission per
     // face and link).
     bool share_cluster_links = true;

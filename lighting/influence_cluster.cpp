@@ -2,9 +2,9 @@
 // a cluster link whose cluster receives (a source element lighting a real mesh proxy's faces) is
 // made of one transfer per face (Radiosity::clusterTransfers()). A virtual object in its shaft
 // blocks it for the faces whose own shaft it meets; their transmission is estimated once per
-// cluster link, over pairs from those faces (chosen by their transfers' weights) to the source,
-// and shared by them, instead of once per face (InfluenceOptions::share_cluster_links). What the
-// solve does with it is unchanged: each face's correction w_f (t - 1) (B~_s + D_s).
+// cluster link and class of faces (ClusterNode::blocked_faces), over pairs from those faces
+// (chosen by their transfers' weights) to the source, and shared by them, instead of once per
+// face (InfluenceOptions::share_cluster_links). Each face's correction stays w_f (t - 1) (B~_s + D_s).
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
