@@ -3,6 +3,7 @@
 // (lighting/radiosity_cluster.cpp): links, elements, setup and solve time, and the face radiances'
 // error against the unclustered solve at fine settings (links refined 4x further).
 #include <chrono>
+#include <ctime>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -160,29 +161,46 @@ Result<lighting::LightingSnapshot> influenceSnapshot(const Scene& scene, int clu
     return (*est)->update(poses);
 }
 
-// The ball moving towards the statue in 5 mm steps: the update's wall time and the influence's
-// share, per move, and the links the influence carries (element links and cluster transfers).
+// CPU time of the process (every thread), milliseconds: steadier than the wall clock on a machine
+// other work shares.
+double cpuMs() {
+    timespec t{};
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+    return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
+}
+
+// The ball moving towards the statue in 5 mm steps (40 moves from 0.2 m away to touching it)
+// and back, three times (240 moves): the update's wall and CPU time and the influence's share,
+// per move, and the links the influence carries (element links and cluster transfers).
 struct MoveTiming {
-    double update_ms_p50 = 0.0, influence_ms_p50 = 0.0;
-    std::size_t links = 0, transfers = 0;
+    double update_ms_p50 = 0.0, influence_ms_p50 = 0.0, update_cpu_ms_p50 = 0.0, update_cpu_ms_p95 = 0.0;
+    std::size_t moves = 0, links = 0, transfers = 0;
 };
 Result<MoveTiming> influenceTiming(const Scene& scene, int cluster_min_faces) {
     auto est = statueEstimator(scene, cluster_min_faces, RadiosityOptions{}.link_epsilon);
     if (!est) return std::unexpected(est.error());
     std::vector<Rigid3d> poses = lighting::SceneLighting::scenePoses(scene, 0.0);
-    std::vector<double> update, influence;
-    for (int step = 0; step <= 40; ++step) {
+    std::vector<double> update, influence, cpu;
+    constexpr int kLeg = 40, kMoves = 6 * kLeg;
+    for (int move = 0; move <= kMoves; ++move) {
+        const int step = (move / kLeg) % 2 == 0 ? move % kLeg : kLeg - move % kLeg;
         poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(-0.45 + 0.005 * step, 0.3, 0.1), Eigen::Vector3d::Zero());
         const auto start = std::chrono::steady_clock::now();
+        const double c0 = cpuMs();
         if (auto s = (*est)->update(poses); !s) return std::unexpected(s.error());
+        const double c1 = cpuMs();
         const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-        if (step == 0) continue;  // the ball's first placement
+        if (move == 0) continue;  // the ball's first placement
         update.push_back(ms);
+        cpu.push_back(c1 - c0);
         influence.push_back((*est)->stats().ms_influence);
     }
     MoveTiming t;
+    t.moves = update.size();
     t.update_ms_p50 = percentile(update, 50);
     t.influence_ms_p50 = percentile(influence, 50);
+    t.update_cpu_ms_p50 = percentile(cpu, 50);
+    t.update_cpu_ms_p95 = percentile(cpu, 95);
     t.links = (*est)->radiosity().links().size();
     t.transfers = (*est)->radiosity().clusterTransfers().size();
     return t;
@@ -294,16 +312,21 @@ Result<nlohmann::json> runClusterCase(const BenchLightingOptions& bench) {
                            {"finer_ratio_max", finer_worst}});
         }
     }
-    std::printf("the ball moving towards the statue, 40 moves of 5 mm: per move, p50\n");
-    std::printf("%-12s %10s %13s %12s %10s\n", "method", "update_ms", "influence_ms", "links", "transfers");
+    std::printf("the ball moving towards the statue and back, 40 moves of 5 mm each way, three times: per move, p50 (CPU: all threads)\n");
+    std::printf("%-12s %10s %13s %14s %14s %12s %10s\n", "method", "update_ms", "influence_ms", "update_cpu_ms", "cpu_ms_p95", "links",
+                "transfers");
     nlohmann::json moves = nlohmann::json::array();
     for (const auto& [faces, name] : {std::pair{24, "clustered"}, std::pair{0, "unclustered"}}) {
         auto t = influenceTiming(*statue, faces);
         if (!t) return std::unexpected(t.error());
-        std::printf("%-12s %10.2f %13.2f %12zu %10zu\n", name, t->update_ms_p50, t->influence_ms_p50, t->links, t->transfers);
+        std::printf("%-12s %10.2f %13.2f %14.2f %14.2f %12zu %10zu\n", name, t->update_ms_p50, t->influence_ms_p50, t->update_cpu_ms_p50,
+                    t->update_cpu_ms_p95, t->links, t->transfers);
         moves.push_back({{"method", name},
+                         {"moves", t->moves},
                          {"update_ms_p50", t->update_ms_p50},
                          {"influence_ms_p50", t->influence_ms_p50},
+                         {"update_cpu_ms_p50", t->update_cpu_ms_p50},
+                         {"update_cpu_ms_p95", t->update_cpu_ms_p95},
                          {"links", t->links},
                          {"cluster_transfers", t->transfers}});
     }

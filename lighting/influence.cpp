@@ -545,7 +545,18 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             // at most 1, so a share below `item` is never significant: not computed.)
             if (std::max(parts[0], 0.0) < item) continue;
             const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, obj.cache_shafts[i].shaft.a, parts[1]) : 0.0;
-            if (sig >= item && cachedPairMeets(obj, i, ball)) kept[i] = sig;
+            if (!(sig >= item)) continue;
+            // (A face's transfer through a shared cluster link: its node found whether the object
+            // meets the shaft of the face's root, which holds the base leaf's: the answer when the
+            // base leaf is the root, a sure "no" otherwise.)
+            const ClusterNode* node = what >= 0 ? sharedNode(what) : nullptr;
+            bool meets = false;
+            if (!node) {
+                meets = cachedPairMeets(obj, i, ball);
+            } else if ((node->transfer_objects[static_cast<std::size_t>(link_position[static_cast<std::size_t>(what)])] & RayScene::virtualBit(object)) != 0) {
+                meets = links[static_cast<std::size_t>(what)].receiver == b || cachedPairMeets(obj, i, ball);
+            }
+            if (meets) kept[i] = sig;
         }
     });
     for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
@@ -634,6 +645,9 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
         for (int o : moved) poses[static_cast<std::size_t>(o)] = d.objects[static_cast<std::size_t>(o)].pose;
         radiosity_.setVirtualPoses(poses);
     }
+    // The cluster links' shared answers the move reached (their faces walked again if they
+    // changed; the candidates read which faces' shafts each object meets from them).
+    d.refreshNodes(touched, false);
     for (int o : moved) {
         ObjectState& s = d.objects[static_cast<std::size_t>(o)];
         s.touched.clear();
@@ -703,6 +717,10 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
         s.cluster_leaves.clear();
         s.cluster_links.clear();
     }
+    for (ClusterNode& node : d.nodes) {
+        node.valid = false;
+        node.blocked_faces.clear();
+    }
     d.viewer = viewer;
     // Step 2: every object from scratch, candidates by scanning every shaft.
     const auto tc = std::chrono::steady_clock::now();
@@ -714,6 +732,7 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
         for (std::size_t o = 0; o < d.objects.size(); ++o) poses[o] = d.objects[o].pose;
         radiosity_.setVirtualPoses(poses);
     }
+    d.refreshNodes(touched, true);
     for (std::size_t o = 0; o < d.objects.size(); ++o) {
         ObjectState& s = d.objects[o];
         if (!s.present) continue;

@@ -19,7 +19,9 @@
 //              does not multiply links. Close receivers see its faces one by one.
 // Internal elements hold the area-weighted mean of their children's D (push-pull on differences).
 // The base links are the element links and, where real proxies are clustered, the cluster links
-// taken as the element links they are linear in (Radiosity::clusterTransfers()).
+// taken as the element links they are linear in (Radiosity::clusterTransfers()). A cluster link
+// that lights a proxy's faces is one node for its faces' transfers: one shaft test and one
+// transmission per class of the faces it blocks, shared by them (lighting/influence_cluster.cpp).
 //
 // Incremental update (seed 000 sec. 4.4): a moved object's old and new bounding balls are looked
 // up in a shaft index (lighting/shaft_index.h) over the base links and the light shafts of the base
@@ -77,6 +79,11 @@ struct InfluenceOptions {
     int pilot_pairs = 16;           // visibility pairs per leaf and light (a pilot) ...
     int partial_pairs = 64;         // ... and when the pilot finds a penumbra
     int link_pairs = 16;            // per leaf and blocked link
+    // A clustered real proxy's faces receiving through one cluster link (Radiosity::clusterTransfers()):
+    // one shaft test per link and one transmission per class of the faces it blocks, shared, from
+    // the pairs among 16 x link_pairs over its faces that fall on them (false: one transmission per
+    // face and link).
+    bool share_cluster_links = true;
     int object_directions = 128;    // rays for a virtual object's irradiance
     double residual = 1e-4;         // propagation stops when no unshot difference exceeds this x the largest radiance
     std::uint64_t seed = 11;

@@ -130,10 +130,13 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
     }
     // Step 2: base links by source.
     d.links = radiosity_.links();
+    const std::size_t first_transfer = d.links.size();
+    std::vector<int> transfer_origin;
     {
-        std::vector<Link> through_clusters = radiosity_.clusterTransfers();
+        std::vector<Link> through_clusters = radiosity_.clusterTransfers(&transfer_origin);
         d.links.insert(d.links.end(), through_clusters.begin(), through_clusters.end());
     }
+    d.buildNodes(transfer_origin, first_transfer);
     const std::vector<Link>& links = d.links;
     d.link_offsets.assign(n + 1, 0);
     for (const Link& l : links) ++d.link_offsets[static_cast<std::size_t>(l.source) + 1];

@@ -59,6 +59,7 @@ struct LinkAnswer {
     bool blocked = false;
     bool mixed = false;
     double transmission = 1.0;
+    std::uint32_t version = 0;  // a cluster node's transfer: the node's answer it was read from (ClusterNode)
 };
 struct ClusterAnswer {
     int object = 0;
@@ -106,6 +107,48 @@ struct ElementShape {
     std::array<Eigen::Vector3d, 4> corners{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
     int count = 0;
     std::span<const Eigen::Vector3d> polygon() const { return {corners.data(), static_cast<std::size_t>(count)}; }
+};
+
+// A base cluster link whose cluster receives (ClusterLink::Kind::kReceiver: a clustered real
+// proxy's faces lit by one source element) as one node for the per-face transfers it is made of
+// (Radiosity::clusterTransfers()): one shaft test (the cluster's bounding ball to the source) and
+// one transmission per configuration, shared by every face, instead of one per face. The faces
+// whose own shaft meets an object's bounds are the ones it blocks (`blocked_faces`); the
+// transmission is the transfer-weighted mean over their pairs (InfluenceOptions::share_cluster_links).
+struct ClusterNode {
+    int source = -1;                                   // the element the cluster's faces receive from
+    Eigen::Vector3d centre = Eigen::Vector3d::Zero();  // the cluster's bounding ball
+    double radius = 0.0;
+    std::vector<int> transfers;                        // its base links (one per face)
+    std::vector<std::pair<int, int>> face_leaves;      // (face, base leaf under the face's root), sorted
+    // The answer for the configuration now.
+    bool valid = false;
+    bool changed = false;        // in this update (its faces are walked again)
+    std::uint32_t version = 0;   // counts the answers that changed
+    std::uint32_t mask = 0;      // objects whose bounds meet its shaft (ray mask bits)
+    // The faces it blocks, by how deep in an object's bounds their shaft runs: class 0 when the
+    // segment between the face's and the source's centroids passes within half the ball's radius
+    // of its centre, 1 within the radius, 2 beside it (the hull alone meets it). Each class has
+    // its own transmission, over its own faces' pairs (the pooled one where a class has none):
+    // a shadow's core and its edge are not averaged together. (face, class), sorted.
+    static constexpr int kClasses = 3;
+    std::vector<std::pair<int, int>> blocked_faces;
+    std::vector<std::uint32_t> transfer_objects;  // per transfer: the objects whose bounds meet its face's shaft
+    std::array<bool, kClasses> mixed{};
+    std::array<double, kClasses> transmission{1.0, 1.0, 1.0};
+    // Its visibility pairs, made at the first answer that needs them: faces chosen by their
+    // transfers' weights (`transfer`: the position in `transfers`), points stratified; only the
+    // pairs that exchange light and that the real scene leaves open are kept (the real scene
+    // never changes: an answer traces virtual rays only).
+    struct Pair {
+        int transfer = 0;
+        Eigen::Vector3d from = Eigen::Vector3d::Zero();  // on the face
+        Eigen::Vector3d to = Eigen::Vector3d::Zero();    // on the source
+    };
+    bool pairs_made = false;
+    std::vector<Pair> pairs;          // by transfer (their faces were drawn in order)
+    std::vector<int> pair_offsets;    // per transfer: its pairs are pairs[pair_offsets[t], pair_offsets[t + 1])
+    std::vector<HullPlanes> hulls;  // per transfer: the hull of its face and the source (made with the pairs)
 };
 
 // A virtual object: where it is, what it is made of, what it touched.
@@ -185,6 +228,11 @@ struct VirtualInfluence::Impl {
     // The base links: the radiosity's element links, then its cluster links as element links
     // (Radiosity::clusterTransfers()). Every "base link" index below is into this.
     std::vector<Link> links;
+    // The base cluster links whose clusters receive, as nodes (ClusterNode), and by base link its
+    // node (-1: none).
+    std::vector<ClusterNode> nodes;
+    std::vector<int> link_node;
+    std::vector<int> link_position;  // by base link of a node: its place in the node's transfers
     // Base links by source (CSR), corrections by source (rebuilt after each refinement).
     std::vector<int> link_offsets, link_by_source;
     std::vector<int> corr_offsets;
@@ -282,6 +330,17 @@ struct VirtualInfluence::Impl {
     RealMask& mask(int element, int key);
     void refine(const std::vector<int>& touched);
     void rebuildCorrectionIndex();
+
+    // --- influence_cluster.cpp ---
+    void buildNodes(const std::vector<int>& origin, std::size_t first_transfer);
+    Shaft nodeShaft(const ClusterNode& node) const;
+    // The node answers the move reached (or never made), computed again; the base leaves of the
+    // faces whose answer changed are added to `touched`. `all`: every node again (a rebuild).
+    void refreshNodes(std::vector<int>& touched, bool all);
+    void nodeAnswer(int k, ClusterNode& out) const;
+    void nodePairs(int k, ClusterNode& node) const;
+    // The node a base link reads its answer from when they are shared (nullptr: its own).
+    const ClusterNode* sharedNode(int link) const;
 
     // --- influence_objects.cpp ---
     void placeObject(int o, const InfluenceObject& in);

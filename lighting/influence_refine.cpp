@@ -268,8 +268,13 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
     // where corrections may be made (`links_open`; below them no element has any: their answers
     // go). An answer whose shaft the move reached, or whose link is no longer selected, is dropped.
     if (links_open) {
-                for (int li : reach.links) {
+        for (int li : reach.links) {
             if (!contains(sel.links, li)) continue;
+            if (const ClusterNode* node = sharedNode(li)) {
+                // (A shared answer: reached when it changed.)
+                if (node->changed) met.links.push_back(li);
+                continue;
+            }
             const int source = links[static_cast<std::size_t>(li)].source;
             if (reachedByMove([&](const Ball& ball) { return linkMeetsBall(c, source, ball); })) met.links.push_back(li);
         }
@@ -345,17 +350,31 @@ double VirtualInfluence::Impl::computeLinks(int c, int b, const Reach& met, Leaf
     const Eigen::Vector3d& rho = self.rho_[static_cast<std::size_t>(c)];
     const double den = denominator(c);
     const std::uint32_t mask = objectMask(b);
-        Answers& ans = answers[static_cast<std::size_t>(c)];
+    const Hierarchy& h = self.radiosity_.hierarchy();
+    Answers& ans = answers[static_cast<std::size_t>(c)];
     std::vector<LinkAnswer> fresh;
     fresh.reserve(sel.links.size());
     double variation = 0.0;
     for (int li : sel.links) {
         const Link& l = links[static_cast<std::size_t>(li)];
+        const ClusterNode* node = sharedNode(li);
         const LinkAnswer* old = ans.links_valid && !contains(met.links, li) ? findAnswer(ans.links, li, &LinkAnswer::link) : nullptr;
+        if (old && node && old->version != node->version) old = nullptr;
         LinkAnswer a;
         if (old) {
             a = *old;
             ++out.reused;
+        } else if (node) {
+            // A face of a clustered proxy through a cluster link: the link's shared answer.
+            ++out.computed;
+            a.link = li;
+            a.version = node->version;
+            const auto it = std::lower_bound(node->blocked_faces.begin(), node->blocked_faces.end(), std::make_pair(h[c].face, -1));
+            a.blocked = node->mask != 0 && it != node->blocked_faces.end() && it->first == h[c].face;
+            if (a.blocked) {
+                a.transmission = node->transmission[static_cast<std::size_t>(it->second)];
+                a.mixed = node->mixed[static_cast<std::size_t>(it->second)];
+            }
         } else {
             ++out.computed;
             a.link = li;

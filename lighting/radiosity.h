@@ -21,6 +21,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -78,10 +79,10 @@ struct RadiosityOptions {
     // direction pushed to each face by its own cosine. A link opens the cluster into its faces
     // when its receiver (or source) is closer than cluster_distance radii, or when the form
     // factor's variation over the cluster's extent, times the radiance, exceeds link_epsilon.
-    // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default: the
-    // virtual objects' influence (lighting/influence.h) takes each cluster link as its faces'
-    // element links (clusterTransfers()), so with clusters it carries more links than without;
-    // 24 is the setting the tests and `bench lighting --cases cluster` use.
+    // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default: with a
+    // 320-face proxy clustered the virtual objects' influence (lighting/influence.h, clusterTransfers())
+    // costs 13-16% more CPU per move than without (docs/lighting.md, `cluster` case); 24 is the
+    // setting the tests and `bench lighting --cases cluster` use.
     int cluster_min_faces = 0;
     double cluster_small_radius = 0.0;
     double cluster_max_fraction = 0.25;
@@ -231,8 +232,11 @@ public:
     // face that faces it, from the element to the face's root, weighted by max(0, n_f . (dir +
     // grad offset_f)) (the solve clamps the sum of a bin's links instead: the same unless links of
     // one bin light a face from both sides). form_factor x pi x vis_real is the transfer; the
-    // links' real_blocked and samples are not set.
-    std::vector<Link> clusterTransfers() const;
+    // links' real_blocked and samples are not set. `origin`: for each transfer, the index of the
+    // cluster link (clusterLinks()) it comes from.
+    std::vector<Link> clusterTransfers(std::vector<int>* origin = nullptr) const;
+    // A cluster's bounding ball (centre, radius), world.
+    std::pair<Eigen::Vector3d, double> clusterBall(int cluster) const;
     // Clusters made by buildRealLinks() (RadiosityOptions::cluster_min_faces): the real object of each.
     std::vector<int> clusterObjects() const;
     // Leaves in use for a mode (not buried; virtual leaves only in kAll).

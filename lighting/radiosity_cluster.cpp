@@ -388,10 +388,18 @@ void Radiosity::gatherClusters(const std::vector<Eigen::Vector3d>& radiance, std
     }
 }
 
-std::vector<Link> Radiosity::clusterTransfers() const {
+std::pair<Eigen::Vector3d, double> Radiosity::clusterBall(int cluster) const {
+    const Cluster& c = clusters_[static_cast<std::size_t>(cluster)];
+    return {c.centre, c.radius};
+}
+
+std::vector<Link> Radiosity::clusterTransfers(std::vector<int>* origin) const {
     std::vector<Link> out;
+    if (origin) origin->clear();
+    int current = 0;  // the cluster link being expanded
     const auto push = [&](int receiver, int source, double transfer, float vis) {
         if (!(transfer > 0.0) || !(vis > 0.0f)) return;
+        if (origin) origin->push_back(current);
         Link l;
         l.receiver = receiver;
         l.source = source;
@@ -400,6 +408,7 @@ std::vector<Link> Radiosity::clusterTransfers() const {
         out.push_back(l);
     };
     for (const ClusterLink& l : cluster_links_) {
+        current = static_cast<int>(&l - cluster_links_.data());
         const Cluster& c = clusters_[static_cast<std::size_t>(l.cluster)];
         if (l.kind == ClusterLink::Kind::kSource) {
             // The bin's mean radiance: sum_f w_fb L_f / p_b (or the area-weighted mean where no face

@@ -1,0 +1,230 @@
+// A clustered real proxy's cluster links in the virtual objects' influence (lighting/influence.h):
+// a cluster link whose cluster receives (a source element lighting a real mesh proxy's faces) is
+// made of one transfer per face (Radiosity::clusterTransfers()). A virtual object in its shaft
+// blocks it for the faces whose own shaft it meets; their transmission is estimated once per
+// cluster link and class of faces (ClusterNode::blocked_faces), over pairs from those faces
+// (chosen by their transfers' weights) to the source, and shared by them, instead of once per
+// face (InfluenceOptions::share_cluster_links). Each face's correction stays w_f (t - 1) (B~_s + D_s).
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <span>
+#include <tuple>
+
+#include "lighting/influence_impl.h"
+#include "lighting/sampling.h"
+
+namespace commonlight::lighting {
+
+void VirtualInfluence::Impl::buildNodes(const std::vector<int>& origin, std::size_t first_transfer) {
+    const Radiosity& rad = self.radiosity_;
+    const Hierarchy& h = rad.hierarchy();
+    const std::vector<ClusterLink>& cluster_links = rad.clusterLinks();
+    nodes.clear();
+    link_node.assign(links.size(), -1);
+    link_position.assign(links.size(), -1);
+    std::vector<int> node_of(cluster_links.size(), -1);
+    std::vector<int> under;
+    for (std::size_t i = 0; i < origin.size(); ++i) {
+        const auto ci = static_cast<std::size_t>(origin[i]);
+        const ClusterLink& cl = cluster_links[ci];
+        if (cl.kind != ClusterLink::Kind::kReceiver) continue;
+        if (node_of[ci] < 0) {
+            node_of[ci] = static_cast<int>(nodes.size());
+            ClusterNode n;
+            n.source = cl.element;
+            std::tie(n.centre, n.radius) = rad.clusterBall(cl.cluster);
+            nodes.push_back(std::move(n));
+        }
+        const std::size_t li = first_transfer + i;
+        ClusterNode& n = nodes[static_cast<std::size_t>(node_of[ci])];
+        link_position[li] = static_cast<int>(n.transfers.size());
+        n.transfers.push_back(static_cast<int>(li));
+        link_node[li] = node_of[ci];
+        const int root = links[li].receiver;
+        under.clear();
+        h.leavesUnder(root, under);
+        for (int e : under) {
+            if (base_leaf[static_cast<std::size_t>(e)]) n.face_leaves.emplace_back(h[root].face, e);
+        }
+    }
+    for (ClusterNode& n : nodes) {
+        std::sort(n.face_leaves.begin(), n.face_leaves.end());
+        n.face_leaves.erase(std::unique(n.face_leaves.begin(), n.face_leaves.end()), n.face_leaves.end());
+    }
+}
+
+Shaft VirtualInfluence::Impl::nodeShaft(const ClusterNode& node) const {
+    const ElementShape& s = shape[static_cast<std::size_t>(node.source)];
+    return Shaft{node.centre, s.centroid, node.radius, s.radius};
+}
+
+const ClusterNode* VirtualInfluence::Impl::sharedNode(int link) const {
+    if (!self.options_.share_cluster_links || static_cast<std::size_t>(link) >= link_node.size()) return nullptr;
+    const int k = link_node[static_cast<std::size_t>(link)];
+    return k >= 0 ? &nodes[static_cast<std::size_t>(k)] : nullptr;
+}
+
+// A node's visibility pairs (ClusterNode::Pair): 16 x link_pairs over all its faces, each face
+// chosen by its transfer's weight (stratified over their cumulative weights), so that a subset's
+// pairs estimate the transfer-weighted mean of its faces' transmissions.
+void VirtualInfluence::Impl::nodePairs(int k, ClusterNode& node) const {
+    const Radiosity& rad = self.radiosity_;
+    const Hierarchy& h = rad.hierarchy();
+    node.pairs.clear();
+    node.pairs_made = true;
+    std::vector<double> cdf;
+    double total = 0.0;
+    for (int li : node.transfers) {
+        const Link& l = links[static_cast<std::size_t>(li)];
+        total += static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
+        cdf.push_back(total);
+    }
+    node.hulls.resize(node.transfers.size());
+    const std::span<const Eigen::Vector3d> source = shape[static_cast<std::size_t>(node.source)].polygon();
+    for (std::size_t t = 0; t < node.transfers.size(); ++t) {
+        node.hulls[t] = HullPlanes::of(shape[static_cast<std::size_t>(links[static_cast<std::size_t>(node.transfers[t])].receiver)].polygon(), source);
+    }
+    node.pair_offsets.assign(node.transfers.size() + 1, 0);
+    if (cdf.empty() || !(total > 0.0)) return;
+    const int n = std::clamp(16 * self.options_.link_pairs, 1, 1024);
+    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0xc1a5ull, h.key(node.source)), static_cast<std::uint64_t>(k));
+    const ElementGeometry gs = rad.geometry(node.source);
+    for (int p = 0; p < n; ++p) {
+        const SamplePair pair = stratifiedPair(seed, p, n);
+        const double u = (p + unitFromHash(hashCombine(seed, static_cast<std::uint64_t>(p) + 77))) / n * total;
+        const auto t = std::min(static_cast<std::size_t>(std::upper_bound(cdf.begin(), cdf.end(), u) - cdf.begin()), cdf.size() - 1);
+        const int root = links[static_cast<std::size_t>(node.transfers[t])].receiver;
+        const ElementGeometry gr = rad.geometry(root);
+        const Eigen::Vector3d xr = rad.surfacePoint(root, gr, pair.first.x(), pair.first.y());
+        if (rad.exposure(root) < 1.0 && rad.hidden(root, xr)) continue;  // on the face's hidden part: none of its light
+        const Eigen::Vector3d xs = rad.surfacePoint(node.source, gs, pair.second.x(), pair.second.y());
+        const Eigen::Vector3d dv = xs - xr;
+        if (!(gr.normal.dot(dv) > 0.0) || !(-gs.normal.dot(dv) > 0.0)) continue;  // the pair exchanges no light
+        if (self.rays_.occludedReal(xr, gr.normal, xs, gs.normal)) continue;
+        node.pairs.push_back(ClusterNode::Pair{static_cast<int>(t), xr, xs});
+    }
+    // (The faces were drawn in order of their cumulative weights: the pairs are sorted by transfer.)
+    node.pair_offsets.assign(node.transfers.size() + 1, 0);
+    for (const ClusterNode::Pair& p : node.pairs) ++node.pair_offsets[static_cast<std::size_t>(p.transfer) + 1];
+    for (std::size_t t = 1; t < node.pair_offsets.size(); ++t) node.pair_offsets[t] += node.pair_offsets[t - 1];
+}
+
+// The objects whose bounds meet the node's shaft, the faces whose own shaft meets one of them
+// (by class: ClusterNode::blocked_faces), and each class's transmission: the fraction of its faces'
+// pairs (nodePairs()) that the objects leave open (the transfer-weighted mean of the faces'
+// transmissions).
+void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
+    const Radiosity& rad = self.radiosity_;
+    const Hierarchy& h = rad.hierarchy();
+    const RayScene& rays = self.rays_;
+    const ClusterNode& node = nodes[static_cast<std::size_t>(k)];
+    constexpr int kClasses = ClusterNode::kClasses;
+    out.mask = 0;
+    out.blocked_faces.clear();
+    out.transfer_objects.assign(node.transfers.size(), 0u);
+    out.mixed.fill(false);
+    out.transmission.fill(1.0);
+    const Shaft shaft = nodeShaft(node);
+    std::vector<const Ball*> balls;
+    std::vector<int> ball_object;
+    for (std::size_t o = 0; o < objects.size(); ++o) {
+        if (!objects[o].present || !shaftMeetsBall(shaft, objects[o].ball)) continue;
+        out.mask |= RayScene::virtualBit(static_cast<int>(o));
+        balls.push_back(&objects[o].ball);
+        ball_object.push_back(static_cast<int>(o));
+    }
+    if (out.mask == 0) return;
+    const Eigen::Vector3d& to = shape[static_cast<std::size_t>(node.source)].centroid;
+    const double to_radius = shape[static_cast<std::size_t>(node.source)].radius;
+    std::vector<int> face_class(node.transfers.size(), -1);
+    std::vector<int> blocked_transfers;
+    for (std::size_t t = 0; t < node.transfers.size(); ++t) {
+        const int root = links[static_cast<std::size_t>(node.transfers[t])].receiver;
+        const ElementShape& es = shape[static_cast<std::size_t>(root)];
+        int best = kClasses;
+        for (std::size_t j = 0; j < balls.size(); ++j) {
+            const Ball* ball = balls[j];
+            if (!shaftMeetsBall(Shaft{es.centroid, to, es.radius, to_radius}, *ball)) continue;
+            if (!node.hulls[t].meets(*ball)) continue;
+            out.transfer_objects[t] |= RayScene::virtualBit(ball_object[j]);
+            // How near the centroids' segment passes to the ball's centre, over its radius.
+            const Eigen::Vector3d d = to - es.centroid;
+            const double u = std::clamp((ball->centre - es.centroid).dot(d) / std::max(d.squaredNorm(), 1e-300), 0.0, 1.0);
+            const double near = (es.centroid + u * d - ball->centre).norm() / std::max(ball->radius, 1e-12);
+            best = std::min(best, near <= 0.5 ? 0 : (near <= 1.0 ? 1 : 2));
+        }
+        if (best == kClasses) continue;
+        face_class[t] = best;
+        blocked_transfers.push_back(static_cast<int>(t));
+        out.blocked_faces.emplace_back(h[root].face, best);
+    }
+    std::sort(out.blocked_faces.begin(), out.blocked_faces.end());
+    if (out.blocked_faces.empty()) return;
+    const Eigen::Vector3d ns = rad.geometry(node.source).normal;
+    std::array<double, kClasses + 1> open_real{}, open_all{};  // by class, then pooled
+    std::array<bool, kClasses + 1> any_blocked{}, any_open{};
+    for (int t : blocked_transfers) {
+        const auto cls = static_cast<std::size_t>(face_class[static_cast<std::size_t>(t)]);
+        const Eigen::Vector3d& nr = rad.face(h[links[static_cast<std::size_t>(node.transfers[static_cast<std::size_t>(t)])].receiver].face).normal;
+        for (int i = node.pair_offsets[static_cast<std::size_t>(t)]; i < node.pair_offsets[static_cast<std::size_t>(t) + 1]; ++i) {
+            const ClusterNode::Pair& p = node.pairs[static_cast<std::size_t>(i)];
+            const bool blocked = rays.occludedVirtual(p.from, nr, p.to, ns, out.mask);
+            for (const std::size_t j : {cls, static_cast<std::size_t>(kClasses)}) {
+                open_real[j] += 1.0;
+                if (blocked) {
+                    any_blocked[j] = true;
+                } else {
+                    any_open[j] = true;
+                    open_all[j] += 1.0;
+                }
+            }
+        }
+    }
+    for (std::size_t i = 0; i < static_cast<std::size_t>(kClasses); ++i) {
+        const std::size_t from = open_real[i] > 0.0 ? i : static_cast<std::size_t>(kClasses);  // no pair of its own: the pooled one
+        out.mixed[i] = any_blocked[from] && any_open[from];
+        out.transmission[i] = open_real[from] > 0.0 ? open_all[from] / open_real[from] : 1.0;
+    }
+}
+
+void VirtualInfluence::Impl::refreshNodes(std::vector<int>& touched, bool all) {
+    if (nodes.empty() || !self.options_.share_cluster_links) return;
+    std::vector<std::vector<std::pair<int, int>>> before(nodes.size());  // the faces of an answer that changed, before
+    tbb::parallel_for(std::size_t{0}, nodes.size(), [&](std::size_t k) {
+        ClusterNode& node = nodes[k];
+        node.changed = false;
+        const Shaft shaft = nodeShaft(node);
+        if (!all && node.valid && !reachedByMove([&](const Ball& ball) { return shaftMeetsBall(shaft, ball); })) return;
+        if (!node.pairs_made) nodePairs(static_cast<int>(k), node);
+        ClusterNode fresh;
+        nodeAnswer(static_cast<int>(k), fresh);
+        const bool same = node.valid && fresh.mask == node.mask && fresh.blocked_faces == node.blocked_faces &&
+                          fresh.transmission == node.transmission && fresh.mixed == node.mixed;
+        node.valid = true;
+        node.transfer_objects = std::move(fresh.transfer_objects);
+        if (same) return;
+        node.changed = true;
+        before[k] = std::move(node.blocked_faces);
+        node.mask = fresh.mask;
+        node.blocked_faces = std::move(fresh.blocked_faces);
+        node.transmission = fresh.transmission;
+        node.mixed = fresh.mixed;
+        ++node.version;
+    });
+    // The faces it blocked and blocks now are walked again (the others keep no answer of it).
+    for (std::size_t k = 0; k < nodes.size(); ++k) {
+        const ClusterNode& node = nodes[k];
+        if (!node.changed) continue;
+        for (const auto* faces : {static_cast<const std::vector<std::pair<int, int>>*>(&before[k]), &node.blocked_faces}) {
+            for (const auto& [f, cls] : *faces) {
+                auto it = std::lower_bound(node.face_leaves.begin(), node.face_leaves.end(), std::make_pair(f, -1));
+                for (; it != node.face_leaves.end() && it->first == f; ++it) touched.push_back(it->second);
+            }
+        }
+    }
+}
+
+}  // namespace commonlight::lighting
