@@ -56,9 +56,14 @@ struct TrackerOptions {
     // verification would cost for nothing).
     bool verify_skip_occluded = true;
     // A verified tag's corners in the bundle weigh this much against a detected tag's: they are
-    // the prediction moved by a shift on a 0.25 px grid, about 3x the refined corners' error
-    // (measured before the seventh round; the grid is 0.125 px since, not re-tuned).
-    double verify_bundle_weight = 0.1;
+    // the prediction moved by one shift for all four (a 0.125 px grid). Re-tuned after the
+    // seventh round's Jacobian fix (docs/tracking.md, after "Speed (issue 13)"'s seventh round):
+    // 0.1 -> 0.2 takes `tiny75`'s camera (bundle + filter) rotation p50 0.0149 -> 0.0122 degrees,
+    // position p50 0.41 -> 0.35 mm, p95 -9 to -22 % (two renderings); `tiny`'s p50 moved -5 to
+    // +11 % over three renderings (no direction common to them), its p95 0-4 % and maxima 3-7 %
+    // lower. 0.35-0.5 help `tiny75` more but cost `tiny` up to +40 % at p50 on one rendering;
+    // 1.0 costs it +7 to +37 %.
+    double verify_bundle_weight = 0.2;
     // A predicted tag the last frame reported (detected or verified) where it is predicted now is
     // verified on its pattern's correlation alone, without comparing the plain square and the
     // other ids (tag_verify.h, `known_at_px`): a third of the verification's correlations. Not
