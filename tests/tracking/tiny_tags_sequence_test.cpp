@@ -82,6 +82,17 @@ Eigen::Vector2d predictedCentre(const TagItem& item, const Rigid3d& cam_from_wor
     return c;
 }
 
+// The verification tests' frames: the scene seen from the start of the path, and the same with
+// every tag's id shifted by 4 and tag 5 covered by a card.
+struct VerifyScene {
+    TagSet tags = scene();
+    CameraModel cam = testing::syntheticCamera();
+    Rigid3d truth = camFromWorld(0);
+    Image image = render(placed(tags, truth), 11);
+    Image wrong = render(placed(tags, truth, 4), 12);
+    VerifyScene() { coverTag(wrong, *tags.find(5), truth); }
+};
+
 const TrackedTag* findTag(const FrameTrack& f, int id) {
     for (const TrackedTag& t : f.tags) {
         if (t.detection.id == id) return &t;
@@ -94,13 +105,13 @@ const TrackedTag* findTag(const FrameTrack& f, int id) {
 // elsewhere (more than half its span away), the full verification runs. Known where it is
 // predicted but covered, or another id printed there: refused by the pattern's own correlation.
 TEST(TinyTagsSequence, AKnownTagSkipsTheAlternativesOnlyWhereItWasReported) {
-    const TagSet tags = scene();
-    const CameraModel cam = testing::syntheticCamera();
+    const VerifyScene vs;
+    const TagSet& tags = vs.tags;
+    const CameraModel& cam = vs.cam;
     TagPatternCache patterns("tag36h11");
-    const Rigid3d truth = camFromWorld(0);
-    const Image image = render(placed(tags, truth), 11);
-    Image wrong = render(placed(tags, truth, 4), 12);
-    coverTag(wrong, *tags.find(5), truth);
+    const Rigid3d& truth = vs.truth;
+    const Image& image = vs.image;
+    const Image& wrong = vs.wrong;
     int tried = 0, skipped = 0, refused_known = 0;
     for (const TagItem& item : tags.items) {
         if (item.id < 2) continue;
@@ -304,13 +315,13 @@ TEST(TinyTagsSequence, ATagDetectedInTheLastFrameIsAlignedWithoutTheDetector) {
 // by half the prediction's error. Where the prediction is within 0.2 px, it tries a quarter of the
 // grid's 81 shifts or fewer. Tags replaced by another id or covered are refused either way.
 TEST(TinyTagsSequence, TheSearchClimbsToTheGridsShiftFromAnyPredictionWithinIt) {
-    const TagSet tags = scene();
-    const CameraModel cam = testing::syntheticCamera();
+    const VerifyScene vs;
+    const TagSet& tags = vs.tags;
+    const CameraModel& cam = vs.cam;
     TagPatternCache patterns("tag36h11");
-    const Rigid3d truth = camFromWorld(0);
-    const Image image = render(placed(tags, truth), 11);
-    Image wrong = render(placed(tags, truth, 4), 12);
-    coverTag(wrong, *tags.find(5), truth);
+    const Rigid3d& truth = vs.truth;
+    const Image& image = vs.image;
+    const Image& wrong = vs.wrong;
     TagVerifyOptions grid;
     grid.search_ascent = false;
     int compared = 0, accepted = 0, near = 0, near_tried = 0, beyond_first_ring = 0, far = 0, far_found = 0;
