@@ -542,12 +542,17 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         tracking::TrackerOptions filtered = baseOptions(*lc, 2.0);
         tracking::TrackerOptions with_edges = filtered;
         with_edges.edges = true;
+        // As play and live run it: detection only around the predicted tags between full-frame ones.
+        tracking::TrackerOptions in_tracking_mode = filtered;
+        in_tracking_mode.tracking_mode = true;
         auto run_bundle = runTracker(*lc, bundle_only);
         auto run_filter = runTracker(*lc, filtered);
         auto run_edges = runTracker(*lc, with_edges);
+        auto run_mode = runTracker(*lc, in_tracking_mode);
         if (!run_bundle) return reportError(run_bundle.error());
         if (!run_filter) return reportError(run_filter.error());
         if (!run_edges) return reportError(run_edges.error());
+        if (!run_mode) return reportError(run_mode.error());
 
         printHeader("method (decimate 2)");
         printRow("libapriltag estimate_tag_pose", single.reference);
@@ -559,6 +564,7 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         printRow("bundle", run_bundle->camera);
         printRow("bundle + filter", run_filter->camera);
         printRow("bundle + filter + edges", run_edges->camera);
+        printRow("bundle + filter, tracking mode", run_mode->camera);
         const double det_ms = ErrorStats::pct(single.detector_only.ms, 50);
         const double track_ms = ErrorStats::pct(run_filter->camera.ms, 50);
         std::printf("\nlibapriltag detector alone: %.2f ms/frame (p50); tracking stage (bundle + filter): %.2f ms = %.2fx\n",
@@ -571,6 +577,11 @@ int runBenchTracking(const BenchTrackingOptions& options) {
                     "estimate_tag_pose %.2f ms\n",
                     det_cpu, track_cpu, track_cpu / det_cpu, track_cpu / det_cpu <= 1.2 ? "met" : "MISSED",
                     ErrorStats::pct(run_edges->camera.cpu_ms, 50), det_pose_cpu);
+        const double mode_cpu = ErrorStats::pct(run_mode->camera.cpu_ms, 50);
+        std::printf("CPU time in tracking mode (play, live): tracking stage (bundle + filter) %.2f ms = %.2fx the "
+                    "detector alone [target at most 1.2x: %s]; full-frame detection in %d of %zu frames\n",
+                    mode_cpu, mode_cpu / det_cpu, mode_cpu / det_cpu <= 1.2 ? "met" : "MISSED",
+                    run_mode->full_frame_detections, lc->frames.size());
         const auto printSplit = [](const char* label, const TrackerRun& run) {
             std::printf("CPU time per frame, mean, %s:", label);
             double sum = 0;
@@ -587,6 +598,7 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         };
         printSplit("bundle + filter", *run_filter);
         printSplit("with edges", *run_edges);
+        printSplit("tracking mode", *run_mode);
         const double ref_p50 = ErrorStats::pct(single.reference.rot_deg, 50);
         const double ours_p50 = ErrorStats::pct(single.ours_aligned.rot_deg, 50);
         std::printf("single-tag rotation p50: ours %.3f deg vs libapriltag %.3f deg = %.2fx\n", ours_p50, ref_p50,
@@ -643,14 +655,19 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         j["detector_only_cpu_ms_p50"] = det_cpu;
         j["detector_estimate_tag_pose_cpu_ms_p50"] = det_pose_cpu;
         j["tracking_over_detector_cpu"] = track_cpu / det_cpu;
-        for (const auto* run : {&*run_filter, &*run_edges}) {
+        j["bundle_filter_tracking_mode"] = run_mode->camera.toJson();
+        j["tracking_mode_over_detector_cpu"] = mode_cpu / det_cpu;
+        j["tracking_mode_full_frame_detections"] = run_mode->full_frame_detections;
+        for (const auto* run : {&*run_filter, &*run_edges, &*run_mode}) {
             json split;
             for (const auto& [name, v] : run->stage_cpu_ms) {
                 double mean = 0;
                 for (const double x : v) mean += x;
                 split[name] = v.empty() ? 0.0 : mean / static_cast<double>(v.size());
             }
-            j[run == &*run_filter ? "stage_cpu_ms_mean" : "stage_cpu_ms_mean_edges"] = split;
+            j[run == &*run_filter  ? "stage_cpu_ms_mean"
+              : run == &*run_edges ? "stage_cpu_ms_mean_edges"
+                                   : "stage_cpu_ms_mean_tracking_mode"] = split;
         }
         j["single_over_apriltag_rot_p50"] = ours_p50 / ref_p50;
         j["single_over_apriltag_trans_p50"] = ours_mm / ref_mm;

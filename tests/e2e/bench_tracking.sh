@@ -11,7 +11,8 @@ expect_text "tracking mode" "$TMP/out"
 python3 - "$TMP/bench.json" <<'PY'
 import json, sys
 j = json.load(open(sys.argv[1]))["cases"]["desk"]
-for key in ("apriltag_estimate_tag_pose", "single_tag", "bundle", "bundle_filter", "bundle_filter_edges"):
+for key in ("apriltag_estimate_tag_pose", "single_tag", "bundle", "bundle_filter", "bundle_filter_edges",
+            "bundle_filter_tracking_mode"):
     e = j[key]
     assert e["count"] > 0, key
     for stat in ("p50", "p95", "max"):
@@ -21,6 +22,10 @@ for key in ("apriltag_estimate_tag_pose", "single_tag_refined_corners", "single_
     assert abs(j[key]["range_bias_pct"]) < 5, key
 assert abs(j["single_tag"]["range_bias_pct"]) < 0.5
 assert j["single_over_apriltag_trans_p50"] > 0
+# The stage as play and live run it (tracking mode): its ratio, and the first frame detected in full.
+assert j["tracking_mode_over_detector_cpu"] > 0
+assert 1 <= j["tracking_mode_full_frame_detections"] <= 8
+assert j["stage_cpu_ms_mean_tracking_mode"]["detect"] > 0
 assert len(j["sweep"]) == 6
 assert {(e["decimate"], e["tracking_mode"]) for e in j["sweep"]} == {(d, m) for d in (1, 2, 3) for m in (False, True)}
 # Every frame of the sample has a camera pose at decimate 1 (full frame and tracking mode).
