@@ -36,8 +36,10 @@ for key in ("p50", "p95", "max"):
     assert key in lit["update_ms"], lit["update_ms"]
 assert "lighting" in m["stages_ms"]
 PY
-# The realtime default plays at the recorded rate (30 fps).
+# The realtime default plays at the recorded rate (30 fps), not as fast as it can: never faster
+# than the recording. (No upper bound but a hang guard: on a loaded machine the pipeline falls
+# behind, which is what the benchmarks measure; a run at load 11 on 2 cores took 2.7x the recording.)
 expect_exit 0 "$COMMONLIGHT" play "$SAMPLE" --metrics "$TMP/r.json"
-python3 -c 'import json,sys; d=json.load(open(sys.argv[1]))["duration_s"]; n=int(sys.argv[2]); assert 0.9*(n-1)/30 < d < 2*n/30, d' \
+python3 -c 'import json,sys; d=json.load(open(sys.argv[1]))["duration_s"]; n=int(sys.argv[2]); assert 0.9*(n-1)/30 < d < 20*n/30, d' \
     "$TMP/r.json" "$SAMPLE_FRAMES"
 echo PASS
