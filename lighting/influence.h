@@ -84,6 +84,10 @@ struct InfluenceOptions {
     // the pairs among 16 x link_pairs over its faces that fall on them (false: one transmission per
     // face and link).
     bool share_cluster_links = true;
+    // The area lights' direct light is drawn per texel where the objects change it
+    // (lighting/texel_direct.h): the elements' own direct transmission only feeds D's share that
+    // others receive, so a penumbra splits no element and takes the pilot's estimate.
+    bool direct_per_texel = false;
     int object_directions = 128;    // rays for a virtual object's irradiance
     double residual = 1e-4;         // propagation stops when no unshot difference exceeds this x the largest radiance
     std::uint64_t seed = 11;

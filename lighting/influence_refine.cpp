@@ -259,7 +259,11 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
         lights.push_back(a);
         if (!a.blocked) continue;
         t.direct += (a.pilot - 1.0) * col * l.emission;
-        if (a.mixed) {
+        // A penumbra across c: split c while it may vary by more than refine_epsilon, and the
+        // full estimate once c stays a leaf. Not where the direct light is drawn per texel
+        // (InfluenceOptions::direct_per_texel): c's transmission then only feeds the light D
+        // sends on, which the pilot's estimate gives well enough at c's size.
+        if (a.mixed && !self.options_.direct_per_texel) {
             out.variation += lumaOf(rho.cwiseProduct(l.emission)) * col / kPi / den;
             out.deferred.emplace_back(k, a.pilot);
         }
