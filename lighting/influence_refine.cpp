@@ -61,7 +61,11 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
         };
         open_real = open_all = 0.0;
         any_blocked = any_open = false;
+        // Known, a pair the real scene blocks or that starts on the hidden part adds nothing:
+        // skipped before its points are made.
+        const std::uint64_t skip = known ? bits | hidden_bits : 0;
         for (int k = 0; k < n && k < 64; ++k) {
+            if ((skip >> k) & 1u) continue;
             Eigen::Vector3d x, y, w;
             double f = 0.0;
             bool to_point = true;
@@ -155,7 +159,11 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     double open_real = 0.0, open_all = 0.0;
     bool any_blocked = false, any_open = false;
     std::uint64_t computed_hidden = 0;
+    // Known, a pair the real scene blocks or that starts on the hidden part is skipped before its
+    // points are made (it adds nothing either way: the same sums).
+    const std::uint64_t skip = known ? m.pilot | m.pilot_hidden : 0;
     for (int k = 0; k < n; ++k) {
+        if ((skip >> k) & 1u) continue;
         const SamplePair pair = stratifiedPair(seed, k, n);
         const Eigen::Vector3d xr = rad.surfacePoint(c, gr, pair.first.x(), pair.first.y());
         if (partial) {
