@@ -154,7 +154,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     RealMask& m = mask(c, s);
     const bool known = (m.have & 1u) != 0;
     std::uint64_t computed = 0;
-    const int n = std::clamp(self.options_.link_pairs, 1, 64);
+    const int n = std::clamp(self.options_.direct_per_texel ? self.options_.texel_link_pairs : self.options_.link_pairs, 1, 64);
     const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0x5eedull, rad.hierarchy().key(c)), rad.hierarchy().key(s));
     double open_real = 0.0, open_all = 0.0;
     bool any_blocked = false, any_open = false;
