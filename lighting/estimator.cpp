@@ -55,6 +55,7 @@ InfluenceOptions influenceOptions(const EstimatorOptions& o, const Scene& scene)
     if (per_texel) {
         io.refine_epsilon = o.texel_refine_epsilon;
         io.footprint_pixels = o.texel_footprint_pixels;
+        io.direct_per_texel = true;
     }
     return io;
 }

@@ -61,7 +61,11 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
         };
         open_real = open_all = 0.0;
         any_blocked = any_open = false;
+        // Known, a pair the real scene blocks or that starts on the hidden part adds nothing:
+        // skipped before its points are made.
+        const std::uint64_t skip = known ? bits | hidden_bits : 0;
         for (int k = 0; k < n && k < 64; ++k) {
+            if ((skip >> k) & 1u) continue;
             Eigen::Vector3d x, y, w;
             double f = 0.0;
             bool to_point = true;
@@ -150,12 +154,16 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     RealMask& m = mask(c, s);
     const bool known = (m.have & 1u) != 0;
     std::uint64_t computed = 0;
-    const int n = std::clamp(self.options_.link_pairs, 1, 64);
+    const int n = std::clamp(self.options_.direct_per_texel ? self.options_.texel_link_pairs : self.options_.link_pairs, 1, 64);
     const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0x5eedull, rad.hierarchy().key(c)), rad.hierarchy().key(s));
     double open_real = 0.0, open_all = 0.0;
     bool any_blocked = false, any_open = false;
     std::uint64_t computed_hidden = 0;
+    // Known, a pair the real scene blocks or that starts on the hidden part is skipped before its
+    // points are made (it adds nothing either way: the same sums).
+    const std::uint64_t skip = known ? m.pilot | m.pilot_hidden : 0;
     for (int k = 0; k < n; ++k) {
+        if ((skip >> k) & 1u) continue;
         const SamplePair pair = stratifiedPair(seed, k, n);
         const Eigen::Vector3d xr = rad.surfacePoint(c, gr, pair.first.x(), pair.first.y());
         if (partial) {
@@ -259,7 +267,11 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
         lights.push_back(a);
         if (!a.blocked) continue;
         t.direct += (a.pilot - 1.0) * col * l.emission;
-        if (a.mixed) {
+        // A penumbra across c: split c while it may vary by more than refine_epsilon, and the
+        // full estimate once c stays a leaf. Not where the direct light is drawn per texel
+        // (InfluenceOptions::direct_per_texel): c's transmission then only feeds the light D
+        // sends on, which the pilot's estimate gives well enough at c's size.
+        if (a.mixed && !self.options_.direct_per_texel) {
             out.variation += lumaOf(rho.cwiseProduct(l.emission)) * col / kPi / den;
             out.deferred.emplace_back(k, a.pilot);
         }

@@ -42,14 +42,14 @@ struct PenumbraError {
 
 // The estimator of the scene with every light and albedo given, the camera 1 m above the floor
 // looking down (the influence refines to its 2-pixel footprint).
-std::unique_ptr<Estimator> makeEstimator(const Scene& scene, int texel_pairs) {
+std::unique_ptr<Estimator> makeEstimator(const Scene& scene, int texel_pairs, std::optional<EstimatorOptions> given = std::nullopt) {
     CameraModel cam;
     cam.width = 160;
     cam.height = 120;
     cam.fx = cam.fy = 140.0;
     cam.cx = 79.5;
     cam.cy = 59.5;
-    EstimatorOptions o;
+    EstimatorOptions o = given.value_or(EstimatorOptions{});
     o.refine_unobserved = true;
     o.initial_element_size = 0.2;
     o.light_refinement_size = 0.08;
@@ -64,13 +64,14 @@ std::unique_ptr<Estimator> makeEstimator(const Scene& scene, int texel_pairs) {
     return std::move(*est);
 }
 
-PenumbraError penumbraError(int texel_pairs) {
+PenumbraError penumbraError(int texel_pairs, std::optional<EstimatorOptions> given = std::nullopt, int* leaves = nullptr) {
     auto scene = parseScene(kScene, "texel_direct.yaml");
     EXPECT_TRUE(scene) << scene.error().message;
-    auto est = makeEstimator(*scene, texel_pairs);
+    auto est = makeEstimator(*scene, texel_pairs, given);
     if (!est) return {};
     auto snapshot = est->update(SceneLighting::scenePoses(*scene, 0.0));
     EXPECT_TRUE(snapshot) << snapshot.error().message;
+    if (leaves) *leaves = static_cast<int>(est->radiosity().leaves(Mode::kReal).size());
     const FaceModulation* floor = snapshot->findFace(0, 0);
     EXPECT_NE(floor, nullptr);
     if (!floor) return {};
@@ -120,6 +121,26 @@ TEST(TexelDirect, PenumbraCloserToTheTruthThanTheElements) {
     EXPECT_LT(texels.rms, 0.05) << "per-texel direct light, 16 pairs";
     EXPECT_LT(texels.rms, 0.6 * elements.rms) << "elements " << elements.rms << ", per texel " << texels.rms;
     RecordProperty("elements_rms", std::to_string(elements.rms));
+    RecordProperty("texels_rms", std::to_string(texels.rms));
+}
+
+// Where the direct light is drawn per texel, a penumbra splits no element (the elements'
+// transmission only feeds the light the floor sends on: InfluenceOptions::direct_per_texel). With
+// the elements' own thresholds (2 pixels, 0.02) in both, the floor is split far less than when the
+// elements draw the direct light, and the texels still find the whole penumbra: its ratio as close
+// to the truth as the per-texel test above asks.
+TEST(TexelDirect, PenumbraeSplitNoElementWhereTheDirectLightIsPerTexel) {
+    EstimatorOptions o;
+    o.texel_footprint_pixels = o.influence.footprint_pixels;
+    o.texel_refine_epsilon = o.influence.refine_epsilon;
+    int by_elements = 0, by_texels = 0;
+    const PenumbraError elements = penumbraError(0, o, &by_elements);
+    const PenumbraError texels = penumbraError(64, o, &by_texels);
+    ASSERT_GT(texels.texels, 30);
+    EXPECT_LT(2 * by_texels, by_elements) << "leaves: elements drawing the penumbra " << by_elements << ", per texel " << by_texels;
+    EXPECT_LT(texels.rms, 0.05) << "per-texel direct light over coarse elements, 64 pairs (elements alone: " << elements.rms << ")";
+    RecordProperty("leaves_elements", std::to_string(by_elements));
+    RecordProperty("leaves_texels", std::to_string(by_texels));
     RecordProperty("texels_rms", std::to_string(texels.rms));
 }
 
