@@ -122,7 +122,7 @@ bool VirtualInfluence::Impl::nodeReached(const ClusterNode& node, const Ball& ba
 }
 
 const ClusterNode* VirtualInfluence::Impl::sharedNode(int link) const {
-    if (!self.options_.share_cluster_links || static_cast<std::size_t>(link) >= link_node.size()) return nullptr;
+    if (nodes.empty() || !self.options_.share_cluster_links || static_cast<std::size_t>(link) >= link_node.size()) return nullptr;
     const int k = link_node[static_cast<std::size_t>(link)];
     return k >= 0 ? &nodes[static_cast<std::size_t>(k)] : nullptr;
 }
