@@ -56,6 +56,12 @@ struct BenchLightingOptions {
     bool direct_analysis = false;  // at the truth's steps: where the ratio's error is, and per-texel shadow rays for the direct term
     int stress_moves = 10000;   // random moves of the long check (desk); 0: none
     bool sweep = true;          // the refinement thresholds swept
+    // Case `cluster`: the ball's path to the statue and back, this many times (40 moves each way);
+    // `cluster_moves_only`: only that timing (no solves against the reference, no ratios), and
+    // `cluster_method` "clustered" or "unclustered" alone (empty: both), for profiling.
+    int cluster_repeats = 3;
+    bool cluster_moves_only = false;
+    std::string cluster_method;
 };
 
 // Every case's name (all but `incremental` run by default).

@@ -174,14 +174,16 @@ double cpuMs() {
 // per move, and the links the influence carries (element links and cluster transfers).
 struct MoveTiming {
     double update_ms_p50 = 0.0, influence_ms_p50 = 0.0, update_cpu_ms_p50 = 0.0, update_cpu_ms_p95 = 0.0;
+    double candidates_ms_p50 = 0.0, refine_ms_p50 = 0.0, solve_ms_p50 = 0.0;  // the influence's phases (wall)
     std::size_t moves = 0, links = 0, transfers = 0;
 };
-Result<MoveTiming> influenceTiming(const Scene& scene, int cluster_min_faces) {
+Result<MoveTiming> influenceTiming(const Scene& scene, int cluster_min_faces, int repeats) {
     auto est = statueEstimator(scene, cluster_min_faces, RadiosityOptions{}.link_epsilon);
     if (!est) return std::unexpected(est.error());
     std::vector<Rigid3d> poses = lighting::SceneLighting::scenePoses(scene, 0.0);
-    std::vector<double> update, influence, cpu;
-    constexpr int kLeg = 40, kMoves = 6 * kLeg;
+    std::vector<double> update, influence, cpu, candidates, refine, solve;
+    constexpr int kLeg = 40;
+    const int kMoves = 2 * repeats * kLeg;
     for (int move = 0; move <= kMoves; ++move) {
         const int step = (move / kLeg) % 2 == 0 ? move % kLeg : kLeg - move % kLeg;
         poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(-0.45 + 0.005 * step, 0.3, 0.1), Eigen::Vector3d::Zero());
@@ -194,6 +196,9 @@ Result<MoveTiming> influenceTiming(const Scene& scene, int cluster_min_faces) {
         update.push_back(ms);
         cpu.push_back(c1 - c0);
         influence.push_back((*est)->stats().ms_influence);
+        candidates.push_back((*est)->stats().influence.ms_candidates);
+        refine.push_back((*est)->stats().influence.ms_refine);
+        solve.push_back((*est)->stats().influence.ms_solve);
     }
     MoveTiming t;
     t.moves = update.size();
@@ -201,6 +206,9 @@ Result<MoveTiming> influenceTiming(const Scene& scene, int cluster_min_faces) {
     t.influence_ms_p50 = percentile(influence, 50);
     t.update_cpu_ms_p50 = percentile(cpu, 50);
     t.update_cpu_ms_p95 = percentile(cpu, 95);
+    t.candidates_ms_p50 = percentile(candidates, 50);
+    t.refine_ms_p50 = percentile(refine, 50);
+    t.solve_ms_p50 = percentile(solve, 50);
     t.links = (*est)->radiosity().links().size();
     t.transfers = (*est)->radiosity().clusterTransfers().size();
     return t;
@@ -209,124 +217,133 @@ Result<MoveTiming> influenceTiming(const Scene& scene, int cluster_min_faces) {
 }  // namespace
 
 Result<nlohmann::json> runClusterCase(const BenchLightingOptions& bench) {
-    std::printf("\n== cluster: real mesh proxies (real spheres, 320 triangles each) in a room, with and without clustering\n");
-    std::printf("%-6s %-12s %8s %8s %8s %9s %9s %10s %10s %10s %10s\n", "balls", "method", "leaves", "links", "cluster", "setup_ms",
-                "solve_ms", "room_rms%", "room_max%", "ball_rms%", "ball_max%");
-    RadiosityOptions clustered;
-    clustered.cluster_min_faces = 24;
-    RadiosityOptions plain = clustered;
-    plain.cluster_min_faces = 0;
-    RadiosityOptions fine = plain;
-    fine.link_epsilon = 0.0025;
-    fine.source_epsilon = 0.0005;
     nlohmann::json rows = nlohmann::json::array();
-    auto empty = solveRoom(kRoom, clustered);
-    if (!empty) return std::unexpected(empty.error());
-    rows.push_back({{"balls", 0}, {"method", "room"}, {"leaves", empty->leaves}, {"links", empty->links}, {"setup_ms", empty->setup_ms},
-                    {"solve_ms", empty->solve_ms}});
-    std::printf("%-6d %-12s %8d %8d %8d %9.1f %9.2f\n", 0, "room", empty->leaves, empty->links, 0, empty->setup_ms, empty->solve_ms);
-    constexpr int kFirstBall = 7;
-    for (int balls = 1; balls <= 3; balls += 2) {
-        std::string yaml = kRoom;
-        for (int b = 0; b < balls; ++b) yaml += kBalls[b];
-        auto reference = solveRoom(yaml, fine);
-        if (!reference) return std::unexpected(reference.error());
-        for (const auto& [name, options] : {std::pair{"clustered", clustered}, std::pair{"unclustered", plain}, std::pair{"fine", fine}}) {
-            Result<Run> run = std::string(name) == "fine" ? Result<Run>(*reference) : solveRoom(yaml, options);
-            if (!run) return std::unexpected(run.error());
-            const auto [room_rms, room_max] = faceError(*run, *reference, false, kFirstBall);
-            const auto [ball_rms, ball_max] = faceError(*run, *reference, true, kFirstBall);
-            std::printf("%-6d %-12s %8d %8d %8d %9.1f %9.2f %10.3f %10.3f %10.3f %10.3f\n", balls, name, run->leaves, run->links,
-                        run->cluster_links, run->setup_ms, run->solve_ms, 100 * room_rms, 100 * room_max, 100 * ball_rms, 100 * ball_max);
-            nlohmann::json per_ball = nlohmann::json::array();
-            for (int b = 0; b < balls; ++b) {
-                const auto [rms, worst] = faceError(*run, *reference, true, kFirstBall, kFirstBall + b);
-                per_ball.push_back({{"rms_pct", 100 * rms}, {"max_pct", 100 * worst}});
-                if (balls > 1) std::printf("         ball %d: rms %.3f%%, max %.3f%%\n", b, 100 * rms, 100 * worst);
-            }
-            const double of_peak = ballErrorOfPeak(*run, *reference, kFirstBall);
-            std::printf("         balls' largest error over the largest radiance: %.3f%%\n", 100 * of_peak);
-            rows.push_back({{"per_ball", per_ball},
-                            {"balls", balls},
-                            {"faces_added", 320 * balls},
-                            {"method", name},
-                            {"leaves", run->leaves},
-                            {"links", run->links},
-                            {"links_added", run->links - empty->links},
-                            {"cluster_links", run->cluster_links},
-                            {"setup_ms", run->setup_ms},
-                            {"solve_ms", run->solve_ms},
-                            {"iterations", run->iterations},
-                            {"room_rms_pct", 100 * room_rms},
-                            {"room_max_pct", 100 * room_max},
-                            {"ball_rms_pct", 100 * ball_rms},
-                            {"ball_max_pct", 100 * ball_max},
-                            {"ball_max_of_peak_pct", 100 * of_peak}});
-        }
-    }
-    std::printf("(errors: face radiances against the unclustered solve with links refined 4x further, `fine`)\n");
-
-    // The influence through cluster links: the ratio with the statue clustered against unclustered,
-    // on the statue's faces and on the floor; and unclustered refined further against unclustered.
-    std::printf("virtual ball beside a clustered real sphere (statue, r 0.2 m): ratio B/B~ against the unclustered solve's\n");
-    std::printf("%-22s %-7s %8s %13s %13s %13s %13s\n", "ball at", "object", "texels", "clustered_rms", "clustered_max", "finer_rms",
-                "finer_max");
-    const double epsilon = RadiosityOptions{}.link_epsilon;
+    nlohmann::json gap = nlohmann::json::array();
     auto statue = readScene(bench.source_dir / "data/scenes/statue/scene.yaml");
     if (!statue) return std::unexpected(statue.error());
-    nlohmann::json gap = nlohmann::json::array();
-    const auto compare = [](const lighting::LightingSnapshot& a, const lighting::LightingSnapshot& b, int object) {
-        double sq = 0.0, worst = 0.0;
-        long texels = 0;
-        for (const auto& fa : a.faces) {
-            const lighting::FaceModulation* fb = b.findFace(fa->object_index, fa->face);
-            if (fa->object_index != object || !fb || fb->width != fa->width || fb->height != fa->height) continue;
-            for (std::size_t k = 0; k < fa->ratio.size(); ++k) {
-                const double d = std::abs(static_cast<double>(fa->ratio[k].y() - fb->ratio[k].y()));
-                sq += d * d;
-                worst = std::max(worst, d);
-                ++texels;
+    if (!bench.cluster_moves_only) {
+        std::printf("\n== cluster: real mesh proxies (real spheres, 320 triangles each) in a room, with and without clustering\n");
+        std::printf("%-6s %-12s %8s %8s %8s %9s %9s %10s %10s %10s %10s\n", "balls", "method", "leaves", "links", "cluster", "setup_ms",
+                    "solve_ms", "room_rms%", "room_max%", "ball_rms%", "ball_max%");
+        RadiosityOptions clustered;
+        clustered.cluster_min_faces = 24;
+        RadiosityOptions plain = clustered;
+        plain.cluster_min_faces = 0;
+        RadiosityOptions fine = plain;
+        fine.link_epsilon = 0.0025;
+        fine.source_epsilon = 0.0005;
+        auto empty = solveRoom(kRoom, clustered);
+        if (!empty) return std::unexpected(empty.error());
+        rows.push_back({{"balls", 0}, {"method", "room"}, {"leaves", empty->leaves}, {"links", empty->links}, {"setup_ms", empty->setup_ms},
+                        {"solve_ms", empty->solve_ms}});
+        std::printf("%-6d %-12s %8d %8d %8d %9.1f %9.2f\n", 0, "room", empty->leaves, empty->links, 0, empty->setup_ms, empty->solve_ms);
+        constexpr int kFirstBall = 7;
+        for (int balls = 1; balls <= 3; balls += 2) {
+            std::string yaml = kRoom;
+            for (int b = 0; b < balls; ++b) yaml += kBalls[b];
+            auto reference = solveRoom(yaml, fine);
+            if (!reference) return std::unexpected(reference.error());
+            for (const auto& [name, options] : {std::pair{"clustered", clustered}, std::pair{"unclustered", plain}, std::pair{"fine", fine}}) {
+                Result<Run> run = std::string(name) == "fine" ? Result<Run>(*reference) : solveRoom(yaml, options);
+                if (!run) return std::unexpected(run.error());
+                const auto [room_rms, room_max] = faceError(*run, *reference, false, kFirstBall);
+                const auto [ball_rms, ball_max] = faceError(*run, *reference, true, kFirstBall);
+                std::printf("%-6d %-12s %8d %8d %8d %9.1f %9.2f %10.3f %10.3f %10.3f %10.3f\n", balls, name, run->leaves, run->links,
+                            run->cluster_links, run->setup_ms, run->solve_ms, 100 * room_rms, 100 * room_max, 100 * ball_rms, 100 * ball_max);
+                nlohmann::json per_ball = nlohmann::json::array();
+                for (int b = 0; b < balls; ++b) {
+                    const auto [rms, worst] = faceError(*run, *reference, true, kFirstBall, kFirstBall + b);
+                    per_ball.push_back({{"rms_pct", 100 * rms}, {"max_pct", 100 * worst}});
+                    if (balls > 1) std::printf("         ball %d: rms %.3f%%, max %.3f%%\n", b, 100 * rms, 100 * worst);
+                }
+                const double of_peak = ballErrorOfPeak(*run, *reference, kFirstBall);
+                std::printf("         balls' largest error over the largest radiance: %.3f%%\n", 100 * of_peak);
+                rows.push_back({{"per_ball", per_ball},
+                                {"balls", balls},
+                                {"faces_added", 320 * balls},
+                                {"method", name},
+                                {"leaves", run->leaves},
+                                {"links", run->links},
+                                {"links_added", run->links - empty->links},
+                                {"cluster_links", run->cluster_links},
+                                {"setup_ms", run->setup_ms},
+                                {"solve_ms", run->solve_ms},
+                                {"iterations", run->iterations},
+                                {"room_rms_pct", 100 * room_rms},
+                                {"room_max_pct", 100 * room_max},
+                                {"ball_rms_pct", 100 * ball_rms},
+                                {"ball_max_pct", 100 * ball_max},
+                                {"ball_max_of_peak_pct", 100 * of_peak}});
             }
         }
-        return std::tuple{texels, texels > 0 ? std::sqrt(sq / static_cast<double>(texels)) : 0.0, worst};
-    };
-    for (const Eigen::Vector3d& at : {Eigen::Vector3d(0.0, 0.0, 0.1), Eigen::Vector3d(0.2, 0.05, 0.15), Eigen::Vector3d(-0.25, 0.3, 0.1)}) {
-        auto clustered_run = influenceSnapshot(*statue, 24, epsilon, at);
-        if (!clustered_run) return std::unexpected(clustered_run.error());
-        auto unclustered = influenceSnapshot(*statue, 0, epsilon, at);
-        if (!unclustered) return std::unexpected(unclustered.error());
-        auto finer = influenceSnapshot(*statue, 0, 0.5 * epsilon, at);
-        if (!finer) return std::unexpected(finer.error());
-        for (const auto& [object, name] : {std::pair{0, "floor"}, std::pair{2, "statue"}}) {
-            const auto [texels, rms, worst] = compare(*clustered_run, *unclustered, object);
-            const auto [finer_texels, finer_rms, finer_worst] = compare(*finer, *unclustered, object);
-            std::printf("(%5.2f, %5.2f, %5.2f)    %-7s %8ld %13.4f %13.4f %13.4f %13.4f\n", at.x(), at.y(), at.z(), name, texels, rms, worst,
-                        finer_rms, finer_worst);
-            gap.push_back({{"ball", {at.x(), at.y(), at.z()}},
-                           {"object", name},
-                           {"texels", texels},
-                           {"ratio_rms", rms},
-                           {"ratio_max", worst},
-                           {"finer_texels", finer_texels},
-                           {"finer_ratio_rms", finer_rms},
-                           {"finer_ratio_max", finer_worst}});
+        std::printf("(errors: face radiances against the unclustered solve with links refined 4x further, `fine`)\n");
+
+        // The influence through cluster links: the ratio with the statue clustered against unclustered,
+        // on the statue's faces and on the floor; and unclustered refined further against unclustered.
+        std::printf("virtual ball beside a clustered real sphere (statue, r 0.2 m): ratio B/B~ against the unclustered solve's\n");
+        std::printf("%-22s %-7s %8s %13s %13s %13s %13s\n", "ball at", "object", "texels", "clustered_rms", "clustered_max", "finer_rms",
+                    "finer_max");
+        const double epsilon = RadiosityOptions{}.link_epsilon;
+        const auto compare = [](const lighting::LightingSnapshot& a, const lighting::LightingSnapshot& b, int object) {
+            double sq = 0.0, worst = 0.0;
+            long texels = 0;
+            for (const auto& fa : a.faces) {
+                const lighting::FaceModulation* fb = b.findFace(fa->object_index, fa->face);
+                if (fa->object_index != object || !fb || fb->width != fa->width || fb->height != fa->height) continue;
+                for (std::size_t k = 0; k < fa->ratio.size(); ++k) {
+                    const double d = std::abs(static_cast<double>(fa->ratio[k].y() - fb->ratio[k].y()));
+                    sq += d * d;
+                    worst = std::max(worst, d);
+                    ++texels;
+                }
+            }
+            return std::tuple{texels, texels > 0 ? std::sqrt(sq / static_cast<double>(texels)) : 0.0, worst};
+        };
+        for (const Eigen::Vector3d& at : {Eigen::Vector3d(0.0, 0.0, 0.1), Eigen::Vector3d(0.2, 0.05, 0.15), Eigen::Vector3d(-0.25, 0.3, 0.1)}) {
+            auto clustered_run = influenceSnapshot(*statue, 24, epsilon, at);
+            if (!clustered_run) return std::unexpected(clustered_run.error());
+            auto unclustered = influenceSnapshot(*statue, 0, epsilon, at);
+            if (!unclustered) return std::unexpected(unclustered.error());
+            auto finer = influenceSnapshot(*statue, 0, 0.5 * epsilon, at);
+            if (!finer) return std::unexpected(finer.error());
+            for (const auto& [object, name] : {std::pair{0, "floor"}, std::pair{2, "statue"}}) {
+                const auto [texels, rms, worst] = compare(*clustered_run, *unclustered, object);
+                const auto [finer_texels, finer_rms, finer_worst] = compare(*finer, *unclustered, object);
+                std::printf("(%5.2f, %5.2f, %5.2f)    %-7s %8ld %13.4f %13.4f %13.4f %13.4f\n", at.x(), at.y(), at.z(), name, texels, rms, worst,
+                            finer_rms, finer_worst);
+                gap.push_back({{"ball", {at.x(), at.y(), at.z()}},
+                               {"object", name},
+                               {"texels", texels},
+                               {"ratio_rms", rms},
+                               {"ratio_max", worst},
+                               {"finer_texels", finer_texels},
+                               {"finer_ratio_rms", finer_rms},
+                               {"finer_ratio_max", finer_worst}});
+            }
         }
     }
-    std::printf("the ball moving towards the statue and back, 40 moves of 5 mm each way, three times: per move, p50 (CPU: all threads)\n");
-    std::printf("%-12s %10s %13s %14s %14s %12s %10s\n", "method", "update_ms", "influence_ms", "update_cpu_ms", "cpu_ms_p95", "links",
-                "transfers");
+    std::printf("the ball moving towards the statue and back, 40 moves of 5 mm each way, %d times: per move, p50 (CPU: all threads; "
+                "the influence's phases: wall)\n",
+                bench.cluster_repeats);
+    std::printf("%-12s %10s %13s %14s %14s %14s %10s %10s %12s %10s\n", "method", "update_ms", "influence_ms", "update_cpu_ms", "cpu_ms_p95",
+                "candidates_ms", "refine_ms", "solve_ms", "links", "transfers");
     nlohmann::json moves = nlohmann::json::array();
     for (const auto& [faces, name] : {std::pair{24, "clustered"}, std::pair{0, "unclustered"}}) {
-        auto t = influenceTiming(*statue, faces);
+        if (!bench.cluster_method.empty() && bench.cluster_method != name) continue;
+        auto t = influenceTiming(*statue, faces, bench.cluster_repeats);
         if (!t) return std::unexpected(t.error());
-        std::printf("%-12s %10.2f %13.2f %14.2f %14.2f %12zu %10zu\n", name, t->update_ms_p50, t->influence_ms_p50, t->update_cpu_ms_p50,
-                    t->update_cpu_ms_p95, t->links, t->transfers);
+        std::printf("%-12s %10.2f %13.2f %14.2f %14.2f %14.2f %10.2f %10.2f %12zu %10zu\n", name, t->update_ms_p50, t->influence_ms_p50,
+                    t->update_cpu_ms_p50, t->update_cpu_ms_p95, t->candidates_ms_p50, t->refine_ms_p50, t->solve_ms_p50, t->links,
+                    t->transfers);
         moves.push_back({{"method", name},
                          {"moves", t->moves},
                          {"update_ms_p50", t->update_ms_p50},
                          {"influence_ms_p50", t->influence_ms_p50},
                          {"update_cpu_ms_p50", t->update_cpu_ms_p50},
                          {"update_cpu_ms_p95", t->update_cpu_ms_p95},
+                         {"candidates_ms_p50", t->candidates_ms_p50},
+                         {"refine_ms_p50", t->refine_ms_p50},
+                         {"solve_ms_p50", t->solve_ms_p50},
                          {"links", t->links},
                          {"cluster_transfers", t->transfers}});
     }

@@ -83,6 +83,14 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
     lighting->add_option("--scenes", lighting_options->incremental_scenes, "Incremental case: the scenes (default: desk and room)")
         ->check(CLI::IsMember({"desk", "room"}))
         ->delimiter(',');
+    lighting->add_option("--cluster-repeats", lighting_options->cluster_repeats,
+                         "Cluster case: the ball's path to the statue and back this many times (40 moves each way)")
+        ->check(CLI::Range(1, 10000))
+        ->capture_default_str();
+    lighting->add_flag("--cluster-moves-only", lighting_options->cluster_moves_only,
+                       "Cluster case: only the moves' timing (no solves against the reference, no ratios)");
+    lighting->add_option("--cluster-method", lighting_options->cluster_method, "Cluster case: time this method's moves alone")
+        ->check(CLI::IsMember({"clustered", "unclustered"}));
     lighting->footer("Cases: solver (radiosity against the path tracer, hierarchical against uniform), known (desk: "
                      "emissions, reflectances), distant (sunlit: direction), nothing (no light in the scene), ratio "
                      "(B/B~ against the simulator over masks/changed). Sequences are rendered once and kept.");

@@ -531,6 +531,11 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, obj.cache_pairs.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             const auto [b, what] = obj.cache_pairs[i];
+            // (A face's transfer through a shared cluster link: its node found whether the object
+            // meets the shaft of the face's root, which holds the base leaf's. A "no" there is read
+            // first: most of a clustered proxy's transfers near an object are not blocked.)
+            const ClusterNode* node = what >= 0 ? sharedNode(what) : nullptr;
+            if (node && (node->transfer_objects[static_cast<std::size_t>(link_position[static_cast<std::size_t>(what)])] & RayScene::virtualBit(object)) == 0) continue;
             // (What does not depend on where the object is, found once per pair.)
             auto& parts = obj.cache_sig[i];
             if (!(parts[1] >= 0.0)) {
@@ -546,16 +551,8 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             if (std::max(parts[0], 0.0) < item) continue;
             const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, obj.cache_shafts[i].shaft.a, parts[1]) : 0.0;
             if (!(sig >= item)) continue;
-            // (A face's transfer through a shared cluster link: its node found whether the object
-            // meets the shaft of the face's root, which holds the base leaf's: the answer when the
-            // base leaf is the root, a sure "no" otherwise.)
-            const ClusterNode* node = what >= 0 ? sharedNode(what) : nullptr;
-            bool meets = false;
-            if (!node) {
-                meets = cachedPairMeets(obj, i, ball);
-            } else if ((node->transfer_objects[static_cast<std::size_t>(link_position[static_cast<std::size_t>(what)])] & RayScene::virtualBit(object)) != 0) {
-                meets = links[static_cast<std::size_t>(what)].receiver == b || cachedPairMeets(obj, i, ball);
-            }
+            // (The node's answer when the base leaf is the face's root, else the leaf's own shaft.)
+            const bool meets = (node && links[static_cast<std::size_t>(what)].receiver == b) || cachedPairMeets(obj, i, ball);
             if (meets) kept[i] = sig;
         }
     });

@@ -47,6 +47,7 @@
 // parallel (TBB).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -84,6 +85,11 @@ struct InfluenceOptions {
     // the pairs among 16 x link_pairs over its faces that fall on them (false: one transmission per
     // face and link).
     bool share_cluster_links = true;
+    // Such a link's faces tested in groups of neighbours (a group's shaft first: one test for the
+    // group where an object's bounds miss it, and a move that meets no group's shaft keeps the
+    // link's answer); false: every face's shaft tested, and any move that meets the link's shaft
+    // answers it again. The same answers either way (test SharedClusterAnswersGroupedEqualPerFace).
+    bool group_cluster_faces = true;
     // The area lights' direct light is drawn per texel where the objects change it
     // (lighting/texel_direct.h): the elements' own direct transmission only feeds D's share that
     // others receive, so a penumbra splits no element and takes the pilot's estimate.
@@ -201,6 +207,13 @@ public:
     std::vector<Ball> objectBalls() const;
     // The last update's moves: the old and new bounds of the objects whose pose or presence changed.
     const std::vector<Ball>& movedBalls() const;
+    // Per cluster link that lights a clustered proxy's faces (share_cluster_links), its current
+    // answer: the faces it blocks with their class, and each class's transmission. For tests.
+    struct ClusterLinkInfo {
+        std::vector<std::pair<int, int>> blocked_faces;  // (face, class), sorted
+        std::array<double, 3> transmission{1.0, 1.0, 1.0};
+    };
+    std::vector<ClusterLinkInfo> clusterLinkInfo() const;
 
     struct Impl;
 

@@ -7,6 +7,8 @@
 // face (InfluenceOptions::share_cluster_links). Each face's correction stays w_f (t - 1) (B~_s + D_s).
 #include <tbb/parallel_for.h>
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -53,7 +55,54 @@ void VirtualInfluence::Impl::buildNodes(const std::vector<int>& origin, std::siz
     for (ClusterNode& n : nodes) {
         std::sort(n.face_leaves.begin(), n.face_leaves.end());
         n.face_leaves.erase(std::unique(n.face_leaves.begin(), n.face_leaves.end()), n.face_leaves.end());
+        buildGroups(n);
     }
+}
+
+// A node's faces in groups of at most kGroup neighbours (halving at the median centroid along the
+// widest extent), each group under a ball that holds its faces' balls (centroid, largest distance
+// to a corner: ElementShape). A face's shaft (its ball to the source's) then lies in its group's
+// shaft (a cone of balls between balls that hold the ends holds the cone between the ends:
+// lighting/shaft_index.h). The node's own shaft (the cluster's bounding ball, which holds its faces
+// but not every face's ball) is tested first: an object outside it is left out of the answer, as
+// before the groups.
+void VirtualInfluence::Impl::buildGroups(ClusterNode& node) const {
+    constexpr int kGroup = 8;
+    const auto n = static_cast<int>(node.transfers.size());
+    node.members.resize(static_cast<std::size_t>(n));
+    for (int t = 0; t < n; ++t) node.members[static_cast<std::size_t>(t)] = t;
+    node.groups.clear();
+    const auto face = [&](int t) -> const ElementShape& {
+        return shape[static_cast<std::size_t>(links[static_cast<std::size_t>(node.transfers[static_cast<std::size_t>(t)])].receiver)];
+    };
+    std::vector<std::pair<int, int>> stack;
+    if (n > 0) stack.emplace_back(0, n);
+    while (!stack.empty()) {
+        const auto [b, e] = stack.back();
+        stack.pop_back();
+        const auto first = node.members.begin() + b, last = node.members.begin() + e;
+        if (e - b <= kGroup) {
+            ClusterNode::Group g;
+            g.begin = b;
+            g.end = e;
+            for (auto it = first; it != last; ++it) g.centre += face(*it).centroid;
+            g.centre /= static_cast<double>(e - b);
+            for (auto it = first; it != last; ++it) g.radius = std::max(g.radius, (face(*it).centroid - g.centre).norm() + face(*it).radius);
+            g.radius = g.radius * (1.0 + 1e-9) + 1e-12;  // (round-off: the group's ball must hold its faces')
+            node.groups.push_back(g);
+            continue;
+        }
+        Eigen::AlignedBox3d box;
+        for (auto it = first; it != last; ++it) box.extend(face(*it).centroid);
+        int axis = 0;
+        box.sizes().maxCoeff(&axis);
+        const int mid = (b + e) / 2;
+        std::nth_element(first, node.members.begin() + mid, last, [&](int x, int y) { return face(x).centroid[axis] < face(y).centroid[axis]; });
+        stack.emplace_back(mid, e);
+        stack.emplace_back(b, mid);
+    }
+    node.member_balls.clear();
+    for (int t : node.members) node.member_balls.push_back(Ball{face(t).centroid, face(t).radius});
 }
 
 Shaft VirtualInfluence::Impl::nodeShaft(const ClusterNode& node) const {
@@ -61,8 +110,19 @@ Shaft VirtualInfluence::Impl::nodeShaft(const ClusterNode& node) const {
     return Shaft{node.centre, s.centroid, node.radius, s.radius};
 }
 
+Shaft VirtualInfluence::Impl::groupShaft(const ClusterNode& node, const ClusterNode::Group& group) const {
+    const ElementShape& s = shape[static_cast<std::size_t>(node.source)];
+    return Shaft{group.centre, s.centroid, group.radius, s.radius};
+}
+
+bool VirtualInfluence::Impl::nodeReached(const ClusterNode& node, const Ball& ball) const {
+    if (!shaftMeetsBall(nodeShaft(node), ball)) return false;
+    if (!self.options_.group_cluster_faces) return true;
+    return std::ranges::any_of(node.groups, [&](const ClusterNode::Group& g) { return shaftMeetsBall(groupShaft(node, g), ball); });
+}
+
 const ClusterNode* VirtualInfluence::Impl::sharedNode(int link) const {
-    if (!self.options_.share_cluster_links || static_cast<std::size_t>(link) >= link_node.size()) return nullptr;
+    if (nodes.empty() || !self.options_.share_cluster_links || static_cast<std::size_t>(link) >= link_node.size()) return nullptr;
     const int k = link_node[static_cast<std::size_t>(link)];
     return k >= 0 ? &nodes[static_cast<std::size_t>(k)] : nullptr;
 }
@@ -82,10 +142,11 @@ void VirtualInfluence::Impl::nodePairs(int k, ClusterNode& node) const {
         total += static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
         cdf.push_back(total);
     }
-    node.hulls.resize(node.transfers.size());
+    node.hulls.resize(node.members.size());
     const std::span<const Eigen::Vector3d> source = shape[static_cast<std::size_t>(node.source)].polygon();
-    for (std::size_t t = 0; t < node.transfers.size(); ++t) {
-        node.hulls[t] = HullPlanes::of(shape[static_cast<std::size_t>(links[static_cast<std::size_t>(node.transfers[t])].receiver)].polygon(), source);
+    for (std::size_t m = 0; m < node.members.size(); ++m) {
+        const auto t = static_cast<std::size_t>(node.members[m]);
+        node.hulls[m] = HullPlanes::of(shape[static_cast<std::size_t>(links[static_cast<std::size_t>(node.transfers[t])].receiver)].polygon(), source);
     }
     node.pair_offsets.assign(node.transfers.size() + 1, 0);
     if (cdf.empty() || !(total > 0.0)) return;
@@ -132,34 +193,41 @@ void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
     std::vector<int> ball_object;
     for (std::size_t o = 0; o < objects.size(); ++o) {
         if (!objects[o].present || !shaftMeetsBall(shaft, objects[o].ball)) continue;
-        out.mask |= RayScene::virtualBit(static_cast<int>(o));
         balls.push_back(&objects[o].ball);
         ball_object.push_back(static_cast<int>(o));
     }
-    if (out.mask == 0) return;
+    if (balls.empty()) return;
     const Eigen::Vector3d& to = shape[static_cast<std::size_t>(node.source)].centroid;
     const double to_radius = shape[static_cast<std::size_t>(node.source)].radius;
-    std::vector<int> face_class(node.transfers.size(), -1);
+    // Per transfer its class (kClasses: not blocked): the faces of the groups whose shaft meets an
+    // object's bounds are tested one by one.
+    std::vector<int> face_class(node.transfers.size(), kClasses);
+    for (std::size_t j = 0; j < balls.size(); ++j) {
+        const Ball* ball = balls[j];
+        const std::uint32_t bit = RayScene::virtualBit(ball_object[j]);
+        for (const ClusterNode::Group& g : node.groups) {
+            if (self.options_.group_cluster_faces && !shaftMeetsBall(groupShaft(node, g), *ball)) continue;
+            out.mask |= bit;
+            for (int m = g.begin; m < g.end; ++m) {
+                const Ball& fb = node.member_balls[static_cast<std::size_t>(m)];
+                if (!shaftMeetsBall(Shaft{fb.centre, to, fb.radius, to_radius}, *ball)) continue;
+                const auto t = static_cast<std::size_t>(node.members[static_cast<std::size_t>(m)]);
+                if (!node.hulls[static_cast<std::size_t>(m)].meets(*ball)) continue;
+                out.transfer_objects[t] |= bit;
+                // How near the centroids' segment passes to the ball's centre, over its radius.
+                const Eigen::Vector3d d = to - fb.centre;
+                const double u = std::clamp((ball->centre - fb.centre).dot(d) / std::max(d.squaredNorm(), 1e-300), 0.0, 1.0);
+                const double near = (fb.centre + u * d - ball->centre).norm() / std::max(ball->radius, 1e-12);
+                face_class[t] = std::min(face_class[t], near <= 0.5 ? 0 : (near <= 1.0 ? 1 : 2));
+            }
+        }
+    }
+    if (out.mask == 0) return;
     std::vector<int> blocked_transfers;
     for (std::size_t t = 0; t < node.transfers.size(); ++t) {
-        const int root = links[static_cast<std::size_t>(node.transfers[t])].receiver;
-        const ElementShape& es = shape[static_cast<std::size_t>(root)];
-        int best = kClasses;
-        for (std::size_t j = 0; j < balls.size(); ++j) {
-            const Ball* ball = balls[j];
-            if (!shaftMeetsBall(Shaft{es.centroid, to, es.radius, to_radius}, *ball)) continue;
-            if (!node.hulls[t].meets(*ball)) continue;
-            out.transfer_objects[t] |= RayScene::virtualBit(ball_object[j]);
-            // How near the centroids' segment passes to the ball's centre, over its radius.
-            const Eigen::Vector3d d = to - es.centroid;
-            const double u = std::clamp((ball->centre - es.centroid).dot(d) / std::max(d.squaredNorm(), 1e-300), 0.0, 1.0);
-            const double near = (es.centroid + u * d - ball->centre).norm() / std::max(ball->radius, 1e-12);
-            best = std::min(best, near <= 0.5 ? 0 : (near <= 1.0 ? 1 : 2));
-        }
-        if (best == kClasses) continue;
-        face_class[t] = best;
+        if (face_class[t] == kClasses) continue;
         blocked_transfers.push_back(static_cast<int>(t));
-        out.blocked_faces.emplace_back(h[root].face, best);
+        out.blocked_faces.emplace_back(h[links[static_cast<std::size_t>(node.transfers[t])].receiver].face, face_class[t]);
     }
     std::sort(out.blocked_faces.begin(), out.blocked_faces.end());
     if (out.blocked_faces.empty()) return;
@@ -196,8 +264,7 @@ void VirtualInfluence::Impl::refreshNodes(std::vector<int>& touched, bool all) {
     tbb::parallel_for(std::size_t{0}, nodes.size(), [&](std::size_t k) {
         ClusterNode& node = nodes[k];
         node.changed = false;
-        const Shaft shaft = nodeShaft(node);
-        if (!all && node.valid && !reachedByMove([&](const Ball& ball) { return shaftMeetsBall(shaft, ball); })) return;
+        if (!all && node.valid && !reachedByMove([&](const Ball& ball) { return nodeReached(node, ball); })) return;
         if (!node.pairs_made) nodePairs(static_cast<int>(k), node);
         ClusterNode fresh;
         nodeAnswer(static_cast<int>(k), fresh);
@@ -225,6 +292,17 @@ void VirtualInfluence::Impl::refreshNodes(std::vector<int>& touched, bool all) {
             }
         }
     }
+}
+
+std::vector<VirtualInfluence::ClusterLinkInfo> VirtualInfluence::clusterLinkInfo() const {
+    std::vector<ClusterLinkInfo> out;
+    for (const ClusterNode& node : impl_->nodes) {
+        ClusterLinkInfo info;
+        info.blocked_faces = node.blocked_faces;
+        for (std::size_t i = 0; i < info.transmission.size(); ++i) info.transmission[i] = node.transmission[i];
+        out.push_back(std::move(info));
+    }
+    return out;
 }
 
 }  // namespace commonlight::lighting

@@ -121,11 +121,23 @@ struct ClusterNode {
     double radius = 0.0;
     std::vector<int> transfers;                        // its base links (one per face)
     std::vector<std::pair<int, int>> face_leaves;      // (face, base leaf under the face's root), sorted
+    // Its faces in groups of neighbours, each under a ball holding the faces' own balls, so that
+    // a shaft from a group's ball to the source holds its faces' shafts: an object's bounds that
+    // miss it miss all of them (one test instead of one per face). `members`: positions in
+    // `transfers`, a group's contiguous.
+    struct Group {
+        Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+        double radius = 0.0;
+        int begin = 0, end = 0;  // members[begin, end)
+    };
+    std::vector<Group> groups;
+    std::vector<int> members;
+    std::vector<Ball> member_balls;  // by position in `members`: its face's ball (centroid, radius), read in order
     // The answer for the configuration now.
     bool valid = false;
     bool changed = false;        // in this update (its faces are walked again)
     std::uint32_t version = 0;   // counts the answers that changed
-    std::uint32_t mask = 0;      // objects whose bounds meet its shaft (ray mask bits)
+    std::uint32_t mask = 0;      // objects whose bounds meet a group's shaft (ray mask bits)
     // The faces it blocks, by how deep in an object's bounds their shaft runs: class 0 when the
     // segment between the face's and the source's centroids passes within half the ball's radius
     // of its centre, 1 within the radius, 2 beside it (the hull alone meets it). Each class has
@@ -148,7 +160,7 @@ struct ClusterNode {
     bool pairs_made = false;
     std::vector<Pair> pairs;          // by transfer (their faces were drawn in order)
     std::vector<int> pair_offsets;    // per transfer: its pairs are pairs[pair_offsets[t], pair_offsets[t + 1])
-    std::vector<HullPlanes> hulls;  // per transfer: the hull of its face and the source (made with the pairs)
+    std::vector<HullPlanes> hulls;  // by position in `members`: the hull of its face and the source (made with the pairs)
 };
 
 // A virtual object: where it is, what it is made of, what it touched.
@@ -334,6 +346,9 @@ struct VirtualInfluence::Impl {
     // --- influence_cluster.cpp ---
     void buildNodes(const std::vector<int>& origin, std::size_t first_transfer);
     Shaft nodeShaft(const ClusterNode& node) const;
+    Shaft groupShaft(const ClusterNode& node, const ClusterNode::Group& group) const;
+    void buildGroups(ClusterNode& node) const;
+    bool nodeReached(const ClusterNode& node, const Ball& ball) const;  // a group's shaft meets the ball
     // The node answers the move reached (or never made), computed again; the base leaves of the
     // faces whose answer changed are added to `touched`. `all`: every node again (a rebuild).
     void refreshNodes(std::vector<int>& touched, bool all);

@@ -80,9 +80,10 @@ struct RadiosityOptions {
     // when its receiver (or source) is closer than cluster_distance radii, or when the form
     // factor's variation over the cluster's extent, times the radiance, exceeds link_epsilon.
     // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default: with a
-    // 320-face proxy clustered the virtual objects' influence (lighting/influence.h, clusterTransfers())
-    // costs 13-16% more CPU per move than without (docs/lighting.md, `cluster` case); 24 is the
-    // setting the tests and `bench lighting --cases cluster` use.
+    // 320-face proxy clustered a move of a virtual object (lighting/influence.h, clusterTransfers())
+    // still costs more than without (2.2% more instructions; 13-16% more CPU with two threads
+    // before its faces were grouped: docs/lighting.md, `cluster` case); 24 is the setting the
+    // tests and `bench lighting --cases cluster` use.
     int cluster_min_faces = 0;
     double cluster_small_radius = 0.0;
     double cluster_max_fraction = 0.25;

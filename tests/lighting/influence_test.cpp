@@ -13,6 +13,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -601,6 +602,53 @@ TEST(Influence, SharedClusterTransmissionEqualsPerFace) {
         ASSERT_TRUE(a) << a.error().message;
         expectEqualsFresh(*shared, *fresh, config, "move " + std::to_string(step));
     }
+}
+
+// The shared answers of the cluster links that light a clustered proxy, with its faces tested in
+// groups of neighbours (InfluenceOptions::group_cluster_faces: a group's shaft first, and a move
+// that meets no group's shaft keeps the answer) against every face's shaft tested at every move
+// that meets the link's: the same blocked faces, classes and transmissions, link by link, over
+// jumps to random places around the statue and 5 mm moves from each (a group ball that does not
+// hold its faces' balls, or a move that meets a group's shaft but keeps the answer, fails).
+TEST(Influence, SharedClusterAnswersGroupedEqualPerFace) {
+    auto read = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/statue/scene.yaml");
+    ASSERT_TRUE(read) << read.error().message;
+    const Scene& scene = *read;
+    EstimatorOptions options;
+    options.refine_unobserved = true;
+    options.radiosity.cluster_min_faces = 24;
+    EstimatorOptions per_face = options;
+    per_face.influence.group_cluster_faces = false;
+    auto grouped = make(scene, options);
+    auto every = make(scene, per_face);
+    ASSERT_GT(grouped->radiosity().clusterLinks().size(), 0u) << "the sphere is clustered";
+    const Eigen::Vector3d statue(0.0, 0.3, 0.2);
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> unit(-1.0, 1.0), gap(0.0, 0.3);
+    Config config = sceneConfig(scene);
+    long blocked = 0, compared = 0;
+    for (int jump = 0; jump < 10; ++jump) {
+        Eigen::Vector3d dir(unit(rng), unit(rng), 0.5 * unit(rng));
+        dir.normalize();
+        Eigen::Vector3d at = statue + (0.2 + 0.08 + 0.002 + gap(rng)) * dir;
+        at.z() = std::max(at.z(), 0.081);
+        const Eigen::Vector3d step = 0.005 * (statue - at).normalized();
+        for (int move = 0; move < 3; ++move, at += step) {
+            config.poses[0] = Rigid3d::fromRpyDeg(at, Eigen::Vector3d::Zero());
+            ASSERT_TRUE(apply(*grouped, config));
+            ASSERT_TRUE(apply(*every, config));
+            const auto a = grouped->influence().clusterLinkInfo();
+            const auto b = every->influence().clusterLinkInfo();
+            ASSERT_EQ(a.size(), b.size());
+            for (std::size_t k = 0; k < a.size(); ++k) {
+                ASSERT_EQ(a[k].blocked_faces, b[k].blocked_faces) << "link " << k << ", ball at " << at.transpose();
+                ASSERT_EQ(a[k].transmission, b[k].transmission) << "link " << k << ", ball at " << at.transpose();
+                blocked += static_cast<long>(a[k].blocked_faces.size());
+            }
+            ++compared;
+        }
+    }
+    EXPECT_GT(blocked, 100 * compared) << "the ball blocks cluster links to the sphere's faces";
 }
 
 }  // namespace
