@@ -126,8 +126,9 @@ const std::vector<CaseSpec>& cases() {
     return list;
 }
 
-std::string renderKey(const CaseSpec& c, int spp) {
+std::string renderKey(const CaseSpec& c, int spp, std::uint64_t seed) {
     std::string key = std::string("case=") + c.name + " spp=" + std::to_string(spp) + " version=2";
+    if (seed != 1) key += " seed=" + std::to_string(seed);  // (older renders, seed 1, stay valid)
     // Motion blur: rendered since the ground truth has the mid-exposure pose (the blurred image's
     // instant); older renders of it are compared with the start of the exposure and are redone.
     if (c.motion_blur) key += " truth=mid-exposure";
@@ -150,7 +151,7 @@ Result<fs::path> ensureSequence(const CaseSpec& c, const BenchTrackingOptions& o
     {
         std::ifstream in(marker);
         std::string key;
-        if (in && std::getline(in, key) && key == renderKey(c, spp)) return out;
+        if (in && std::getline(in, key) && key == renderKey(c, spp, options.seed)) return out;
     }
     std::error_code ec;
     fs::remove_all(out, ec);
@@ -159,6 +160,7 @@ Result<fs::path> ensureSequence(const CaseSpec& c, const BenchTrackingOptions& o
     mocks::sim::SimulationOptions sim;
     sim.out = out;
     sim.spp = spp;
+    sim.seed = options.seed;
     sim.max_depth = 2;  // direct light and one bounce: enough for tracking, a third of the time
     sim.frames = c.frames;
     sim.write_composite = false;
@@ -197,7 +199,7 @@ Result<fs::path> ensureSequence(const CaseSpec& c, const BenchTrackingOptions& o
                                              stopToken()));
     progress.finish();
     if (summary.stopped) return fail(ErrorCode::kCancelled, "stopped while rendering " + out.string());
-    std::ofstream(marker) << renderKey(c, spp) << "\n";
+    std::ofstream(marker) << renderKey(c, spp, options.seed) << "\n";
     return out;
 }
 
