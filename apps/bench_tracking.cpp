@@ -321,6 +321,9 @@ struct SingleTagComparison {
     // The detector alone (what the tracking stage's time is compared with), and with libapriltag's
     // estimate_tag_pose for every tag (what a user of libapriltag runs for poses).
     ErrorStats detector_only, detector_with_pose;
+    // The response exponent each aligned tag measured (TagAlignResult::response_exponent_measured;
+    // 0: not measured).
+    std::vector<double> response_exponent;
 };
 
 SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
@@ -377,6 +380,7 @@ SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
                 const tracking::TagPattern* pattern = patterns.get(d.id);
                 Rigid3d aligned = refined->cam_from_tag, fixed = refined->cam_from_tag;
                 if (pattern) {
+                    align_options.albedo_ratio = item->albedo_black / item->albedo_white;
                     tracking::TagAlignOptions no_dilation = align_options;
                     no_dilation.estimate_dilation = false;
                     auto f = tracking::alignTagPose(lc.frames[i].view(), lc.camera, *pattern, item->size, fixed, no_dilation);
@@ -384,6 +388,7 @@ SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
                     auto a = tracking::alignTagPose(lc.frames[i].view(), lc.camera, *pattern, item->size, aligned,
                                                     align_options);
                     if (a.ok) aligned = a.cam_from_tag;
+                    if (a.ok && a.response_exponent_measured > 0) out.response_exponent.push_back(a.response_exponent_measured);
                 }
                 out.ours_aligned.add(aligned, truth);
                 out.ours_aligned_fixed.add(fixed, truth);
@@ -602,6 +607,11 @@ int runBenchTracking(const BenchTrackingOptions& options) {
                     single.reference.rangeBiasPct(), single.ours_refined.rangeBiasPct(),
                     single.ours_aligned_fixed.rangeBiasPct(), single.ours_aligned.rangeBiasPct(),
                     run_filter->single_tags.rangeBiasPct());
+        if (!single.response_exponent.empty()) {
+            std::printf("response exponent measured by the aligned tags: p5 %.3f, p50 %.3f, p95 %.3f\n",
+                        ErrorStats::pct(single.response_exponent, 5), ErrorStats::pct(single.response_exponent, 50),
+                        ErrorStats::pct(single.response_exponent, 95));
+        }
         std::printf("single-tag translation p50: ours aligned %.2f mm, in tracker %.2f mm vs libapriltag %.2f mm: %s\n",
                     ours_mm, tracker_mm, ref_mm, std::max(ours_mm, tracker_mm) <= ref_mm ? "at most (met)" : "MORE (missed)");
         const Reference mine{single.ours_aligned.rangeBiasPct(), ours_p50, run_filter->single_tags.rangeBiasPct(),
@@ -637,6 +647,11 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         j["single_tag_aligned_without_dilation"] = single.ours_aligned_fixed.toJson();
         j["single_tag"] = single.ours_aligned.toJson();
         j["single_tag_in_tracker"] = run_filter->single_tags.toJson();
+        if (!single.response_exponent.empty()) {
+            j["single_tag_response_exponent"] = {{"p5", ErrorStats::pct(single.response_exponent, 5)},
+                                                 {"p50", ErrorStats::pct(single.response_exponent, 50)},
+                                                 {"p95", ErrorStats::pct(single.response_exponent, 95)}};
+        }
         j["bundle"] = run_bundle->camera.toJson();
         j["bundle_filter"] = run_filter->camera.toJson();
         j["bundle_filter_edges"] = run_edges->camera.toJson();
