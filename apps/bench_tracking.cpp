@@ -388,7 +388,9 @@ SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
                     auto a = tracking::alignTagPose(lc.frames[i].view(), lc.camera, *pattern, item->size, aligned,
                                                     align_options);
                     if (a.ok) aligned = a.cam_from_tag;
-                    if (a.ok && a.response_exponent_measured > 0) out.response_exponent.push_back(a.response_exponent_measured);
+                    if (a.ok && a.response_exponent_measured > 0) {
+                        out.response_exponent.push_back(a.response_exponent_measured);
+                    }
                 }
                 out.ours_aligned.add(aligned, truth);
                 out.ours_aligned_fixed.add(fixed, truth);

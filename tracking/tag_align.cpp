@@ -4,7 +4,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
 #include <cstdlib>
 #include <limits>
 #include <optional>
@@ -91,9 +90,10 @@ namespace {
 
 // The tag's black and white levels against its albedos: the pixel nearest each cell's centre (at
 // least 1.5 px from the cell's boundaries on cells of 3 px), the lower quartile of the black
-// cells' codes and the upper quartile of the white ones'. `exponent`: e with (black / white through `lin`)^e = the albedo ratio;
-// `gamma`: g with (black code / white code)^g = the albedo ratio. nullopt when too few cells are
-// in the image or the levels say nothing (not darker, saturated, zero).
+// cells' codes and the upper quartile of the white ones'. `exponent`: e with (black / white
+// through `lin`)^e = the albedo ratio; `gamma`: g with (black code / white code)^g = the albedo
+// ratio. nullopt when too few cells are in the image or the levels say nothing (not darker,
+// saturated, zero).
 struct ResponseMeasure {
     double exponent, gamma;
 };

@@ -112,14 +112,14 @@ struct TagAlignOptions {
     // 73 % of it for a linear camera read as sRGB), off the steepest point, where the sensor's
     // noise and the pixel grid's phase move it more. The mismatch is measured on the tag itself,
     // from the start pose: the ratio of its black cells' level to its white cells' (the pixels at
-    // their centres: the darker quarter of the black cells, the brighter quarter of the white) against the ratio of its albedos (known from the scene, as the
-    // lighting uses them). Through the assumed linearization the measured ratio, raised to an
-    // exponent e, gives the albedos' ratio; a gross mismatch (e beyond response_min_change either
-    // way) replaces the linearization, for this tag, by the pure gamma curve that maps the two
-    // levels' codes onto the albedos' ratio (exact for a linear or a gamma camera; sRGB is about
-    // gamma 2.2-2.4). A moderate mismatch is kept: the print's real contrast differs from the
-    // scene's albedos by some, and gamma 1.8 or 2.6 read as sRGB costs little (1.0-1.1x the
-    // matched case's rotation error).
+    // their centres: the darker quarter of the black cells, the brighter quarter of the white)
+    // against the ratio of its albedos (known from the scene, as the lighting uses them). Through
+    // the assumed linearization the measured ratio, raised to an exponent e, gives the albedos'
+    // ratio; a gross mismatch (e beyond response_min_change either way) replaces the
+    // linearization, for this tag, by the pure gamma curve that maps the two levels' codes onto
+    // the albedos' ratio (exact for a linear or a gamma camera; sRGB reads as gamma 1.9-2.4). A
+    // moderate mismatch is kept: the print's real contrast differs from the scene's albedos by
+    // some, and gamma 1.8 or 2.6 read as sRGB costs little (1.0-1.1x the matched rotation error).
     bool estimate_response = true;
     double albedo_ratio = 0.05;         // the tag's black albedo over its white one (scene defaults 0.04 / 0.8)
     double response_min_change = 1.3;   // e within [1 / this, this]: the assumed response stays

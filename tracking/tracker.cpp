@@ -612,7 +612,8 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                         continue;
                     }
                     std::optional<TrackedTag> tag =
-                        alignedKnownTag(align(*pattern, t.item->size, t.cam_from_tag, t.item), t.item->id, t.item->size, s.camera);
+                        alignedKnownTag(align(*pattern, t.item->size, t.cam_from_tag, t.item), t.item->id, t.item->size,
+                                        s.camera);
                     if (!tag) {
                         rest.push_back(std::move(t));
                         continue;
