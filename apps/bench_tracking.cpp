@@ -126,8 +126,9 @@ const std::vector<CaseSpec>& cases() {
     return list;
 }
 
-std::string renderKey(const CaseSpec& c, int spp) {
+std::string renderKey(const CaseSpec& c, int spp, std::uint64_t seed) {
     std::string key = std::string("case=") + c.name + " spp=" + std::to_string(spp) + " version=2";
+    if (seed != 1) key += " seed=" + std::to_string(seed);  // (older renders, seed 1, stay valid)
     // Motion blur: rendered since the ground truth has the mid-exposure pose (the blurred image's
     // instant); older renders of it are compared with the start of the exposure and are redone.
     if (c.motion_blur) key += " truth=mid-exposure";
@@ -150,7 +151,7 @@ Result<fs::path> ensureSequence(const CaseSpec& c, const BenchTrackingOptions& o
     {
         std::ifstream in(marker);
         std::string key;
-        if (in && std::getline(in, key) && key == renderKey(c, spp)) return out;
+        if (in && std::getline(in, key) && key == renderKey(c, spp, options.seed)) return out;
     }
     std::error_code ec;
     fs::remove_all(out, ec);
@@ -159,6 +160,7 @@ Result<fs::path> ensureSequence(const CaseSpec& c, const BenchTrackingOptions& o
     mocks::sim::SimulationOptions sim;
     sim.out = out;
     sim.spp = spp;
+    sim.seed = options.seed;
     sim.max_depth = 2;  // direct light and one bounce: enough for tracking, a third of the time
     sim.frames = c.frames;
     sim.write_composite = false;
@@ -197,7 +199,7 @@ Result<fs::path> ensureSequence(const CaseSpec& c, const BenchTrackingOptions& o
                                              stopToken()));
     progress.finish();
     if (summary.stopped) return fail(ErrorCode::kCancelled, "stopped while rendering " + out.string());
-    std::ofstream(marker) << renderKey(c, spp) << "\n";
+    std::ofstream(marker) << renderKey(c, spp, options.seed) << "\n";
     return out;
 }
 
@@ -319,6 +321,9 @@ struct SingleTagComparison {
     // The detector alone (what the tracking stage's time is compared with), and with libapriltag's
     // estimate_tag_pose for every tag (what a user of libapriltag runs for poses).
     ErrorStats detector_only, detector_with_pose;
+    // The response exponent each aligned tag measured (TagAlignResult::response_exponent_measured;
+    // 0: not measured).
+    std::vector<double> response_exponent;
 };
 
 SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
@@ -375,6 +380,7 @@ SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
                 const tracking::TagPattern* pattern = patterns.get(d.id);
                 Rigid3d aligned = refined->cam_from_tag, fixed = refined->cam_from_tag;
                 if (pattern) {
+                    align_options.albedo_ratio = item->albedo_black / item->albedo_white;
                     tracking::TagAlignOptions no_dilation = align_options;
                     no_dilation.estimate_dilation = false;
                     auto f = tracking::alignTagPose(lc.frames[i].view(), lc.camera, *pattern, item->size, fixed, no_dilation);
@@ -382,6 +388,9 @@ SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
                     auto a = tracking::alignTagPose(lc.frames[i].view(), lc.camera, *pattern, item->size, aligned,
                                                     align_options);
                     if (a.ok) aligned = a.cam_from_tag;
+                    if (a.ok && a.response_exponent_measured > 0) {
+                        out.response_exponent.push_back(a.response_exponent_measured);
+                    }
                 }
                 out.ours_aligned.add(aligned, truth);
                 out.ours_aligned_fixed.add(fixed, truth);
@@ -612,6 +621,11 @@ int runBenchTracking(const BenchTrackingOptions& options) {
                     single.reference.rangeBiasPct(), single.ours_refined.rangeBiasPct(),
                     single.ours_aligned_fixed.rangeBiasPct(), single.ours_aligned.rangeBiasPct(),
                     run_filter->single_tags.rangeBiasPct());
+        if (!single.response_exponent.empty()) {
+            std::printf("response exponent measured by the aligned tags: p5 %.3f, p50 %.3f, p95 %.3f\n",
+                        ErrorStats::pct(single.response_exponent, 5), ErrorStats::pct(single.response_exponent, 50),
+                        ErrorStats::pct(single.response_exponent, 95));
+        }
         std::printf("single-tag translation p50: ours aligned %.2f mm, in tracker %.2f mm vs libapriltag %.2f mm: %s\n",
                     ours_mm, tracker_mm, ref_mm, std::max(ours_mm, tracker_mm) <= ref_mm ? "at most (met)" : "MORE (missed)");
         const Reference mine{single.ours_aligned.rangeBiasPct(), ours_p50, run_filter->single_tags.rangeBiasPct(),
@@ -647,6 +661,11 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         j["single_tag_aligned_without_dilation"] = single.ours_aligned_fixed.toJson();
         j["single_tag"] = single.ours_aligned.toJson();
         j["single_tag_in_tracker"] = run_filter->single_tags.toJson();
+        if (!single.response_exponent.empty()) {
+            j["single_tag_response_exponent"] = {{"p5", ErrorStats::pct(single.response_exponent, 5)},
+                                                 {"p50", ErrorStats::pct(single.response_exponent, 50)},
+                                                 {"p95", ErrorStats::pct(single.response_exponent, 95)}};
+        }
         j["bundle"] = run_bundle->camera.toJson();
         j["bundle_filter"] = run_filter->camera.toJson();
         j["bundle_filter_edges"] = run_edges->camera.toJson();

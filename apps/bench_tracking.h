@@ -2,6 +2,7 @@
 // simulated camera (docs/tracking.md, "Benchmark").
 #pragma once
 
+#include <cstdint>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -16,6 +17,7 @@ struct BenchTrackingOptions {
     std::vector<std::string> cases;                  // empty: all
     int max_frames = 0;                              // 0: every frame of each sequence
     int spp = 4;                                     // samples per pixel of rendered sequences
+    std::uint64_t seed = 1;                          // the simulator's sample and noise seed
     std::string json;
     std::string plot;
 };

@@ -28,6 +28,11 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
         ->capture_default_str();
     tracking->add_option("--data", options->data_dir, "Where rendered sequences are kept between runs")
         ->capture_default_str();
+    tracking->add_option("--seed", options->seed,
+                         "Seed of the simulated camera's samples and noise for rendered sequences (another seed: "
+                         "other renders of the same views; use another --data folder)")
+        ->check(CLI::PositiveNumber)
+        ->capture_default_str();
     tracking->add_option("--source", options->source_dir, "The repository (for data/); default: . or $COMMONLIGHT_SOURCE_DIR");
     tracking->footer("Cases: desk (the bundled sample), desk720, small, fronto, oblique75, blur, wide, occluded. "
                      "Sequences other than desk are rendered once with the simulated camera.");

@@ -23,6 +23,14 @@ const Linearizer& Linearizer::get(bool srgb) {
     return srgb ? kSrgb : kLinear;
 }
 
+Linearizer Linearizer::gamma(double g) {
+    std::array<float, 256> linear_of_code{};
+    for (int v = 0; v < 256; ++v) {
+        linear_of_code[static_cast<std::size_t>(v)] = static_cast<float>(std::pow(v / 255.0, g));
+    }
+    return Linearizer(linear_of_code);
+}
+
 namespace {
 
 // Whether the bilinear sample at (x, y) is inside the image (with a one-pixel margin).

@@ -23,6 +23,8 @@ struct Linearizer {
     explicit Linearizer(const std::array<float, 256>& linear_of_code);
     // The two tables, built once (256 pow() calls each) instead of per tag and frame.
     static const Linearizer& get(bool srgb);
+    // A pure gamma curve: the linear value of code v is (v / 255)^g.
+    static Linearizer gamma(double g);
 };
 
 // Along the line p + s * n (n unit), s in [-range, range] pixels: where the intensity crosses

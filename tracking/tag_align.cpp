@@ -6,6 +6,8 @@
 #include <cmath>
 #include <cstdlib>
 #include <limits>
+#include <optional>
+#include <vector>
 
 #include <Eigen/Cholesky>
 
@@ -84,6 +86,61 @@ const TagPattern* TagPatternCache::get(int id) {
     return it->second.get();
 }
 
+namespace {
+
+// The tag's black and white levels against its albedos: the pixel nearest each cell's centre (at
+// least 1.5 px from the cell's boundaries on cells of 3 px), the lower quartile of the black
+// cells' codes and the upper quartile of the white ones'. `exponent`: e with (black / white
+// through `lin`)^e = the albedo ratio; `gamma`: g with (black code / white code)^g = the albedo
+// ratio. nullopt when too few cells are in the image or the levels say nothing (not darker,
+// saturated, zero).
+struct ResponseMeasure {
+    double exponent, gamma;
+};
+
+std::optional<ResponseMeasure> measureResponse(const ImageView& gray8, const CameraModel& camera,
+                                               const TagPattern& pattern, double size, const Rigid3d& cam_from_tag,
+                                               const Linearizer& lin, const TagAlignOptions& options) {
+    if (!(options.albedo_ratio > 0.0 && options.albedo_ratio < 1.0)) return std::nullopt;
+    thread_local std::vector<std::uint8_t> black, white;
+    black.clear();
+    white.clear();
+    const int total = pattern.total();
+    const double c = pattern.cell(), half = 0.5 * total * c;
+    for (int row = 0; row < total; ++row) {
+        for (int col = 0; col < total; ++col) {
+            const Eigen::Vector3d centre(size * (-half + (col + 0.5) * c), size * (half - (row + 0.5) * c), 0.0);
+            const auto px = camera.project(cam_from_tag * centre);
+            if (!px) continue;
+            const long x = std::lround(px->x()), y = std::lround(px->y());
+            if (x < 0 || y < 0 || x >= gray8.width || y >= gray8.height) continue;
+            (pattern.white(col, row) ? white : black)
+                .push_back(gray8.data[static_cast<std::size_t>(y) * gray8.stride + static_cast<std::size_t>(x)]);
+        }
+    }
+    if (static_cast<int>(black.size()) < options.response_min_cells ||
+        static_cast<int>(white.size()) < options.response_min_cells) {
+        return std::nullopt;
+    }
+    // The darker quarter of the black cells and the brighter quarter of the white ones: cells
+    // inside larger regions of their colour, which a blur of a small tag does not reach.
+    const auto quantile = [](std::vector<std::uint8_t>& v, double q) {
+        const auto k = static_cast<std::ptrdiff_t>(q * static_cast<double>(v.size() - 1) + 0.5);
+        std::nth_element(v.begin(), v.begin() + k, v.end());
+        return v[static_cast<std::size_t>(k)];
+    };
+    const int b = quantile(black, 0.25), w = quantile(white, 0.75);
+    if (w >= 255 || b <= 0 || !(b < w)) return std::nullopt;
+    const double lb = lin.lut[b], lw = lin.lut[w];
+    if (!(lb > 0.0 && lw > lb)) return std::nullopt;
+    const double log_ratio = std::log(options.albedo_ratio);
+    const double e = log_ratio / std::log(lb / lw), g = log_ratio / std::log(static_cast<double>(b) / w);
+    if (!std::isfinite(e) || !std::isfinite(g)) return std::nullopt;
+    return ResponseMeasure{e, std::clamp(g, options.min_response_gamma, options.max_response_gamma)};
+}
+
+}  // namespace
+
 TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, const TagPattern& pattern, double size,
                             const Rigid3d& cam_from_tag, const TagAlignOptions& options) {
     TagAlignResult out;
@@ -107,7 +164,20 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
     }
     out.measured = true;
     const double range = std::max(options.search_px, 0.35 * cell_px);
-    const Linearizer& lin = options.linearizer ? *options.linearizer : Linearizer::get(options.srgb);
+    const Linearizer& base_lin = options.linearizer ? *options.linearizer : Linearizer::get(options.srgb);
+    // The response mismatch, from the tag's black and white cells against their known albedos:
+    // the edges are then found through the corrected linearization (tag_align.h).
+    std::optional<Linearizer> corrected;
+    if (options.estimate_response && cell_px >= options.response_min_cell_px) {
+        if (const auto m = measureResponse(gray8, camera, pattern, size, cam_from_tag, base_lin, options)) {
+            out.response_exponent_measured = m->exponent;
+            if (std::max(m->exponent, 1.0 / m->exponent) > options.response_min_change) {
+                out.response_gamma = m->gamma;
+                corrected = Linearizer::gamma(m->gamma);
+            }
+        }
+    }
+    const Linearizer& lin = corrected ? *corrected : base_lin;
     using Matrix7d = Eigen::Matrix<double, 7, 7>;
     using Vector7d = Eigen::Matrix<double, 7, 1>;
     // Cells too small for a clearance from the L junctions: the blur reaches every point of a

@@ -107,6 +107,25 @@ struct TagAlignOptions {
     double corner_clearance_min_aspect = 0.5;
     // The camera\'s response when it is neither sRGB nor linear (--response): replaces `srgb`.
     std::shared_ptr<const Linearizer> linearizer;
+    // A response other than the assumed one (a linear camera read as sRGB, an ISP's own curve):
+    // the halfway crossing of a blurred edge is then not the middle of its linear step (about
+    // 73 % of it for a linear camera read as sRGB), off the steepest point, where the sensor's
+    // noise and the pixel grid's phase move it more. The mismatch is measured on the tag itself,
+    // from the start pose: the ratio of its black cells' level to its white cells' (the pixels at
+    // their centres: the darker quarter of the black cells, the brighter quarter of the white)
+    // against the ratio of its albedos (known from the scene, as the lighting uses them). Through
+    // the assumed linearization the measured ratio, raised to an exponent e, gives the albedos'
+    // ratio; a gross mismatch (e beyond response_min_change either way) replaces the
+    // linearization, for this tag, by the pure gamma curve that maps the two levels' codes onto
+    // the albedos' ratio (exact for a linear or a gamma camera; sRGB reads as gamma 1.9-2.4). A
+    // moderate mismatch is kept: the print's real contrast differs from the scene's albedos by
+    // some, and gamma 1.8 or 2.6 read as sRGB costs little (1.0-1.1x the matched rotation error).
+    bool estimate_response = true;
+    double albedo_ratio = 0.05;         // the tag's black albedo over its white one (scene defaults 0.04 / 0.8)
+    double response_min_change = 1.3;   // e within [1 / this, this]: the assumed response stays
+    double response_min_cell_px = 3.0;  // smaller cells: no pixel at a cell's centre is clear of the blur
+    int response_min_cells = 12;        // black and white cells each, in the image
+    double min_response_gamma = 0.3, max_response_gamma = 4.0;
 };
 
 struct TagAlignResult {
@@ -122,6 +141,10 @@ struct TagAlignResult {
     double dilation_cells = 0.0;  // fitted dilation: > 0 the black regions look grown, in cells
     double dilation_px = 0.0;     // the same in image pixels (times the tag's mean cell size)
     double cell_px = 0.0;         // the tag's cell size in the image (the shorter side's), pixels
+    // The response mismatch measured (TagAlignOptions::estimate_response; 0: not measured) and
+    // the gamma of the linearization that replaced the assumed one (0: none).
+    double response_exponent_measured = 0.0;
+    double response_gamma = 0.0;
 };
 
 TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, const TagPattern& pattern, double size,

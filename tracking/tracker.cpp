@@ -267,9 +267,17 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
     t0 = Clock::now();
     c0 = threadCpuMs();
     out.tags.reserve(detections.size());
-    const auto align = [&](const TagPattern& pattern, double size, const Rigid3d& start_pose) {
+    // `item`: the scene's tag (its albedos tell the alignment the print's contrast), or null.
+    const auto align = [&](const TagPattern& pattern, double size, const Rigid3d& start_pose, const TagItem* item) {
         const double a0 = threadCpuMs();
-        TagAlignResult a = alignTagPose(gray8, s.camera, pattern, size, start_pose, s.options.align);
+        TagAlignResult a;
+        if (item && item->albedo_white > 0.0) {
+            TagAlignOptions options = s.options.align;
+            options.albedo_ratio = item->albedo_black / item->albedo_white;
+            a = alignTagPose(gray8, s.camera, pattern, size, start_pose, options);
+        } else {
+            a = alignTagPose(gray8, s.camera, pattern, size, start_pose, s.options.align);
+        }
         out.times.align_cpu_ms += threadCpuMs() - a0;
         return a;
     };
@@ -333,7 +341,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             // Aligned from IPPE's pose; where that fails (or the prediction did not choose), the
             // tag is solved again with the near start refined and goes on as it would have.
             if (pose->choice == PoseChoice::kPrediction) {
-                const TagAlignResult a = align(*pattern, size, pose->cam_from_tag);
+                const TagAlignResult a = align(*pattern, size, pose->cam_from_tag, item);
                 if (a.ok && adopt(a)) pose->candidates[0] = {a.cam_from_tag, a.rms_px};
             }
             if (!tag.aligned) {
@@ -356,7 +364,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
         if (tag.aligned) {
             // Done above.
         } else if (pattern && pose->choice == PoseChoice::kPrediction) {
-            const TagAlignResult a = align(*pattern, size, pose->cam_from_tag);
+            const TagAlignResult a = align(*pattern, size, pose->cam_from_tag, item);
             if (a.ok && adopt(a)) pose->candidates[0] = {a.cam_from_tag, a.rms_px};
         } else if (pattern) {
             // Nothing predicted: the cell pattern chooses. Both candidates (the second one, when
@@ -371,8 +379,8 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             const Rigid3d other_start = pose->candidates.size() > 1 ? pose->candidates[1].cam_from_tag
                                                                       : planarMirror(pose->candidates[0].cam_from_tag);
             TagAlignResult a[2];
-            a[0] = align(*pattern, size, pose->candidates[0].cam_from_tag);
-            if (a[0].measured) a[1] = align(*pattern, size, other_start);
+            a[0] = align(*pattern, size, pose->candidates[0].cam_from_tag, item);
+            if (a[0].measured) a[1] = align(*pattern, size, other_start, item);
             if (a[0].measured && !a[1].measured) {
                 // One-sided: the other candidate's pattern could not be measured (its cells under
                 // min_cell_px), so the pattern chose nothing. The corners' choice stands, with
@@ -604,7 +612,8 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                         continue;
                     }
                     std::optional<TrackedTag> tag =
-                        alignedKnownTag(align(*pattern, t.item->size, t.cam_from_tag), t.item->id, t.item->size, s.camera);
+                        alignedKnownTag(align(*pattern, t.item->size, t.cam_from_tag, t.item), t.item->id, t.item->size,
+                                        s.camera);
                     if (!tag) {
                         rest.push_back(std::move(t));
                         continue;

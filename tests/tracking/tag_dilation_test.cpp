@@ -138,6 +138,8 @@ Outcome align(const Conditions& c, bool tracker_srgb, const Rigid3d& truth) {
     TagAlignOptions options;
     options.srgb = tracker_srgb;
     options.iterations = 8;
+    // The dilation alone (the response measured and corrected: AlignmentMeasuresTheResponseMismatch).
+    options.estimate_response = false;
     Outcome out;
     TagAlignOptions fixed = options;
     fixed.estimate_dilation = false;
@@ -358,6 +360,70 @@ TEST(TagDilation, StronglyForeshortenedTagsKeepThePointsNearLJunctions) {
         EXPECT_EQ(b.points, a.points);
         EXPECT_LT(c.points, b.points);
         EXPECT_TRUE(b.cam_from_tag.translation.isApprox(a.cam_from_tag.translation, 1e-12));
+    }
+}
+
+TEST(TagDilation, AlignmentMeasuresTheResponseMismatch) {
+    // Read through a response other than the camera's, a blurred step is bent: its halfway
+    // crossing is not the middle of the linear step (a linear camera read as sRGB: about 73 % of
+    // it), where the edge is steepest and noise moves it least. The alignment measures the tag's
+    // black and white cells against its albedos (0.04 / 0.8, the scene's defaults) and, on a
+    // gross mismatch, finds the edges through the gamma curve those levels imply: the edges are
+    // then at the middle of the linear step, so the response's share of the dilation is gone. A
+    // print's ink spread is no response, and a moderate mismatch keeps the assumed curve.
+    struct ResponseCase {
+        const char* name;
+        Conditions conditions;
+        bool tracker_srgb;
+        double gamma_lo, gamma_hi;  // the gamma expected to replace the assumed curve (0: none)
+    };
+    const ResponseCase cases[] = {
+        {"matched sRGB", {}, true, 0, 0},
+        {"ink +10% of a cell", {.ink_spread_cells = 0.10}, true, 0, 0},
+        {"ink -8% of a cell", {.ink_spread_cells = -0.08}, true, 0, 0},
+        {"gamma 1.8 read as sRGB", {.response = SensorResponse::kGamma, .gamma = 1.8}, true, 0, 0},
+        {"linear read as sRGB", {.response = SensorResponse::kLinear}, true, 0.9, 1.2},
+        {"sRGB read as linear", {}, false, 2.0, 2.6},
+    };
+    auto pattern = TagPattern::make("tag36h11", kId);
+    ASSERT_TRUE(pattern);
+    for (const Rigid3d& truth : {tagPose(0.9, 25, 10), tagPose(1.3, 50, -15)}) {
+        for (const ResponseCase& k : cases) {
+            SCOPED_TRACE(k.name);
+            const Image image = renderTag(truth, k.conditions);
+            Rigid3d start = truth;
+            start.translation *= 1.015;
+            TagAlignOptions options;
+            options.srgb = k.tracker_srgb;
+            options.iterations = 8;
+            TagAlignOptions assumed = options;
+            assumed.estimate_response = false;
+            const TagAlignResult a = alignTagPose(image.view(), camera(), *pattern, kSize, start, assumed);
+            const TagAlignResult b = alignTagPose(image.view(), camera(), *pattern, kSize, start, options);
+            ASSERT_TRUE(a.ok && b.ok) << a.reason << b.reason;
+            std::printf("  %-24s at %.1f m: mismatch %.3f, gamma %.3f, dilation %+.3f -> %+.3f px, range %+.3f%% -> "
+                        "%+.3f%%, rotation %.3f -> %.3f deg\n",
+                        k.name, truth.translation.norm(), b.response_exponent_measured, b.response_gamma,
+                        a.dilation_px, b.dilation_px, rangeErrorPct(a.cam_from_tag, truth),
+                        rangeErrorPct(b.cam_from_tag, truth), rotationErrorDeg(a.cam_from_tag, truth),
+                        rotationErrorDeg(b.cam_from_tag, truth));
+            EXPECT_EQ(a.response_exponent_measured, 0.0);
+            EXPECT_EQ(a.response_gamma, 0.0);
+            EXPECT_GT(b.response_exponent_measured, 0.0);
+            if (k.gamma_hi == 0) {
+                EXPECT_EQ(b.response_gamma, 0.0);
+                EXPECT_NEAR(b.response_exponent_measured, k.conditions.response == SensorResponse::kGamma ? 0.9 : 1.0,
+                            0.25);
+                // The assumed curve, untouched: the same fit.
+                EXPECT_TRUE(b.cam_from_tag.translation.isApprox(a.cam_from_tag.translation, 1e-12));
+            } else {
+                EXPECT_GE(b.response_gamma, k.gamma_lo);
+                EXPECT_LE(b.response_gamma, k.gamma_hi);
+                // The response's share of the dilation is gone (to a quarter at most).
+                EXPECT_LT(std::abs(b.dilation_px), std::abs(a.dilation_px) / 4);
+                EXPECT_LT(std::abs(rangeErrorPct(b.cam_from_tag, truth)), 0.3);
+            }
+        }
     }
 }
 
