@@ -525,6 +525,14 @@ TEST(Influence, ClusteredRealMeshIsShadowedAsUnclustered) {
     EXPECT_LT(std::sqrt(sq / static_cast<double>(texels)), 0.02) << "ratio RMS, clustered against unclustered";
 }
 
+// The statue scene's sphere clustered (the cluster tests below).
+EstimatorOptions statueClusteredOptions() {
+    EstimatorOptions options;
+    options.refine_unobserved = true;
+    options.radiosity.cluster_min_faces = 24;
+    return options;
+}
+
 // A virtual ball partly blocking the cluster links that light a clustered real sphere: each
 // cluster link's per-face transfers share one transmission per class of faces (by how deep in
 // the ball their shaft runs; InfluenceOptions::share_cluster_links) instead of one per face and
@@ -539,9 +547,7 @@ TEST(Influence, SharedClusterTransmissionEqualsPerFace) {
     auto read = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/statue/scene.yaml");
     ASSERT_TRUE(read) << read.error().message;
     const Scene& scene = *read;
-    EstimatorOptions options;
-    options.refine_unobserved = true;
-    options.radiosity.cluster_min_faces = 24;
+    const EstimatorOptions options = statueClusteredOptions();
     EstimatorOptions per_face = options;
     per_face.influence.share_cluster_links = false;
     auto shared = make(scene, options);
@@ -614,9 +620,7 @@ TEST(Influence, SharedClusterAnswersGroupedEqualPerFace) {
     auto read = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/statue/scene.yaml");
     ASSERT_TRUE(read) << read.error().message;
     const Scene& scene = *read;
-    EstimatorOptions options;
-    options.refine_unobserved = true;
-    options.radiosity.cluster_min_faces = 24;
+    const EstimatorOptions options = statueClusteredOptions();
     EstimatorOptions per_face = options;
     per_face.influence.group_cluster_faces = false;
     auto grouped = make(scene, options);
