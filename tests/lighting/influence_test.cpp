@@ -177,15 +177,15 @@ Config sceneConfig(const Scene& s) {
     return c;
 }
 
-TEST(Influence, IncrementalEqualsFromScratchOverRandomMoves) {
-    const Scene scene = parse(kScene);
-    auto inc = make(scene);
-    auto fresh = make(scene);
+// Random moves on and around the table; now and then an object leaves, comes back or glows. Every
+// fourth step the incremental state is compared with a fresh solve.
+void expectRandomMovesEqualFresh(const Scene& scene, const EstimatorOptions& options, int steps) {
+    auto inc = make(scene, options);
+    auto fresh = make(scene, options);
     Config config = sceneConfig(scene);
     std::mt19937 rng(12);
     std::uniform_real_distribution<double> u(-1.0, 1.0);
-    for (int step = 0; step < 24; ++step) {
-        // Moves on and around the table; now and then one leaves, comes back or glows.
+    for (int step = 0; step < steps; ++step) {
         const int o = step % 2;
         Rigid3d& p = config.poses[static_cast<std::size_t>(o)];
         p.translation = Eigen::Vector3d(0.5 * u(rng), 0.4 * u(rng), step % 5 == 4 ? 0.2 + 0.1 * u(rng) : 0.56 + 0.05 * std::abs(u(rng)));
@@ -198,6 +198,34 @@ TEST(Influence, IncrementalEqualsFromScratchOverRandomMoves) {
         EXPECT_FALSE(inc->stats().full) << "step " << step << ": moves alone update incrementally";
         if (step % 4 == 3) expectEqualsFresh(*inc, *fresh, config, "step " + std::to_string(step));
     }
+}
+
+TEST(Influence, IncrementalEqualsFromScratchOverRandomMoves) {
+    expectRandomMovesEqualFresh(parse(kScene), testOptions(), 24);
+}
+
+// The same with the direct light drawn by the elements instead of per texel: the area lights with
+// texel pairs 0, and a point and a directional light (never per texel). The elements then follow
+// the penumbrae themselves (mixed links split, InfluenceOptions::link_pairs).
+TEST(Influence, IncrementalEqualsFromScratchWhenTheElementsDrawTheDirectLight) {
+    EstimatorOptions elements = testOptions();
+    elements.texel_direct_pairs = 0;
+    {
+        SCOPED_TRACE("area lights, texel pairs 0");
+        expectRandomMovesEqualFresh(parse(kScene), elements, 12);
+    }
+    std::string point_and_sun = kScene;
+    const std::size_t lights = point_and_sun.find("lights:\n");
+    const std::size_t end = point_and_sun.find("virtual:\n");
+    ASSERT_NE(lights, std::string::npos);
+    point_and_sun.replace(lights, end - lights,
+                          "lights:\n"
+                          "  - {name: bulb, point: {}, world_from_object: {t: [0.2, -0.3, 1.2]}, intensity: [3, 3, 3]}\n"
+                          "  - {name: sun, directional: {direction: [0.3, 0.5, -1]}, irradiance: [2, 2, 2]}\n");
+    const Scene scene = parse(point_and_sun);
+    ASSERT_EQ(scene.lights.size(), 2u);
+    SCOPED_TRACE("a point and a directional light");
+    expectRandomMovesEqualFresh(scene, testOptions(), 12);
 }
 
 // The minimum ratio B/B~ over a face's leaves, and the leaves' count.
