@@ -180,7 +180,6 @@ void VirtualInfluence::Impl::nodeHulls(ClusterNode& node) const {
 void VirtualInfluence::Impl::nodeFaces(ClusterNode& node) const {
     const Hierarchy& h = self.radiosity_.hierarchy();
     ClusterNode& out = node;
-    constexpr int kClasses = ClusterNode::kClasses;
     out.mask = 0;
     out.blocked_faces.clear();
     out.blocked_classes.clear();
@@ -196,9 +195,8 @@ void VirtualInfluence::Impl::nodeFaces(ClusterNode& node) const {
     if (balls.empty()) return;
     const Eigen::Vector3d& to = shape[static_cast<std::size_t>(node.source)].centroid;
     const double to_radius = shape[static_cast<std::size_t>(node.source)].radius;
-    // Per transfer its class (kClasses: not blocked): the faces of the groups whose shaft meets an
-    // object's bounds are tested one by one.
-    std::vector<int> face_class(node.transfers.size(), kClasses);
+    // The blocked faces' transfers and classes, found as the faces of the groups whose shaft meets
+    // an object's bounds are tested one by one (a face blocked by two objects: the lower class).
     for (std::size_t j = 0; j < balls.size(); ++j) {
         const Ball* ball = balls[j];
         const std::uint32_t bit = RayScene::virtualBit(ball_object[j]);
@@ -210,20 +208,27 @@ void VirtualInfluence::Impl::nodeFaces(ClusterNode& node) const {
                 if (!shaftMeetsBall(Shaft{fb.centre, to, fb.radius, to_radius}, *ball)) continue;
                 const auto t = static_cast<std::size_t>(node.members[static_cast<std::size_t>(m)]);
                 if (!node.hulls[static_cast<std::size_t>(m)].meets(*ball)) continue;
-                out.transfer_objects[t] |= bit;
                 // How near the centroids' segment passes to the ball's centre, over its radius.
                 const Eigen::Vector3d d = to - fb.centre;
                 const double u = std::clamp((ball->centre - fb.centre).dot(d) / std::max(d.squaredNorm(), 1e-300), 0.0, 1.0);
                 const double near = (fb.centre + u * d - ball->centre).norm() / std::max(ball->radius, 1e-12);
-                face_class[t] = std::min(face_class[t], near <= 0.5 ? 0 : (near <= 1.0 ? 1 : 2));
+                const int cls = near <= 0.5 ? 0 : (near <= 1.0 ? 1 : 2);
+                if (out.transfer_objects[t] == 0u) {
+                    out.blocked_classes.emplace_back(static_cast<int>(t), cls);
+                } else {
+                    for (auto& [bt, bc] : out.blocked_classes) {
+                        if (bt == static_cast<int>(t)) bc = std::min(bc, cls);
+                    }
+                }
+                out.transfer_objects[t] |= bit;
             }
         }
     }
     if (out.mask == 0) return;
-    for (std::size_t t = 0; t < node.transfers.size(); ++t) {
-        if (face_class[t] == kClasses) continue;
-        out.blocked_classes.emplace_back(static_cast<int>(t), face_class[t]);
-        out.blocked_faces.emplace_back(h[links[static_cast<std::size_t>(node.transfers[t])].receiver].face, face_class[t]);
+    std::sort(out.blocked_classes.begin(), out.blocked_classes.end());
+    out.blocked_faces.reserve(out.blocked_classes.size());
+    for (const auto& [t, cls] : out.blocked_classes) {
+        out.blocked_faces.emplace_back(h[links[static_cast<std::size_t>(node.transfers[static_cast<std::size_t>(t)])].receiver].face, cls);
     }
     std::sort(out.blocked_faces.begin(), out.blocked_faces.end());
 }

@@ -671,8 +671,8 @@ TEST(Influence, LazyClusterAnswersEqualEager) {
     ASSERT_EQ(scene.virtual_objects.size(), 1u);
     scene.virtual_objects.push_back(scene.virtual_objects[0]);
     scene.virtual_objects[1].name = "resting";
-    const EstimatorOptions options = statueClusteredOptions();
-    ASSERT_TRUE(options.influence.lazy_cluster_answers) << "lazy by default";
+    EstimatorOptions options = statueClusteredOptions();
+    options.influence.lazy_cluster_answers = true;
     EstimatorOptions eager_options = options;
     eager_options.influence.lazy_cluster_answers = false;
     auto lazy = make(scene, options);
