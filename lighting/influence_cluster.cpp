@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <ranges>
 #include <span>
 #include <tuple>
 
@@ -340,10 +341,16 @@ void VirtualInfluence::Impl::answerNodes(std::vector<int>& touched) {
         // and the base leaves that read it now are walked for their new entries.
         walk[k] = node.pending && was_known && read[k] ? 1 : 0;
     });
-    // The faces it blocked and blocks now are walked again (the others keep no answer of it).
+    // The faces it blocked and blocks now are walked again (the others keep no answer of it): an
+    // element holds a node's answer only where its base leaf's entries select the node's transfer,
+    // and the base leaves of a changed object's entries, before and now, are walked already. So
+    // only an object that did not change and has entries makes the walk needed.
+    const bool held = std::ranges::any_of(std::views::iota(std::size_t{0}, objects.size()), [&](std::size_t o) {
+        return (o < object_changed.size() && !object_changed[o]) && !objects[o].touched.empty();
+    });
     for (std::size_t k = 0; k < nodes.size(); ++k) {
         nodes[k].pending = false;
-        if (!walk[k]) continue;
+        if (!walk[k] || !held) continue;
         const ClusterNode& node = nodes[k];
         for (const auto* faces : {static_cast<const std::vector<std::pair<int, int>>*>(&node.before_faces), &node.blocked_faces}) {
             for (const auto& [f, cls] : *faces) {
