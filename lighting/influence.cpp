@@ -642,9 +642,10 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
         for (int o : moved) poses[static_cast<std::size_t>(o)] = d.objects[static_cast<std::size_t>(o)].pose;
         radiosity_.setVirtualPoses(poses);
     }
-    // The cluster links' shared answers the move reached (their faces walked again if they
-    // changed; the candidates read which faces' shafts each object meets from them).
-    d.refreshNodes(touched, false);
+    // The cluster links' shared answers the move reached: their blocked faces (the candidates read
+    // which faces' shafts each object meets from them); their transmissions after the candidates
+    // (answerNodes(): only where a base leaf selects a transfer; faces walked again if they changed).
+    d.refreshNodes(false);
     for (int o : moved) {
         ObjectState& s = d.objects[static_cast<std::size_t>(o)];
         s.touched.clear();
@@ -656,6 +657,7 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
         s.touched.erase(std::unique(s.touched.begin(), s.touched.end()), s.touched.end());
         touched.insert(touched.end(), s.touched.begin(), s.touched.end());
     }
+    d.answerNodes(touched);
     if (viewer_changed) {
         // The camera changes no link: only the resolution the influenced leaves need.
         for (const ObjectState& s : d.objects) {
@@ -716,6 +718,7 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
     }
     for (ClusterNode& node : d.nodes) {
         node.valid = false;
+        node.known = false;
         node.blocked_faces.clear();
     }
     d.viewer = viewer;
@@ -729,7 +732,7 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
         for (std::size_t o = 0; o < d.objects.size(); ++o) poses[o] = d.objects[o].pose;
         radiosity_.setVirtualPoses(poses);
     }
-    d.refreshNodes(touched, true);
+    d.refreshNodes(true);
     for (std::size_t o = 0; o < d.objects.size(); ++o) {
         ObjectState& s = d.objects[o];
         if (!s.present) continue;
@@ -740,6 +743,7 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
         s.touched.erase(std::unique(s.touched.begin(), s.touched.end()), s.touched.end());
         touched.insert(touched.end(), s.touched.begin(), s.touched.end());
     }
+    d.answerNodes(touched);
     std::sort(touched.begin(), touched.end());
     touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
     stats_.ms_candidates = msSince(tc);

@@ -90,6 +90,12 @@ struct InfluenceOptions {
     // link's answer); false: every face's shaft tested, and any move that meets the link's shaft
     // answers it again. The same answers either way (test SharedClusterAnswersGroupedEqualPerFace).
     bool group_cluster_faces = true;
+    // Such a link's transmissions (its virtual rays) made only while a base leaf's entries select
+    // one of its transfers (nothing else reads them; its blocked faces, which the candidates read,
+    // at every move that reaches it); false: at every move that reaches it. The same answers where
+    // read either way (test LazyClusterAnswersEqualEager). Off: in the `cluster` case nearly every
+    // link a move reaches is read, and finding which costs more than the rays it saves.
+    bool lazy_cluster_answers = false;
     // The area lights' direct light is drawn per texel where the objects change it
     // (lighting/texel_direct.h): the elements' own direct transmission only feeds D's share that
     // others receive, so a penumbra splits no element and takes the pilot's estimate.
@@ -212,6 +218,7 @@ public:
     struct ClusterLinkInfo {
         std::vector<std::pair<int, int>> blocked_faces;  // (face, class), sorted
         std::array<double, 3> transmission{1.0, 1.0, 1.0};
+        bool known = true;  // the transmissions made for the faces now (lazy_cluster_answers: only where read)
     };
     std::vector<ClusterLinkInfo> clusterLinkInfo() const;
 

@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <ranges>
 #include <span>
 #include <tuple>
 
@@ -25,6 +26,7 @@ void VirtualInfluence::Impl::buildNodes(const std::vector<int>& origin, std::siz
     const Hierarchy& h = rad.hierarchy();
     const std::vector<ClusterLink>& cluster_links = rad.clusterLinks();
     nodes.clear();
+    node_face.assign(h.faceCount(), 0);
     link_node.assign(links.size(), -1);
     link_position.assign(links.size(), -1);
     std::vector<int> node_of(cluster_links.size(), -1);
@@ -46,6 +48,7 @@ void VirtualInfluence::Impl::buildNodes(const std::vector<int>& origin, std::siz
         n.transfers.push_back(static_cast<int>(li));
         link_node[li] = node_of[ci];
         const int root = links[li].receiver;
+        node_face[static_cast<std::size_t>(h[root].face)] = 1;
         under.clear();
         h.leavesUnder(root, under);
         for (int e : under) {
@@ -121,12 +124,6 @@ bool VirtualInfluence::Impl::nodeReached(const ClusterNode& node, const Ball& ba
     return std::ranges::any_of(node.groups, [&](const ClusterNode::Group& g) { return shaftMeetsBall(groupShaft(node, g), ball); });
 }
 
-const ClusterNode* VirtualInfluence::Impl::sharedNode(int link) const {
-    if (nodes.empty() || !self.options_.share_cluster_links || static_cast<std::size_t>(link) >= link_node.size()) return nullptr;
-    const int k = link_node[static_cast<std::size_t>(link)];
-    return k >= 0 ? &nodes[static_cast<std::size_t>(k)] : nullptr;
-}
-
 // A node's visibility pairs (ClusterNode::Pair): 16 x link_pairs over all its faces, each face
 // chosen by its transfer's weight (stratified over their cumulative weights), so that a subset's
 // pairs estimate the transfer-weighted mean of its faces' transmissions.
@@ -141,12 +138,6 @@ void VirtualInfluence::Impl::nodePairs(int k, ClusterNode& node) const {
         const Link& l = links[static_cast<std::size_t>(li)];
         total += static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
         cdf.push_back(total);
-    }
-    node.hulls.resize(node.members.size());
-    const std::span<const Eigen::Vector3d> source = shape[static_cast<std::size_t>(node.source)].polygon();
-    for (std::size_t m = 0; m < node.members.size(); ++m) {
-        const auto t = static_cast<std::size_t>(node.members[m]);
-        node.hulls[m] = HullPlanes::of(shape[static_cast<std::size_t>(links[static_cast<std::size_t>(node.transfers[t])].receiver)].polygon(), source);
     }
     node.pair_offsets.assign(node.transfers.size() + 1, 0);
     if (cdf.empty() || !(total > 0.0)) return;
@@ -173,21 +164,27 @@ void VirtualInfluence::Impl::nodePairs(int k, ClusterNode& node) const {
     for (std::size_t t = 1; t < node.pair_offsets.size(); ++t) node.pair_offsets[t] += node.pair_offsets[t - 1];
 }
 
-// The objects whose bounds meet the node's shaft, the faces whose own shaft meets one of them
-// (by class: ClusterNode::blocked_faces), and each class's transmission: the fraction of its faces'
-// pairs (nodePairs()) that the objects leave open (the transfer-weighted mean of the faces'
-// transmissions).
-void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
-    const Radiosity& rad = self.radiosity_;
-    const Hierarchy& h = rad.hierarchy();
-    const RayScene& rays = self.rays_;
-    const ClusterNode& node = nodes[static_cast<std::size_t>(k)];
-    constexpr int kClasses = ClusterNode::kClasses;
+// Each face's hull with the source (its face planes), in group order: made at the node's first answer.
+void VirtualInfluence::Impl::nodeHulls(ClusterNode& node) const {
+    if (node.hulls.size() == node.members.size()) return;
+    node.hulls.resize(node.members.size());
+    const std::span<const Eigen::Vector3d> source = shape[static_cast<std::size_t>(node.source)].polygon();
+    for (std::size_t m = 0; m < node.members.size(); ++m) {
+        const auto t = static_cast<std::size_t>(node.members[m]);
+        node.hulls[m] = HullPlanes::of(shape[static_cast<std::size_t>(links[static_cast<std::size_t>(node.transfers[t])].receiver)].polygon(), source);
+    }
+}
+
+// The objects whose bounds meet the node's shaft and the faces whose own shaft meets one of them,
+// by class (ClusterNode::blocked_faces, blocked_classes). No ray: the transmissions are
+// nodeTransmissions()'.
+void VirtualInfluence::Impl::nodeFaces(ClusterNode& node) const {
+    const Hierarchy& h = self.radiosity_.hierarchy();
+    ClusterNode& out = node;
     out.mask = 0;
     out.blocked_faces.clear();
+    out.blocked_classes.clear();
     out.transfer_objects.assign(node.transfers.size(), 0u);
-    out.mixed.fill(false);
-    out.transmission.fill(1.0);
     const Shaft shaft = nodeShaft(node);
     std::vector<const Ball*> balls;
     std::vector<int> ball_object;
@@ -199,9 +196,8 @@ void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
     if (balls.empty()) return;
     const Eigen::Vector3d& to = shape[static_cast<std::size_t>(node.source)].centroid;
     const double to_radius = shape[static_cast<std::size_t>(node.source)].radius;
-    // Per transfer its class (kClasses: not blocked): the faces of the groups whose shaft meets an
-    // object's bounds are tested one by one.
-    std::vector<int> face_class(node.transfers.size(), kClasses);
+    // The blocked faces' transfers and classes, found as the faces of the groups whose shaft meets
+    // an object's bounds are tested one by one (a face blocked by two objects: the lower class).
     for (std::size_t j = 0; j < balls.size(); ++j) {
         const Ball* ball = balls[j];
         const std::uint32_t bit = RayScene::virtualBit(ball_object[j]);
@@ -213,33 +209,52 @@ void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
                 if (!shaftMeetsBall(Shaft{fb.centre, to, fb.radius, to_radius}, *ball)) continue;
                 const auto t = static_cast<std::size_t>(node.members[static_cast<std::size_t>(m)]);
                 if (!node.hulls[static_cast<std::size_t>(m)].meets(*ball)) continue;
-                out.transfer_objects[t] |= bit;
                 // How near the centroids' segment passes to the ball's centre, over its radius.
                 const Eigen::Vector3d d = to - fb.centre;
                 const double u = std::clamp((ball->centre - fb.centre).dot(d) / std::max(d.squaredNorm(), 1e-300), 0.0, 1.0);
                 const double near = (fb.centre + u * d - ball->centre).norm() / std::max(ball->radius, 1e-12);
-                face_class[t] = std::min(face_class[t], near <= 0.5 ? 0 : (near <= 1.0 ? 1 : 2));
+                const int cls = near <= 0.5 ? 0 : (near <= 1.0 ? 1 : 2);
+                if (out.transfer_objects[t] == 0u) {
+                    out.blocked_classes.emplace_back(static_cast<int>(t), cls);
+                } else {
+                    for (auto& [bt, bc] : out.blocked_classes) {
+                        if (bt == static_cast<int>(t)) bc = std::min(bc, cls);
+                    }
+                }
+                out.transfer_objects[t] |= bit;
             }
         }
     }
     if (out.mask == 0) return;
-    std::vector<int> blocked_transfers;
-    for (std::size_t t = 0; t < node.transfers.size(); ++t) {
-        if (face_class[t] == kClasses) continue;
-        blocked_transfers.push_back(static_cast<int>(t));
-        out.blocked_faces.emplace_back(h[links[static_cast<std::size_t>(node.transfers[t])].receiver].face, face_class[t]);
+    std::sort(out.blocked_classes.begin(), out.blocked_classes.end());
+    out.blocked_faces.reserve(out.blocked_classes.size());
+    for (const auto& [t, cls] : out.blocked_classes) {
+        out.blocked_faces.emplace_back(h[links[static_cast<std::size_t>(node.transfers[static_cast<std::size_t>(t)])].receiver].face, cls);
     }
     std::sort(out.blocked_faces.begin(), out.blocked_faces.end());
-    if (out.blocked_faces.empty()) return;
+}
+
+// Each class's transmission over the node's blocked faces (its blocked_classes and mask): the
+// fraction of its faces' pairs (nodePairs()) that the objects leave open (the transfer-weighted
+// mean of the faces' transmissions).
+void VirtualInfluence::Impl::nodeTransmissions(int k, ClusterNode& node) const {
+    const Radiosity& rad = self.radiosity_;
+    const Hierarchy& h = rad.hierarchy();
+    const RayScene& rays = self.rays_;
+    constexpr int kClasses = ClusterNode::kClasses;
+    node.mixed.fill(false);
+    node.transmission.fill(1.0);
+    if (node.blocked_classes.empty()) return;
+    if (!node.pairs_made) nodePairs(k, node);
     const Eigen::Vector3d ns = rad.geometry(node.source).normal;
     std::array<double, kClasses + 1> open_real{}, open_all{};  // by class, then pooled
     std::array<bool, kClasses + 1> any_blocked{}, any_open{};
-    for (int t : blocked_transfers) {
-        const auto cls = static_cast<std::size_t>(face_class[static_cast<std::size_t>(t)]);
+    for (const auto& [t, c] : node.blocked_classes) {
+        const auto cls = static_cast<std::size_t>(c);
         const Eigen::Vector3d& nr = rad.face(h[links[static_cast<std::size_t>(node.transfers[static_cast<std::size_t>(t)])].receiver].face).normal;
         for (int i = node.pair_offsets[static_cast<std::size_t>(t)]; i < node.pair_offsets[static_cast<std::size_t>(t) + 1]; ++i) {
             const ClusterNode::Pair& p = node.pairs[static_cast<std::size_t>(i)];
-            const bool blocked = rays.occludedVirtual(p.from, nr, p.to, ns, out.mask);
+            const bool blocked = rays.occludedVirtual(p.from, nr, p.to, ns, node.mask);
             for (const std::size_t j : {cls, static_cast<std::size_t>(kClasses)}) {
                 open_real[j] += 1.0;
                 if (blocked) {
@@ -253,39 +268,91 @@ void VirtualInfluence::Impl::nodeAnswer(int k, ClusterNode& out) const {
     }
     for (std::size_t i = 0; i < static_cast<std::size_t>(kClasses); ++i) {
         const std::size_t from = open_real[i] > 0.0 ? i : static_cast<std::size_t>(kClasses);  // no pair of its own: the pooled one
-        out.mixed[i] = any_blocked[from] && any_open[from];
-        out.transmission[i] = open_real[from] > 0.0 ? open_all[from] / open_real[from] : 1.0;
+        node.mixed[i] = any_blocked[from] && any_open[from];
+        node.transmission[i] = open_real[from] > 0.0 ? open_all[from] / open_real[from] : 1.0;
     }
 }
 
-void VirtualInfluence::Impl::refreshNodes(std::vector<int>& touched, bool all) {
+void VirtualInfluence::Impl::refreshNodes(bool all) {
     if (nodes.empty() || !self.options_.share_cluster_links) return;
-    std::vector<std::vector<std::pair<int, int>>> before(nodes.size());  // the faces of an answer that changed, before
+    tbb::parallel_for(std::size_t{0}, nodes.size(), [&](std::size_t k) {
+        ClusterNode& node = nodes[k];
+        node.pending = false;
+        if (!all && node.valid && !reachedByMove([&](const Ball& ball) { return nodeReached(node, ball); })) return;
+        nodeHulls(node);
+        node.pending = true;
+        node.was_known = node.valid && node.known;
+        node.before_mask = node.mask;
+        node.before_faces.swap(node.blocked_faces);
+        node.before_transmission = node.transmission;
+        node.before_mixed = node.mixed;
+        node.valid = true;
+        node.known = false;
+        nodeFaces(node);
+    });
+}
+
+void VirtualInfluence::Impl::answerNodes(std::vector<int>& touched) {
+    if (nodes.empty() || !self.options_.share_cluster_links) return;
+    // The nodes a base leaf's entries select a transfer of: the only ones an element may read (a
+    // base leaf's selection is taken from its entries, and its entries change only where the
+    // candidates touched it, which is walked). Every entry is at a base leaf its object touched,
+    // and only a changed object's entries change: the others keep their list.
+    const Hierarchy& h = self.radiosity_.hierarchy();
+    std::vector<char> read(nodes.size(), self.options_.lazy_cluster_answers ? 0 : 1);
+    if (self.options_.lazy_cluster_answers) {
+        for (std::size_t o = 0; o < objects.size(); ++o) {
+            ObjectState& obj = objects[o];
+            if (o >= object_changed.size() || object_changed[o]) {
+                obj.node_reads.clear();
+                for (int b : obj.touched) {
+                    if (!node_face[static_cast<std::size_t>(h[b].face)]) continue;
+                    for (const auto& [object, li] : entries[static_cast<std::size_t>(b)]) {
+                        if (object != static_cast<int>(o) || li < 0 || static_cast<std::size_t>(li) >= link_node.size()) continue;
+                        if (const int k = link_node[static_cast<std::size_t>(li)]; k >= 0) obj.node_reads.push_back(k);
+                    }
+                }
+                std::sort(obj.node_reads.begin(), obj.node_reads.end());
+                obj.node_reads.erase(std::unique(obj.node_reads.begin(), obj.node_reads.end()), obj.node_reads.end());
+            }
+            for (int k : obj.node_reads) read[static_cast<std::size_t>(k)] = 1;
+        }
+    }
+    std::vector<char> walk(nodes.size(), 0);
     tbb::parallel_for(std::size_t{0}, nodes.size(), [&](std::size_t k) {
         ClusterNode& node = nodes[k];
         node.changed = false;
-        if (!all && node.valid && !reachedByMove([&](const Ball& ball) { return nodeReached(node, ball); })) return;
-        if (!node.pairs_made) nodePairs(static_cast<int>(k), node);
-        ClusterNode fresh;
-        nodeAnswer(static_cast<int>(k), fresh);
-        const bool same = node.valid && fresh.mask == node.mask && fresh.blocked_faces == node.blocked_faces &&
-                          fresh.transmission == node.transmission && fresh.mixed == node.mixed;
-        node.valid = true;
-        node.transfer_objects = std::move(fresh.transfer_objects);
-        if (same) return;
+        const bool was_known = node.pending ? node.was_known : node.known;
+        if (!node.pending && (node.known || !read[k] || !node.valid)) return;
+        // (Faces blocked by no object: every transmission 1, no ray.)
+        if (node.blocked_classes.empty() || read[k]) {
+            nodeTransmissions(static_cast<int>(k), node);
+            node.known = true;
+        }
+        if (node.pending && was_known && node.known && node.mask == node.before_mask && node.blocked_faces == node.before_faces &&
+            node.transmission == node.before_transmission && node.mixed == node.before_mixed) {
+            return;  // the same answer
+        }
         node.changed = true;
-        before[k] = std::move(node.blocked_faces);
-        node.mask = fresh.mask;
-        node.blocked_faces = std::move(fresh.blocked_faces);
-        node.transmission = fresh.transmission;
-        node.mixed = fresh.mixed;
         ++node.version;
+        // An answer that was made may be held by the elements of the faces it blocked, if a base
+        // leaf still selects one of its transfers (where none does, the base leaves whose entries
+        // selected one before are walked: their entries changed). One never made is held by none,
+        // and the base leaves that read it now are walked for their new entries.
+        walk[k] = node.pending && was_known && read[k] ? 1 : 0;
     });
-    // The faces it blocked and blocks now are walked again (the others keep no answer of it).
+    // The faces it blocked and blocks now are walked again (the others keep no answer of it): an
+    // element holds a node's answer only where its base leaf's entries select the node's transfer,
+    // and the base leaves of a changed object's entries, before and now, are walked already. So
+    // only an object that did not change and has entries makes the walk needed.
+    const bool held = std::ranges::any_of(std::views::iota(std::size_t{0}, objects.size()), [&](std::size_t o) {
+        return (o < object_changed.size() && !object_changed[o]) && !objects[o].touched.empty();
+    });
     for (std::size_t k = 0; k < nodes.size(); ++k) {
+        nodes[k].pending = false;
+        if (!walk[k] || !held) continue;
         const ClusterNode& node = nodes[k];
-        if (!node.changed) continue;
-        for (const auto* faces : {static_cast<const std::vector<std::pair<int, int>>*>(&before[k]), &node.blocked_faces}) {
+        for (const auto* faces : {static_cast<const std::vector<std::pair<int, int>>*>(&node.before_faces), &node.blocked_faces}) {
             for (const auto& [f, cls] : *faces) {
                 auto it = std::lower_bound(node.face_leaves.begin(), node.face_leaves.end(), std::make_pair(f, -1));
                 for (; it != node.face_leaves.end() && it->first == f; ++it) touched.push_back(it->second);
@@ -299,6 +366,7 @@ std::vector<VirtualInfluence::ClusterLinkInfo> VirtualInfluence::clusterLinkInfo
     for (const ClusterNode& node : impl_->nodes) {
         ClusterLinkInfo info;
         info.blocked_faces = node.blocked_faces;
+        info.known = node.known;
         for (std::size_t i = 0; i < info.transmission.size(); ++i) info.transmission[i] = node.transmission[i];
         out.push_back(std::move(info));
     }

@@ -148,6 +148,21 @@ struct ClusterNode {
     std::vector<std::uint32_t> transfer_objects;  // per transfer: the objects whose bounds meet its face's shaft
     std::array<bool, kClasses> mixed{};
     std::array<double, kClasses> transmission{1.0, 1.0, 1.0};
+    // Lazy answers (InfluenceOptions::lazy_cluster_answers): the faces (above) are found at every
+    // move that reaches the node (the candidates read them), the transmissions only while a base
+    // leaf's entries select one of its transfers (answerNodes()). `known`: `transmission` and
+    // `mixed` hold for the faces now; `blocked_classes`: (position in `transfers`, class) of the
+    // blocked faces, what the transmissions are made from.
+    bool known = false;
+    std::vector<std::pair<int, int>> blocked_classes;
+    // Reached in this update (refreshNodes()): the faces found again, the transmissions not yet;
+    // the answer before, for answerNodes() to compare with and to walk its faces if it changed.
+    bool pending = false;
+    bool was_known = false;
+    std::uint32_t before_mask = 0;
+    std::vector<std::pair<int, int>> before_faces;
+    std::array<bool, kClasses> before_mixed{};
+    std::array<double, kClasses> before_transmission{1.0, 1.0, 1.0};
     // Its visibility pairs, made at the first answer that needs them: faces chosen by their
     // transfers' weights (`transfer`: the position in `transfers`), points stratified; only the
     // pairs that exchange light and that the real scene leaves open are kept (the real scene
@@ -160,7 +175,7 @@ struct ClusterNode {
     bool pairs_made = false;
     std::vector<Pair> pairs;          // by transfer (their faces were drawn in order)
     std::vector<int> pair_offsets;    // per transfer: its pairs are pairs[pair_offsets[t], pair_offsets[t + 1])
-    std::vector<HullPlanes> hulls;  // by position in `members`: the hull of its face and the source (made with the pairs)
+    std::vector<HullPlanes> hulls;  // by position in `members`: the hull of its face and the source (made at the first answer)
 };
 
 // A virtual object: where it is, what it is made of, what it touched.
@@ -177,6 +192,7 @@ struct ObjectState {
     double sphere_radius = 0.0;
     std::vector<int> faces;         // global face indices
     std::vector<int> touched;       // base leaves it affected last time (sorted)
+    std::vector<int> node_reads;    // the cluster nodes its entries select a transfer of (sorted; answerNodes())
     std::vector<int> cluster_leaves;  // base leaves whose own leaves link to it (sorted)
     std::vector<std::pair<int, Eigen::Vector3d>> cluster_links;  // above base leaves: element, irradiance
     std::vector<Eigen::Vector3d> face_radiance;  // per face in `faces`
@@ -244,6 +260,7 @@ struct VirtualInfluence::Impl {
     // node (-1: none).
     std::vector<ClusterNode> nodes;
     std::vector<int> link_node;
+    std::vector<char> node_face;     // by face: a face some node's transfers light (its base leaves may read a node)
     std::vector<int> link_position;  // by base link of a node: its place in the node's transfers
     // Base links by source (CSR), corrections by source (rebuilt after each refinement).
     std::vector<int> link_offsets, link_by_source;
@@ -349,13 +366,24 @@ struct VirtualInfluence::Impl {
     Shaft groupShaft(const ClusterNode& node, const ClusterNode::Group& group) const;
     void buildGroups(ClusterNode& node) const;
     bool nodeReached(const ClusterNode& node, const Ball& ball) const;  // a group's shaft meets the ball
-    // The node answers the move reached (or never made), computed again; the base leaves of the
-    // faces whose answer changed are added to `touched`. `all`: every node again (a rebuild).
-    void refreshNodes(std::vector<int>& touched, bool all);
-    void nodeAnswer(int k, ClusterNode& out) const;
+    // The node answers the move reached (or never made): their faces found again (before the
+    // candidates, which read them). `all`: every node again (a rebuild).
+    void refreshNodes(bool all);
+    // After the candidates: the transmissions of the nodes a base leaf's entries select (lazily:
+    // InfluenceOptions::lazy_cluster_answers), and the base leaves of the faces whose read answer
+    // changed added to `touched`.
+    void answerNodes(std::vector<int>& touched);
+    void nodeFaces(ClusterNode& node) const;  // its mask, transfer_objects, blocked faces and classes now
+    void nodeTransmissions(int k, ClusterNode& node) const;  // from its blocked_classes (its pairs made first)
+    void nodeHulls(ClusterNode& node) const;
     void nodePairs(int k, ClusterNode& node) const;
-    // The node a base link reads its answer from when they are shared (nullptr: its own).
-    const ClusterNode* sharedNode(int link) const;
+    // The node a base link reads its answer from when they are shared (nullptr: its own). (Here:
+    // the candidates and the corrections ask it for every link.)
+    const ClusterNode* sharedNode(int link) const {
+        if (static_cast<std::size_t>(link) >= link_node.size() || !self.options_.share_cluster_links) return nullptr;
+        const int k = link_node[static_cast<std::size_t>(link)];
+        return k >= 0 ? &nodes[static_cast<std::size_t>(k)] : nullptr;
+    }
 
     // --- influence_objects.cpp ---
     void placeObject(int o, const InfluenceObject& in);
