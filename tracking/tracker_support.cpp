@@ -65,8 +65,22 @@ std::vector<PixelWindow> trackingWindows(const CameraModel& camera, const TagSet
             // Too small for the decimated detector: left to the verification (or to the window of
             // the last frame's detection below).
             if (shorterSpan(corners) < options.window_min_span_px * options.detector.decimate) continue;
+            // The detector finds a tag only whole in the image: one predicted further out than the
+            // window's growth (its size at most the image's) gets no window. On `bench tracking
+            // --cases oblique75` the table's tags, beside the camera, had corners 10^5-10^6 px out and
+            // their boxes made the merged window the whole frame: the windows cost more than a
+            // full-frame detection.
+            Eigen::Vector2d lo = corners[0], hi = corners[0];
+            for (const auto& p : corners) {
+                lo = lo.cwiseMin(p);
+                hi = hi.cwiseMax(p);
+            }
+            const double extent = std::min((hi - lo).maxCoeff(), static_cast<double>(std::max(camera.width, camera.height)));
+            const double grow = std::max(options.window_margin * extent, static_cast<double>(options.window_min_margin_px));
+            if (lo.x() < -grow || lo.y() < -grow || hi.x() > camera.width + grow || hi.y() > camera.height + grow) {
+                continue;
+            }
             const PixelWindow w = grownBox(corners, options.window_margin, options.window_min_margin_px);
-            if (w.x + w.width <= 0 || w.y + w.height <= 0 || w.x >= camera.width || w.y >= camera.height) continue;
             out.push_back(w);
             covered.push_back(item.id);
         }

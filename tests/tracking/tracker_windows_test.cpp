@@ -1,6 +1,8 @@
 // Tracking mode's detection windows (tracker_support::trackingWindows): a window around each
 // predicted scene tag the decimated detector can find, none around a smaller one unless the last
 // frame detected it. Ground truth: the tags' corners projected by a pinhole camera.
+#include <numbers>
+
 #include <gtest/gtest.h>
 
 #include "tracking/tracker_support.h"
@@ -10,6 +12,7 @@ namespace {
 
 using Eigen::Vector2d;
 using Eigen::Vector3d;
+constexpr double kPi = std::numbers::pi;
 
 CameraModel camera() {
     CameraModel c;
@@ -42,7 +45,7 @@ int windowsHolding(const std::vector<PixelWindow>& windows, const Vector2d& p) {
     return n;
 }
 
-TEST(TrackingWindows, NoWindowAroundAPredictedTagTooSmallForTheDecimatedDetector) {
+TEST(TrackingWindows, OnlyWhereTheDecimatedDetectorCanFindTheTag) {
     const TagSet t = tags();
     const Vector2d big = centre(t.items[0]), small = centre(t.items[1]);
     TrackerOptions options;
@@ -79,6 +82,19 @@ TEST(TrackingWindows, NoWindowAroundAPredictedTagTooSmallForTheDecimatedDetector
     EXPECT_EQ(w.size(), 2u);
     EXPECT_EQ(windowsHolding(w, small), 1);
     EXPECT_EQ(windowsHolding(w, big), 1);
+
+    // A tag beside the camera, seen edge-on from 2-12 cm (its corners from x = 528 to 1569 px, y
+    // +-1250 px): no window, rather than a box over the whole frame; one whose corners are 5 px out
+    // of the image (x 594-645 px) keeps its.
+    TagSet beside = t;
+    beside.items.push_back(
+        {2, 0.10, Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.5 * kPi, Vector3d::UnitY())), Vector3d(0.05, 0, 0.07))});
+    beside.items.push_back({3, 0.10, Rigid3d({1, 0, 0, 0}, Vector3d(0.6, 0, 1))});
+    w = tracker_support::trackingWindows(camera(), beside, predicted, {}, options);
+    ASSERT_EQ(w.size(), 2u);
+    EXPECT_EQ(windowsHolding(w, big), 1);
+    for (const PixelWindow& win : w) EXPECT_LT(win.width, 200) << "a window over the whole frame";
+    EXPECT_EQ(windowsHolding(w, centre(beside.items[3])), 1) << "the tag at the edge keeps its window";
 
     // Without a prediction: only where the last frame's tags were.
     w = tracker_support::trackingWindows(camera(), t, std::nullopt, {last}, options);
