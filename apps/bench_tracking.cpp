@@ -322,8 +322,9 @@ struct SingleTagComparison {
     // estimate_tag_pose for every tag (what a user of libapriltag runs for poses).
     ErrorStats detector_only, detector_with_pose;
     // The response exponent each aligned tag measured (TagAlignResult::response_exponent_measured;
-    // 0: not measured).
+    // 0: not measured), and how many of them had the assumed response replaced (response_gamma > 0).
     std::vector<double> response_exponent;
+    int response_replaced = 0;
 };
 
 SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
@@ -390,6 +391,7 @@ SingleTagComparison compareSingleTag(const LoadedCase& lc, double decimate) {
                     if (a.ok) aligned = a.cam_from_tag;
                     if (a.ok && a.response_exponent_measured > 0) {
                         out.response_exponent.push_back(a.response_exponent_measured);
+                        if (a.response_gamma > 0) ++out.response_replaced;
                     }
                 }
                 out.ours_aligned.add(aligned, truth);
@@ -622,9 +624,12 @@ int runBenchTracking(const BenchTrackingOptions& options) {
                     single.ours_aligned_fixed.rangeBiasPct(), single.ours_aligned.rangeBiasPct(),
                     run_filter->single_tags.rangeBiasPct());
         if (!single.response_exponent.empty()) {
-            std::printf("response exponent measured by the aligned tags: p5 %.3f, p50 %.3f, p95 %.3f\n",
-                        ErrorStats::pct(single.response_exponent, 5), ErrorStats::pct(single.response_exponent, 50),
-                        ErrorStats::pct(single.response_exponent, 95));
+            std::printf("response exponent measured by the aligned tags: min %.3f, p5 %.3f, p50 %.3f, p95 %.3f, max "
+                        "%.3f; response replaced on %d of %zu tags\n",
+                        ErrorStats::pct(single.response_exponent, 0), ErrorStats::pct(single.response_exponent, 5),
+                        ErrorStats::pct(single.response_exponent, 50), ErrorStats::pct(single.response_exponent, 95),
+                        ErrorStats::pct(single.response_exponent, 100), single.response_replaced,
+                        single.response_exponent.size());
         }
         std::printf("single-tag translation p50: ours aligned %.2f mm, in tracker %.2f mm vs libapriltag %.2f mm: %s\n",
                     ours_mm, tracker_mm, ref_mm, std::max(ours_mm, tracker_mm) <= ref_mm ? "at most (met)" : "MORE (missed)");
@@ -664,7 +669,11 @@ int runBenchTracking(const BenchTrackingOptions& options) {
         if (!single.response_exponent.empty()) {
             j["single_tag_response_exponent"] = {{"p5", ErrorStats::pct(single.response_exponent, 5)},
                                                  {"p50", ErrorStats::pct(single.response_exponent, 50)},
-                                                 {"p95", ErrorStats::pct(single.response_exponent, 95)}};
+                                                 {"p95", ErrorStats::pct(single.response_exponent, 95)},
+                                                 {"min", ErrorStats::pct(single.response_exponent, 0)},
+                                                 {"max", ErrorStats::pct(single.response_exponent, 100)},
+                                                 {"measured", single.response_exponent.size()},
+                                                 {"replaced", single.response_replaced}};
         }
         j["bundle"] = run_bundle->camera.toJson();
         j["bundle_filter"] = run_filter->camera.toJson();

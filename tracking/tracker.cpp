@@ -76,6 +76,7 @@ Result<void> TrackerOptions::validate() const {
         return fail(ErrorCode::kUsage, "jump_max_rms_px must be a finite number of pixels >= 0");
     }
     if (!(window_margin >= 0) || window_min_margin_px < 0) return fail(ErrorCode::kUsage, "window margins must be >= 0");
+    if (!(window_min_span_px >= 0)) return fail(ErrorCode::kUsage, "window_min_span_px must be >= 0");
     if (!(default_tag_size >= 0) || !std::isfinite(default_tag_size)) {
         return fail(ErrorCode::kUsage, "the tag size must be a positive number of metres");
     }
@@ -144,30 +145,7 @@ struct Tracker::State {
     }
 
     std::vector<PixelWindow> windows(const std::optional<Rigid3d>& predicted) const {
-        std::vector<PixelWindow> out;
-        std::vector<int> covered;
-        if (predicted) {
-            for (const TagItem& item : tags.items) {
-                std::array<Eigen::Vector2d, 4> corners;
-                bool ok = true;
-                for (int c = 0; c < 4 && ok; ++c) {
-                    const auto px = camera.project(*predicted * (item.world_from_tag * tagCornerInTag(c, item.size)));
-                    ok = px.has_value();
-                    if (ok) corners[c] = *px;
-                }
-                if (!ok) continue;
-                const PixelWindow w = grownBox(corners, options.window_margin, options.window_min_margin_px);
-                if (w.x + w.width <= 0 || w.y + w.height <= 0 || w.x >= camera.width || w.y >= camera.height) continue;
-                out.push_back(w);
-                covered.push_back(item.id);
-            }
-        }
-        // Tags the scene does not place (or no prediction): where they were last frame.
-        for (const TagDetection& d : last_detections) {
-            if (std::find(covered.begin(), covered.end(), d.id) != covered.end()) continue;
-            out.push_back(grownBox(d.corners, options.window_margin, options.window_min_margin_px));
-        }
-        return mergeOverlapping(std::move(out));
+        return trackingWindows(camera, tags, predicted, last_detections, options);
     }
 };
 

@@ -85,6 +85,13 @@ struct TrackerOptions {
     int redetect_every = 15;      // full-frame detection every N frames in tracking mode (>= 1)
     double window_margin = 0.5;   // a window is the predicted tag's box grown by this fraction of its size...
     int window_min_margin_px = 12;  // ...and at least this many pixels on each side
+    // A predicted scene tag whose black square's shorter span (between the midpoints of opposite
+    // sides) is under this many pixels of the decimated image (times detector.decimate in the
+    // frame) gets no window: the decimated detector does not find it (`bench tracking`, decimate 2:
+    // 3 of 637 tags under 10 px), and its window, merged with its neighbours', can be most of what
+    // the windows cost. The verification (verify_predicted) looks for it instead; one the last
+    // frame detected keeps a window where it was. 0: a window for every predicted tag.
+    double window_min_span_px = 5.0;
     // Tags without a place in the scene (track --tag-size): the edge of every tag's black square.
     // 0: only the scene's tags get a single-tag pose.
     double default_tag_size = 0.0;

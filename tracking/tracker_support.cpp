@@ -46,6 +46,57 @@ std::vector<PixelWindow> mergeOverlapping(std::vector<PixelWindow> windows) {
     return windows;
 }
 
+std::vector<PixelWindow> trackingWindows(const CameraModel& camera, const TagSet& tags,
+                                         const std::optional<Rigid3d>& predicted,
+                                         const std::vector<TagDetection>& last_detections,
+                                         const TrackerOptions& options) {
+    std::vector<PixelWindow> out;
+    std::vector<int> covered;
+    if (predicted) {
+        for (const TagItem& item : tags.items) {
+            std::array<Eigen::Vector2d, 4> corners;
+            bool ok = true;
+            for (int c = 0; c < 4 && ok; ++c) {
+                const auto px = camera.project(*predicted * (item.world_from_tag * tagCornerInTag(c, item.size)));
+                ok = px.has_value();
+                if (ok) corners[c] = *px;
+            }
+            if (!ok) continue;
+            // Too small for the decimated detector: left to the verification (or to the window of
+            // the last frame's detection below).
+            if (shorterSpan(corners) < options.window_min_span_px * options.detector.decimate) continue;
+            // The detector finds a tag only whole in the image: one predicted further out than the
+            // window's growth (its size at most the image's) gets no window. On `bench tracking
+            // --cases oblique75` the table's tags, beside the camera, had corners 10^5-10^6 px out and
+            // their boxes made the merged window the whole frame: the windows cost more than a
+            // full-frame detection.
+            Eigen::Vector2d lo = corners[0], hi = corners[0];
+            for (const auto& p : corners) {
+                lo = lo.cwiseMin(p);
+                hi = hi.cwiseMax(p);
+            }
+            const double extent = std::min((hi - lo).maxCoeff(), static_cast<double>(std::max(camera.width, camera.height)));
+            const double grow = std::max(options.window_margin * extent, static_cast<double>(options.window_min_margin_px));
+            if (lo.x() < -grow || lo.y() < -grow || hi.x() > camera.width + grow || hi.y() > camera.height + grow) {
+                continue;
+            }
+            const PixelWindow w = grownBox(corners, options.window_margin, options.window_min_margin_px);
+            out.push_back(w);
+            covered.push_back(item.id);
+        }
+    }
+    // Tags the scene does not place (or no prediction): where they were last frame.
+    for (const TagDetection& d : last_detections) {
+        if (std::find(covered.begin(), covered.end(), d.id) != covered.end()) continue;
+        out.push_back(grownBox(d.corners, options.window_margin, options.window_min_margin_px));
+    }
+    return mergeOverlapping(std::move(out));
+}
+
+double shorterSpan(const std::array<Eigen::Vector2d, 4>& c) {
+    return std::min((0.5 * (c[0] + c[1]) - 0.5 * (c[2] + c[3])).norm(), (0.5 * (c[1] + c[2]) - 0.5 * (c[3] + c[0])).norm());
+}
+
 double squareAspect(const std::array<Eigen::Vector2d, 4>& c) {
     const double side_a = 0.5 * ((c[1] - c[0]).norm() + (c[2] - c[3]).norm());
     const double side_b = 0.5 * ((c[3] - c[0]).norm() + (c[2] - c[1]).norm());

@@ -31,8 +31,20 @@ PixelWindow grownBox(const std::array<Eigen::Vector2d, 4>& pts, double margin, i
 // sees each tag once, whole, and pays its per-call cost once.
 std::vector<PixelWindow> mergeOverlapping(std::vector<PixelWindow> windows);
 
+// Tracking mode's windows (TrackerOptions::tracking_mode): around each scene tag `predicted`
+// puts in the image whose black square's shorter span is at least window_min_span_px times the
+// decimation, and where the last frame detected the others (tags the scene does not place, or
+// all of them without a prediction); merged where they overlap.
+std::vector<PixelWindow> trackingWindows(const CameraModel& camera, const TagSet& tags,
+                                         const std::optional<Rigid3d>& predicted,
+                                         const std::vector<TagDetection>& last_detections,
+                                         const TrackerOptions& options);
+
 // A quad's shorter side over its longer (opposite sides averaged); 0 for a degenerate one.
 double squareAspect(const std::array<Eigen::Vector2d, 4>& corners);
+
+// A quad's shorter span: the shorter distance between the midpoints of opposite sides.
+double shorterSpan(const std::array<Eigen::Vector2d, 4>& corners);
 
 // The tag `id` (black square `size` metres) as aligned from its prediction: its corners where the
 // aligned pose puts them, that pose its only candidate, chosen by the prediction

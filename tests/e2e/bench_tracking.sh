@@ -21,6 +21,10 @@ for key in ("apriltag_estimate_tag_pose", "single_tag", "bundle", "bundle_filter
 for key in ("apriltag_estimate_tag_pose", "single_tag_refined_corners", "single_tag_aligned_without_dilation", "single_tag"):
     assert abs(j[key]["range_bias_pct"]) < 5, key
 assert abs(j["single_tag"]["range_bias_pct"]) < 0.5
+# The response each aligned tag measured: the sample's sRGB camera read as sRGB keeps the assumed one.
+e = j["single_tag_response_exponent"]
+assert e["measured"] > 0 and e["replaced"] == 0, e
+assert 0.77 < e["min"] <= e["p5"] <= e["p50"] <= e["p95"] <= e["max"] < 1.3, e
 assert j["single_over_apriltag_trans_p50"] > 0
 # The stage as play and live run it (tracking mode): its ratio, and the first frame detected in full.
 assert j["tracking_mode_over_detector_cpu"] > 0
