@@ -6,6 +6,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -31,6 +32,25 @@ double msSince(std::chrono::steady_clock::time_point t0) {
 double ballSolidAngle(double r, double d) {
     if (d <= r) return 2.0 * kPi;
     return 2.0 * kPi * (1.0 - std::sqrt(std::max(0.0, 1.0 - r * r / (d * d))));
+}
+
+// A cached pair's answers are trusted this much less far than the distances say (metres): far
+// above the round-off of the tests (the hull's planes are in single precision), far below a move.
+constexpr double kClearanceMargin = 1e-4;
+
+// How far the object's centre may come closer to a base leaf's centroid, now `d` away, before the
+// significance share x min(1, ballSolidAngle(radius, d') / max(omega, 1e-12)) of a pair through it
+// can reach `item` (d' = d less the travel: a bound the triangle inequality gives). It reaches it
+// at the distance d* where the ball's solid angle is item / share x omega (share >= item here).
+// Where that angle is too small for a precise d*, 0 (tested again at the next move).
+double significanceClearance(double share, double omega, double item, double d, double radius) {
+    const double theta = item / share * std::max(omega, 1e-12);
+    if (theta > 2.0 * kPi * (1.0 + 1e-9)) return 1e300;  // not even a ball around the centroid reaches it
+    const double f = theta / (2.0 * kPi);
+    if (!(f > 1e-8)) return 0.0;
+    // ballSolidAngle(r, d) >= theta  <=>  sqrt(1 - r^2 / d^2) <= 1 - f  <=>  d <= r / sqrt(f (2 - f)).
+    const double dstar = radius / std::sqrt(f * (2.0 - f));
+    return std::max(0.0, d - dstar * (1.0 + 1e-6) - kClearanceMargin);
 }
 
 }  // namespace
@@ -182,19 +202,29 @@ ObjectState::PairShaft VirtualInfluence::Impl::pairShaft(int element, int what) 
 
 // (The pair's shaft from obj.cache_shafts: its ends are the segment that decides most shafts in a
 // shadow, the base leaf's centroid to the light's centre or the source's centroid.)
-bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball) const {
+bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball, double* clearance) const {
+    // (`clearance`: how far the ball's centre may move with the same answer, or 0 when not known.)
+    if (clearance) *clearance = 0.0;
     const auto [element, what] = obj.cache_pairs[i];
     const ObjectState::PairShaft& ps = obj.cache_shafts[i];
     if (ps.far) return farLightMeetsBall(element, -1 - what, ball);
-    if (!shaftMeetsBall(ps.shaft, ball)) return false;
-    if (segmentMeetsBall(ps.shaft.a, ps.shaft.b, ball)) return true;
+    if (!shaftMeetsBall(ps.shaft, ball)) {
+        if (clearance) *clearance = std::max(0.0, shaftClearance(ps.shaft, ball));
+        return false;
+    }
+    if (segmentMeetsBall(ps.shaft.a, ps.shaft.b, ball)) {
+        if (clearance) *clearance = std::max(0.0, -segmentClearance(ps.shaft.a, ps.shaft.b, ball));
+        return true;
+    }
     if (!obj.cache_hull_known[i]) {
         const std::span<const Eigen::Vector3d> other =
             what < 0 ? lightPolygon(-1 - what) : shape[static_cast<std::size_t>(links[static_cast<std::size_t>(what)].source)].polygon();
         obj.cache_hulls[i] = HullPlanes::of(shape[static_cast<std::size_t>(element)].polygon(), other);
         obj.cache_hull_known[i] = 1;
     }
-    return obj.cache_hulls[i].meets(ball);
+    if (obj.cache_hulls[i].meets(ball)) return true;
+    if (clearance) *clearance = std::max(0.0, obj.cache_hulls[i].clearance(ball));
+    return false;
 }
 
 // A directional light or a distant cell: the element swept towards the light (a cone of the
@@ -507,28 +537,66 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         obj.cache_hulls.swap(old_hulls);
         obj.cache_hull_known.swap(old_known);
     }
+    // How far the ball has moved since the last move (a pair's answers known up to a travel).
+    // The rebuild's scan, or a ball of another size, starts again.
+    const bool track = !scan && self.options_.idle_cached_pairs && obj.travel_known && obj.travel_ball.radius == ball.radius && ball.centre == obj.ball.centre;
+    std::vector<double> old_idle, old_meets;
+    if (!scan) {
+        old_idle.swap(obj.cache_idle);
+        old_meets.swap(obj.cache_meets);
+    }
+    if (track) {
+        obj.travel += (ball.centre - obj.travel_ball.centre).norm();
+    } else {
+        old_idle.assign(old_idle.size(), 0.0);
+        old_meets.assign(old_meets.size(), 0.0);
+    }
+    obj.travel_known = !scan && ball.centre == obj.ball.centre;
+    obj.travel_ball = ball;
     if (refreshed) {
-        // Sorted; the hull planes of the pairs the last cache had, kept (both lists sorted).
+        // Sorted; the hull planes and the known answers of the pairs the last cache had, kept
+        // (both lists sorted).
         std::sort(obj.cache_pairs.begin(), obj.cache_pairs.end());
         obj.cache_hulls.resize(obj.cache_pairs.size());
         obj.cache_hull_known.assign(obj.cache_pairs.size(), 0);
         obj.cache_sig.assign(obj.cache_pairs.size(), {0.0, -1.0});
         obj.cache_shafts.resize(obj.cache_pairs.size());
+        obj.cache_idle.assign(obj.cache_pairs.size(), 0.0);
+        obj.cache_meets.assign(obj.cache_pairs.size(), 0.0);
         std::size_t j = 0;
         for (std::size_t i = 0; i < obj.cache_pairs.size() && j < old_pairs.size(); ++i) {
             while (j < old_pairs.size() && old_pairs[j] < obj.cache_pairs[i]) ++j;
-            if (j < old_pairs.size() && old_pairs[j] == obj.cache_pairs[i] && old_known[j]) {
-                obj.cache_hulls[i] = old_hulls[j];
-                obj.cache_hull_known[i] = 1;
+            if (j < old_pairs.size() && old_pairs[j] == obj.cache_pairs[i]) {
+                if (old_known[j]) {
+                    obj.cache_hulls[i] = old_hulls[j];
+                    obj.cache_hull_known[i] = 1;
+                }
+                if (j < old_idle.size()) {
+                    obj.cache_idle[i] = old_idle[j];
+                    obj.cache_meets[i] = old_meets[j];
+                }
             }
         }
+    } else {
+        obj.cache_idle.swap(old_idle);
+        obj.cache_meets.swap(old_meets);
+        obj.cache_idle.resize(obj.cache_pairs.size(), 0.0);
+        obj.cache_meets.resize(obj.cache_pairs.size(), 0.0);
     }
+    const double travel = obj.travel;
     std::vector<std::pair<int, double>> sums;       // base leaf, significance
     std::vector<std::pair<int, int>> link_entries;  // base leaf, link
     // (The significance first: it is cheaper than the shaft tests.) In parallel over the pairs
     // (thousands on the room), gathered in their order.
     std::vector<double> kept(obj.cache_pairs.size(), -1.0);
+    std::atomic<long> pairs_tested{0};
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, obj.cache_pairs.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+        long tested = 0;
+        struct Count {
+            std::atomic<long>& total;
+            long& n;
+            ~Count() { total += n; }
+        } count{pairs_tested, tested};
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             const auto [b, what] = obj.cache_pairs[i];
             // (A face's transfer through a shared cluster link: its node found whether the object
@@ -549,13 +617,35 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             // (objectBlocks() at b's centroid, the shaft's first end: no look-up of b's shape. It is
             // at most 1, so a share below `item` is never significant: not computed.)
             if (std::max(parts[0], 0.0) < item) continue;
-            const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, obj.cache_shafts[i].shaft.a, parts[1]) : 0.0;
-            if (!(sig >= item)) continue;
+            // (Not kept at a move whose ball stays as far as it was: left alone. A shared
+            // cluster link's answer may change with its node's: always tested.)
+            if (!node && travel < obj.cache_idle[i]) continue;
+            ++tested;
+            const Eigen::Vector3d& centroid = obj.cache_shafts[i].shaft.a;
+            const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, centroid, parts[1]) : 0.0;
+            if (!(sig >= item)) {
+                if (!node) obj.cache_idle[i] = travel + significanceClearance(parts[0], parts[1], item, (obj.ball.centre - centroid).norm(), obj.radius);
+                continue;
+            }
             // (The node's answer when the base leaf is the face's root, else the leaf's own shaft.)
-            const bool meets = (node && links[static_cast<std::size_t>(what)].receiver == b) || cachedPairMeets(obj, i, ball);
+            bool meets;
+            if (node) {
+                meets = links[static_cast<std::size_t>(what)].receiver == b || cachedPairMeets(obj, i, ball);
+            } else if (travel < obj.cache_meets[i]) {
+                meets = true;
+            } else {
+                double clear = 0.0;
+                meets = cachedPairMeets(obj, i, ball, &clear);
+                if (meets) {
+                    obj.cache_meets[i] = travel + clear - kClearanceMargin;
+                } else {
+                    obj.cache_idle[i] = travel + clear - kClearanceMargin;
+                }
+            }
             if (meets) kept[i] = sig;
         }
     });
+    if (!scan) self.stats_.pairs_tested += pairs_tested.load();
     for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
         if (!(kept[i] >= 0.0)) continue;
         const auto [b, what] = obj.cache_pairs[i];
