@@ -222,7 +222,11 @@ bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, co
         obj.cache_hulls[i] = HullPlanes::of(shape[static_cast<std::size_t>(element)].polygon(), other);
         obj.cache_hull_known[i] = 1;
     }
-    if (obj.cache_hulls[i].meets(ball)) return true;
+    if (obj.cache_hulls[i].meets(ball)) {
+        // (Met by the planes: while the centre stays inside both the cone's and the planes' reach.)
+        if (clearance) *clearance = std::max(0.0, std::min(-shaftClearance(ps.shaft, ball), obj.cache_hulls[i].depth(ball)));
+        return true;
+    }
     if (clearance) *clearance = std::max(0.0, obj.cache_hulls[i].clearance(ball));
     return false;
 }
@@ -541,9 +545,15 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     // The rebuild's scan, or a ball of another size, starts again.
     const bool track = !scan && self.options_.idle_cached_pairs && obj.travel_known && obj.travel_ball.radius == ball.radius && ball.centre == obj.ball.centre;
     std::vector<double> old_idle, old_meets;
+    std::vector<std::array<double, 2>> old_sig;
+    std::vector<ObjectState::PairShaft> old_shafts;
     if (!scan) {
         old_idle.swap(obj.cache_idle);
         old_meets.swap(obj.cache_meets);
+        if (refreshed) {
+            old_sig.swap(obj.cache_sig);
+            old_shafts.swap(obj.cache_shafts);
+        }
     }
     if (track) {
         obj.travel += (ball.centre - obj.travel_ball.centre).norm();
@@ -567,6 +577,10 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         for (std::size_t i = 0; i < obj.cache_pairs.size() && j < old_pairs.size(); ++i) {
             while (j < old_pairs.size() && old_pairs[j] < obj.cache_pairs[i]) ++j;
             if (j < old_pairs.size() && old_pairs[j] == obj.cache_pairs[i]) {
+                if (j < old_sig.size() && old_sig[j][1] >= 0.0) {
+                    obj.cache_sig[i] = old_sig[j];
+                    obj.cache_shafts[i] = old_shafts[j];
+                }
                 if (old_known[j]) {
                     obj.cache_hulls[i] = old_hulls[j];
                     obj.cache_hull_known[i] = 1;

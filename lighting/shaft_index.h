@@ -96,6 +96,9 @@ struct HullPlanes {
         }
         return best - (ball.radius + kPlaneSlack);
     }
+    // How far inside every plane's reach (ball radius and slack) the centre lies: the smallest
+    // margin, in double precision (>= 0 only where meets() is true; a move shorter keeps it true).
+    double depth(const Ball& ball) const { return -clearance(ball); }
 };
 
 class ShaftIndex {
