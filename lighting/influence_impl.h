@@ -1,5 +1,6 @@
-// Internal state of lighting/influence.h, shared by influence.cpp (structure: candidates,
-// refinement, transmissions), influence_objects.cpp (the virtual objects as clusters) and
+// Internal state of lighting/influence.h, shared by influence.cpp (structure: shafts, selection,
+// the update), influence_candidates.cpp (the candidates), influence_refine.cpp (refinement,
+// transmissions), influence_objects.cpp (the virtual objects as clusters) and
 // influence_solve.cpp (propagation and the dense reference). Not part of the module's interface.
 #pragma once
 
@@ -317,6 +318,7 @@ struct VirtualInfluence::Impl {
     bool cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball, double* clearance = nullptr) const;
     ObjectState::PairShaft pairShaft(int element, int what) const;
     double radiusOf(int element) const { return shape[static_cast<std::size_t>(element)].radius; }
+    // (influence_candidates.cpp)
     void candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links);
     void collectPairs(int object, const Ball& query, bool scan, std::vector<std::pair<int, int>>& pairs);
     double denominator(int element) const;  // B~ (luminance) a change is relative to: floored
