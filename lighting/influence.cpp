@@ -182,19 +182,33 @@ ObjectState::PairShaft VirtualInfluence::Impl::pairShaft(int element, int what) 
 
 // (The pair's shaft from obj.cache_shafts: its ends are the segment that decides most shafts in a
 // shadow, the base leaf's centroid to the light's centre or the source's centroid.)
-bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball) const {
+bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball, double* clearance) const {
+    // (`clearance`: how far the ball's centre may move with the same answer, or 0 when not known.)
+    if (clearance) *clearance = 0.0;
     const auto [element, what] = obj.cache_pairs[i];
     const ObjectState::PairShaft& ps = obj.cache_shafts[i];
     if (ps.far) return farLightMeetsBall(element, -1 - what, ball);
-    if (!shaftMeetsBall(ps.shaft, ball)) return false;
-    if (segmentMeetsBall(ps.shaft.a, ps.shaft.b, ball)) return true;
+    if (!shaftMeetsBall(ps.shaft, ball)) {
+        if (clearance) *clearance = std::max(0.0, shaftClearance(ps.shaft, ball));
+        return false;
+    }
+    if (segmentMeetsBall(ps.shaft.a, ps.shaft.b, ball)) {
+        if (clearance) *clearance = std::max(0.0, -segmentClearance(ps.shaft.a, ps.shaft.b, ball));
+        return true;
+    }
     if (!obj.cache_hull_known[i]) {
         const std::span<const Eigen::Vector3d> other =
             what < 0 ? lightPolygon(-1 - what) : shape[static_cast<std::size_t>(links[static_cast<std::size_t>(what)].source)].polygon();
         obj.cache_hulls[i] = HullPlanes::of(shape[static_cast<std::size_t>(element)].polygon(), other);
         obj.cache_hull_known[i] = 1;
     }
-    return obj.cache_hulls[i].meets(ball);
+    if (obj.cache_hulls[i].meets(ball)) {
+        // (Met by the planes: while the centre stays inside both the cone's and the planes' reach.)
+        if (clearance) *clearance = std::max(0.0, std::min(-shaftClearance(ps.shaft, ball), obj.cache_hulls[i].depth(ball)));
+        return true;
+    }
+    if (clearance) *clearance = std::max(0.0, obj.cache_hulls[i].clearance(ball));
+    return false;
 }
 
 // A directional light or a distant cell: the element swept towards the light (a cone of the
@@ -395,192 +409,6 @@ void VirtualInfluence::Impl::select(int b) {
     }
 }
 
-// The (base leaf, link or light) pairs whose shaft meets the ball `query` and whose effect there
-// could reach a tenth of link_epsilon for an object anywhere inside it: the shaft index's
-// candidates (cones), links followed from their receivers down to the base leaves (pruned by a bound
-// on that effect), the hull of the two ends tested at the base leaves. `scan`: every shaft instead
-// of the index (the from-scratch baseline). Directional lights and distant cells by a scan of the
-// base leaves.
-void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool scan, std::vector<std::pair<int, int>>& pairs) {
-    const Radiosity& rad = self.radiosity_;
-    const Hierarchy& h = rad.hierarchy();
-    const double item = 0.1 * self.options_.link_epsilon;
-    (void)object;
-    pairs.clear();
-    std::vector<int> ids;
-    if (scan) {
-        for (std::size_t i = 0; i < index->size(); ++i) {
-            if (shaftMeetsBall(index->shaft(static_cast<int>(i)), query)) ids.push_back(static_cast<int>(i));
-        }
-    } else {
-        index->query(query, ids);
-    }
-        // In parallel over blocks of the shafts found, gathered in their order.
-    constexpr std::size_t kBlock = 64;
-    std::vector<std::vector<std::pair<int, int>>> found((ids.size() + kBlock - 1) / kBlock);
-    tbb::parallel_for(std::size_t{0}, found.size(), [&](std::size_t block) {
-        std::vector<std::pair<int, int>>& out = found[block];
-        std::vector<int> stack;
-        for (std::size_t j = block * kBlock; j < std::min(ids.size(), (block + 1) * kBlock); ++j) {
-            const int id = ids[j];
-            if (id >= link_shafts) {
-                const auto [b, k] = light_shafts[static_cast<std::size_t>(id - link_shafts)];
-                if (hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) {
-                    out.emplace_back(b, -1 - k);
-                }
-                continue;
-            }
-            const int link = shaft_link[static_cast<std::size_t>(id)];
-            const Link& l = links[static_cast<std::size_t>(link)];
-            const double w = kPi * static_cast<double>(l.form_factor) * static_cast<double>(l.vis_real);
-            const double source = lumaOf(base.radiance[static_cast<std::size_t>(l.source)]);
-            const ElementShape& src = shape[static_cast<std::size_t>(l.source)];
-            const double source_area = h[l.source].area;
-            stack.assign(1, l.receiver);
-            while (!stack.empty()) {
-                const int e = stack.back();
-                stack.pop_back();
-                const Element& el = h[e];
-                if (el.buried) continue;
-                const ElementShape& es = shape[static_cast<std::size_t>(e)];
-                // Above the base leaves every test uses twice the element's radius, which holds every
-                // element under it: a test passed by a base leaf is passed by its ancestors, so the pairs
-                // found do not depend on the ball the search started from (the cache's or the object's).
-                const bool leaf = base_leaf[static_cast<std::size_t>(e)];
-                const double radius = leaf ? es.radius : 2.0 * es.radius;
-                if (e != l.receiver && !shaftMeetsBall(Shaft{es.centroid, src.centroid, radius, src.radius}, query)) continue;
-                // Bound of the effect anywhere under e of anything inside the query ball: the most it
-                // can cover over the least the source can subtend (its cosine floored as in
-                // linkSignificance()).
-                const double near = std::max((query.centre - es.centroid).norm() - radius, query.radius);
-                const double far = (src.centroid - es.centroid).norm() + radius + src.radius;
-                const double beta = std::min(1.0, ballSolidAngle(query.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
-                if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
-                if (leaf) {
-                    if (hullMeetsBall(es.polygon(), src.polygon(), query)) out.emplace_back(e, link);
-                    continue;
-                }
-                for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);
-            }
-        }
-    });
-    for (const auto& f : found) pairs.insert(pairs.end(), f.begin(), f.end());
-    if (!far_lights.empty()) {
-        for (int e : rad.leaves(Mode::kReal)) {
-            if (!base_leaf[static_cast<std::size_t>(e)]) continue;
-            for (int k : far_lights) {
-                if (farLightMeetsBall(e, k, query)) pairs.emplace_back(e, -1 - k);
-            }
-        }
-    }
-}
-
-// The base leaves where object o (at `ball`) is significant: the sum of its largest effects on
-// B/B~ there, through each light and base link whose shaft it meets, reaches link_epsilon (each
-// effect below a tenth of that is not counted: under a box standing on the floor every link is
-// blocked, and many small ones add up). Recorded per base leaf: the object, and the links through
-// which it matters. The pairs come from the object's cache while it stays inside its cache ball
-// (the same pairs the index would give: the cache holds a superset, filtered here), else from the
-// index again.
-void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links) {
-    const double item = 0.1 * self.options_.link_epsilon;
-    ObjectState& obj = objects[static_cast<std::size_t>(object)];
-    bool refreshed = true;
-    std::vector<std::pair<int, int>> old_pairs;
-    std::vector<HullPlanes> old_hulls;
-    std::vector<char> old_known;
-    if (!scan) {
-        old_pairs.swap(obj.cache_pairs);
-        old_hulls.swap(obj.cache_hulls);
-        old_known.swap(obj.cache_hull_known);
-    }
-    if (scan) {
-        obj.cache_valid = false;
-        collectPairs(object, ball, true, obj.cache_pairs);
-    } else if (!obj.cache_valid || (ball.centre - obj.cache_ball.centre).norm() + ball.radius > obj.cache_ball.radius) {
-        obj.cache_ball = Ball{ball.centre, ball.radius + self.options_.shaft_margin};
-        collectPairs(object, obj.cache_ball, false, obj.cache_pairs);
-        obj.cache_valid = true;
-    } else {
-        refreshed = false;
-        obj.cache_pairs.swap(old_pairs);
-        obj.cache_hulls.swap(old_hulls);
-        obj.cache_hull_known.swap(old_known);
-    }
-    if (refreshed) {
-        // Sorted; the hull planes of the pairs the last cache had, kept (both lists sorted).
-        std::sort(obj.cache_pairs.begin(), obj.cache_pairs.end());
-        obj.cache_hulls.resize(obj.cache_pairs.size());
-        obj.cache_hull_known.assign(obj.cache_pairs.size(), 0);
-        obj.cache_sig.assign(obj.cache_pairs.size(), {0.0, -1.0});
-        obj.cache_shafts.resize(obj.cache_pairs.size());
-        std::size_t j = 0;
-        for (std::size_t i = 0; i < obj.cache_pairs.size() && j < old_pairs.size(); ++i) {
-            while (j < old_pairs.size() && old_pairs[j] < obj.cache_pairs[i]) ++j;
-            if (j < old_pairs.size() && old_pairs[j] == obj.cache_pairs[i] && old_known[j]) {
-                obj.cache_hulls[i] = old_hulls[j];
-                obj.cache_hull_known[i] = 1;
-            }
-        }
-    }
-    std::vector<std::pair<int, double>> sums;       // base leaf, significance
-    std::vector<std::pair<int, int>> link_entries;  // base leaf, link
-    // (The significance first: it is cheaper than the shaft tests.) In parallel over the pairs
-    // (thousands on the room), gathered in their order.
-    std::vector<double> kept(obj.cache_pairs.size(), -1.0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, obj.cache_pairs.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t i = r.begin(); i < r.end(); ++i) {
-            const auto [b, what] = obj.cache_pairs[i];
-            // (A face's transfer through a shared cluster link: its node found whether the object
-            // meets the shaft of the face's root, which holds the base leaf's. A "no" there is read
-            // first: most of a clustered proxy's transfers near an object are not blocked.)
-            const ClusterNode* node = what >= 0 ? sharedNode(what) : nullptr;
-            if (node && (node->transfer_objects[static_cast<std::size_t>(link_position[static_cast<std::size_t>(what)])] & RayScene::virtualBit(object)) == 0) continue;
-            // (What does not depend on where the object is, found once per pair.)
-            auto& parts = obj.cache_sig[i];
-            if (!(parts[1] >= 0.0)) {
-                if (what < 0) {
-                    lightSignificanceParts(b, -1 - what, parts[0], parts[1]);
-                } else {
-                    linkSignificanceParts(b, what, parts[0], parts[1]);
-                }
-                obj.cache_shafts[i] = pairShaft(b, what);
-            }
-            // (objectBlocks() at b's centroid, the shaft's first end: no look-up of b's shape. It is
-            // at most 1, so a share below `item` is never significant: not computed.)
-            if (std::max(parts[0], 0.0) < item) continue;
-            const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, obj.cache_shafts[i].shaft.a, parts[1]) : 0.0;
-            if (!(sig >= item)) continue;
-            // (The node's answer when the base leaf is the face's root, else the leaf's own shaft.)
-            const bool meets = (node && links[static_cast<std::size_t>(what)].receiver == b) || cachedPairMeets(obj, i, ball);
-            if (meets) kept[i] = sig;
-        }
-    });
-    for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
-        if (!(kept[i] >= 0.0)) continue;
-        const auto [b, what] = obj.cache_pairs[i];
-        sums.emplace_back(b, kept[i]);
-        if (what >= 0) link_entries.emplace_back(b, what);
-    }
-    // Significant where the sum reaches link_epsilon.
-    std::sort(sums.begin(), sums.end());
-    std::sort(link_entries.begin(), link_entries.end());
-    std::size_t j = 0;
-    for (std::size_t i = 0; i < sums.size();) {
-        const int b = sums[i].first;
-        double total = 0.0;
-        for (; i < sums.size() && sums[i].first == b; ++i) total += sums[i].second;
-        while (j < link_entries.size() && link_entries[j].first < b) ++j;
-        if (total < self.options_.link_epsilon) continue;
-        touched.push_back(b);
-        if (!record_links) continue;
-        auto& list = entries[static_cast<std::size_t>(b)];
-        list.emplace_back(object, -1);
-        for (std::size_t k = j; k < link_entries.size() && link_entries[k].first == b; ++k) {
-            if (list.empty() || list.back() != std::make_pair(object, link_entries[k].second)) list.emplace_back(object, link_entries[k].second);
-        }
-    }
-}
 
 Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObject>& objects,
                                                 const std::optional<InfluenceViewer>& viewer) {

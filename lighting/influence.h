@@ -96,6 +96,12 @@ struct InfluenceOptions {
     // read either way (test LazyClusterAnswersEqualEager). Off: in the `cluster` case nearly every
     // link a move reaches is read, and finding which costs more than the rays it saves.
     bool lazy_cluster_answers = false;
+    // An object's cached (base leaf, link or light) pairs left alone at a move while it cannot
+    // have come close enough to change their answer: a pair not kept stays out while the ball's
+    // centre has travelled less than the distance by which its significance or its shaft missed,
+    // a shaft the ball met stays met while it has travelled less than how deep it met (test
+    // CachedPairsLeftAloneKeepTheCandidates). False: every pair tested at every move.
+    bool idle_cached_pairs = true;
     // The area lights' direct light is drawn per texel where the objects change it
     // (lighting/texel_direct.h): the elements' own direct transmission only feeds D's share that
     // others receive, so a penumbra splits no element and takes the pilot's estimate.
@@ -149,6 +155,7 @@ struct InfluenceStats {
     int link_evaluated = 0;      // of them, with the corrections of blocked links
     long answers_computed = 0;   // items (a light, a blocked link, an object's light at an element) answered again
     long answers_kept = 0;       // items whose last answer stood (no moved object's old or new bounds in the shaft)
+    long pairs_tested = 0;       // the moved objects' cached (base leaf, link or light) pairs tested (significance, shaft)
     int leaves = 0;              // real leaves in use (base and refined)
     int refined = 0;             // of them, under the base leaves
     int corrections = 0;         // blocked base links corrected at leaves

@@ -1,5 +1,6 @@
-// Internal state of lighting/influence.h, shared by influence.cpp (structure: candidates,
-// refinement, transmissions), influence_objects.cpp (the virtual objects as clusters) and
+// Internal state of lighting/influence.h, shared by influence.cpp (structure: shafts, selection,
+// the update), influence_candidates.cpp (the candidates), influence_refine.cpp (refinement,
+// transmissions), influence_objects.cpp (the virtual objects as clusters) and
 // influence_solve.cpp (propagation and the dense reference). Not part of the module's interface.
 #pragma once
 
@@ -223,6 +224,18 @@ struct ObjectState {
         bool far = false;
     };
     std::vector<PairShaft> cache_shafts;
+    // Cached pairs left alone while the object moves (its candidates at every move): `travel`,
+    // the distance its ball's centre has covered since it was placed (summed move by move, at
+    // least how far it now is from where it was at any earlier move), and per pair the travel up
+    // to which its answer is known: `cache_idle`, it is not kept (its significance stays below
+    // the item threshold, or its shaft stays clear of the ball) while travel < cache_idle;
+    // `cache_meets`, the ball still meets its shaft while travel < cache_meets. Both bounds come
+    // from distances that are 1-Lipschitz in the ball's centre, less a margin for round-off, so
+    // the pairs kept are those the tests would keep. 0: test again.
+    double travel = 0.0;
+    bool travel_known = false;
+    Ball travel_ball;  // the ball at the last move (its radius: a change starts again)
+    std::vector<double> cache_idle, cache_meets;
 };
 
 struct VirtualInfluence::Impl {
@@ -319,9 +332,10 @@ struct VirtualInfluence::Impl {
     bool lightMeetsBall(int element, int light, const Ball& ball) const;
     bool farLightMeetsBall(int element, int light, const Ball& ball) const;
     // lightMeetsBall() / linkMeetsBall() for pair i of an object's cache, the hull's planes found once.
-    bool cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball) const;
+    bool cachedPairMeets(ObjectState& obj, std::size_t i, const Ball& ball, double* clearance = nullptr) const;
     ObjectState::PairShaft pairShaft(int element, int what) const;
     double radiusOf(int element) const { return shape[static_cast<std::size_t>(element)].radius; }
+    // (influence_candidates.cpp)
     void candidates(int object, const Ball& ball, bool scan, std::vector<int>& touched, bool record_links);
     void collectPairs(int object, const Ball& query, bool scan, std::vector<std::pair<int, int>>& pairs);
     double denominator(int element) const;  // B~ (luminance) a change is relative to: floored

@@ -42,6 +42,28 @@ bool shaftMeetsBall(const Shaft& shaft, const Ball& ball) {
     return best <= ball.radius;
 }
 
+double shaftClearance(const Shaft& shaft, const Ball& ball) {
+    // The exact minimum of g (shaftMeetsBall() above), always.
+    const Eigen::Vector3d d = shaft.b - shaft.a;
+    const Eigen::Vector3d q = ball.centre - shaft.a;
+    const double dr = shaft.rb - shaft.ra;
+    const double A = d.squaredNorm(), B = q.dot(d), C = q.squaredNorm();
+    const auto g = [&](double u) { return (q - u * d).norm() - (shaft.ra + u * dr); };
+    double best = std::min(g(0.0), g(1.0));
+    if (A > dr * dr && A > 0.0) {
+        const double u = B / A + dr * std::sqrt(std::max(0.0, A * C - B * B)) / (A * std::sqrt(A - dr * dr));
+        if (u > 0.0 && u < 1.0) best = std::min(best, g(u));
+    }
+    return best - ball.radius;
+}
+
+double segmentClearance(const Eigen::Vector3d& p, const Eigen::Vector3d& q, const Ball& ball) {
+    const Eigen::Vector3d pq = q - p;
+    const double len2 = pq.squaredNorm();
+    const double t = len2 > 0.0 ? std::clamp((ball.centre - p).dot(pq) / len2, 0.0, 1.0) : 0.0;
+    return (p + t * pq - ball.centre).norm() - ball.radius;
+}
+
 namespace {
 
 Eigen::Vector3d meanOf(std::span<const Eigen::Vector3d> points) {

@@ -14,6 +14,7 @@
 // milliseconds for 300 000 shafts), queried on every move (microseconds per hit).
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -43,6 +44,14 @@ struct Ball {
 // Whether the shaft's cone of balls meets the ball (conservative for the shaft itself: a false
 // "meets" costs a visibility computation, a false "misses" would lose a shadow, and cannot happen).
 bool shaftMeetsBall(const Shaft& shaft, const Ball& ball);
+// How far the ball misses the shaft's cone of balls: min over the cone of the distance to the
+// ball's centre, less its radius (<= 0 where they meet). It is 1-Lipschitz in the centre: a ball
+// whose centre moves by less than this still misses (an object's cached shafts left alone while
+// it moves: VirtualInfluence's candidates).
+double shaftClearance(const Shaft& shaft, const Ball& ball);
+// The distance from the ball's centre to the segment from p to q, less the ball's radius (< 0:
+// they meet, and still do after the centre moves by less than its absolute value).
+double segmentClearance(const Eigen::Vector3d& p, const Eigen::Vector3d& q, const Ball& ball);
 
 // Whether the ball meets the convex hull of two convex polygons (or a polygon and a point: `b`
 // of one vertex), by the hull's face planes (Haines and Wallace's shaft planes): every plane
@@ -75,6 +84,21 @@ struct HullPlanes {
         }
         return true;
     }
+    // How far the ball lies outside the farthest of the planes, beyond the slack meets() adds, in
+    // double precision (> 0 only where meets() is false; 1-Lipschitz in the centre, the normals
+    // being unit length to single precision).
+    double clearance(const Ball& ball) const {
+        double best = -1e300;
+        for (int i = 0; i < count; ++i) {
+            const auto& p = planes[static_cast<std::size_t>(i)];
+            best = std::max(best, static_cast<double>(p[0]) * ball.centre.x() + static_cast<double>(p[1]) * ball.centre.y() +
+                                      static_cast<double>(p[2]) * ball.centre.z() - static_cast<double>(p[3]));
+        }
+        return best - (ball.radius + kPlaneSlack);
+    }
+    // How far inside every plane's reach (ball radius and slack) the centre lies: the smallest
+    // margin, in double precision (>= 0 only where meets() is true; a move shorter keeps it true).
+    double depth(const Ball& ball) const { return -clearance(ball); }
 };
 
 class ShaftIndex {

@@ -497,6 +497,48 @@ TEST(Influence, SmallMovesKeepTheAnswersTheyDoNotReach) {
     EXPECT_GT(3 * kept, computed) << computed << " answers computed, " << kept << " kept";
 }
 
+// An object's cached pairs left alone while it cannot have come close enough to change them
+// (InfluenceOptions::idle_cached_pairs) give the candidates every pair tested at every move gives:
+// over 5 mm moves of the ball along a curve (past the cache's refreshes), the cube's moves beside
+// it, and jumps, the same base leaves touched, the same answers and exactly the same difference.
+TEST(Influence, CachedPairsLeftAloneKeepTheCandidates) {
+    const Scene scene = parse(kScene);
+    EstimatorOptions every_options = testOptions();
+    every_options.influence.idle_cached_pairs = false;
+    auto idle = make(scene);
+    auto every = make(scene, every_options);
+    Config config = sceneConfig(scene);
+    long tested_idle = 0, tested_every = 0;
+    for (int step = 0; step < 60; ++step) {
+        config.poses[0].translation = Eigen::Vector3d(-0.2 + 0.005 * step, 0.12 * std::sin(0.09 * step), 0.56);
+        if (step % 3 == 0) config.poses[1].translation = Eigen::Vector3d(0.25, 0.1 - 0.004 * step, 0.54);
+        if (step == 30) config.poses[0].translation = Eigen::Vector3d(0.3, -0.2, 0.7);  // a jump
+        if (step == 45) config.present[1] = false;
+        if (step == 50) config.present[1] = true;
+        ASSERT_TRUE(apply(*idle, config));
+        ASSERT_TRUE(apply(*every, config));
+        const InfluenceStats& a_stats = idle->stats().influence;
+        const InfluenceStats& b_stats = every->stats().influence;
+        ASSERT_EQ(a_stats.touched, b_stats.touched) << "step " << step;
+        ASSERT_EQ(a_stats.evaluated, b_stats.evaluated) << "step " << step;
+        ASSERT_EQ(a_stats.answers_computed, b_stats.answers_computed) << "step " << step;
+        ASSERT_EQ(a_stats.answers_kept, b_stats.answers_kept) << "step " << step;
+        if (step > 0) {
+            tested_idle += a_stats.pairs_tested;
+            tested_every += b_stats.pairs_tested;
+        }
+        const std::map<Place, Eigen::Vector3d> a = differenceByPlace(*idle), b = differenceByPlace(*every);
+        ASSERT_EQ(a.size(), b.size()) << "step " << step;
+        for (const auto& [place, d] : a) {
+            const auto it = b.find(place);
+            ASSERT_NE(it, b.end()) << "step " << step;
+            ASSERT_EQ(d, it->second) << "step " << step;
+        }
+    }
+    // And many pairs are left alone (54% as many tested here; the room's ball in the benchmark: docs/lighting.md).
+    EXPECT_LT(4 * tested_idle, 3 * tested_every) << tested_idle << " pairs tested against " << tested_every;
+}
+
 // A real sphere (320 faces) clustered (RadiosityOptions::cluster_min_faces): the light it and the
 // floor exchange goes through cluster links, which the influence sees as the element links they
 // are linear in. A virtual ball beside it, in front of it and touching it must change the ratio

@@ -151,6 +151,78 @@ TEST(ShaftIndex, HullPlanesAnswerAsTheHullTest) {
     EXPECT_GT(misses, 500);
 }
 
+// The clearances by which an object's cached shafts are left alone while it moves
+// (InfluenceOptions::idle_cached_pairs): shaftClearance() is the sampled minimum of the cone's
+// distance less the ball's radius; a ball moved by less than a positive clearance (shaft, hull
+// planes) still misses, and one moved by less than a segment's depth still meets it; moved by
+// 1.5 times the clearance straight towards the nearest point, most meet.
+TEST(ShaftIndex, ClearancesBoundHowFarABallMayMove) {
+    std::mt19937 rng(17);
+    std::uniform_real_distribution<double> u(-1.0, 1.0), r(0.0, 0.4), unit(0.0, 1.0);
+    const auto towards = [&](double length) { return length * Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized(); };
+    int shaft_clear = 0, shaft_reached = 0, hull_clear = 0, hull_reached = 0, deep = 0;
+    for (int trial = 0; trial < 4000; ++trial) {
+        Shaft s;
+        s.a = {u(rng), u(rng), u(rng)};
+        s.b = s.a + Eigen::Vector3d(u(rng), u(rng), u(rng));
+        s.ra = r(rng);
+        s.rb = r(rng);
+        const Ball ball{s.a + 0.5 * (s.b - s.a) + 1.5 * Eigen::Vector3d(u(rng), u(rng), u(rng)), 0.2 * r(rng)};
+        // The cone: the clearance is the sampled minimum's, and a move shorter keeps the miss.
+        double best = 1e300;
+        double best_t = 0.0;
+        constexpr int kSteps = 4000;
+        for (int k = 0; k <= kSteps; ++k) {
+            const double t = static_cast<double>(k) / kSteps;
+            const double g = (ball.centre - (s.a + t * (s.b - s.a))).norm() - (s.ra + t * (s.rb - s.ra));
+            if (g < best) best = g, best_t = t;
+        }
+        const double clear = shaftClearance(s, ball);
+        ASSERT_NEAR(clear, best - ball.radius, 2.0 * ((s.b - s.a).norm() + std::abs(s.rb - s.ra)) / kSteps + 1e-9) << trial;
+        if (clear > 1e-6) {
+            ASSERT_FALSE(shaftMeetsBall(s, ball)) << trial;
+            for (int k = 0; k < 20; ++k) {
+                ASSERT_FALSE(shaftMeetsBall(s, Ball{ball.centre + towards((clear - 1e-9) * unit(rng)), ball.radius})) << trial << " " << k;
+            }
+            const Eigen::Vector3d nearest = s.a + best_t * (s.b - s.a);
+            if (shaftMeetsBall(s, Ball{ball.centre + 1.5 * clear * (nearest - ball.centre).normalized(), ball.radius})) ++shaft_reached;
+            ++shaft_clear;
+        }
+        // The segment between the ends' centres: met, it stays met over a move shorter than its depth.
+        const Ball near{s.a + unit(rng) * (s.b - s.a) + towards(0.1 * unit(rng)), 0.1 * unit(rng)};
+        const double depth = -segmentClearance(s.a, s.b, near);
+        if (depth > 1e-9) {
+            ASSERT_TRUE(segmentMeetsBall(s.a, s.b, near)) << trial;
+            for (int k = 0; k < 20; ++k) {
+                ASSERT_TRUE(segmentMeetsBall(s.a, s.b, Ball{near.centre + towards((depth - 1e-9) * unit(rng)), near.radius})) << trial << " " << k;
+            }
+            ++deep;
+        }
+        // The hull of two squares: the planes' clearance.
+        const Eigen::Vector3d ea = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized(), fa = ea.unitOrthogonal();
+        const double ha = s.ra / std::sqrt(2.0), hb = s.rb / std::sqrt(2.0);
+        const std::vector<Eigen::Vector3d> pa{s.a - ha * ea - ha * fa, s.a + ha * ea - ha * fa, s.a + ha * ea + ha * fa, s.a - ha * ea + ha * fa};
+        const std::vector<Eigen::Vector3d> pb{s.b - hb * fa - hb * ea, s.b + hb * fa - hb * ea, s.b + hb * fa + hb * ea, s.b - hb * fa + hb * ea};
+        const HullPlanes planes = HullPlanes::of(pa, pb);
+        const double hull = planes.clearance(ball);
+        if (hull > 1e-6) {
+            ASSERT_FALSE(planes.meets(ball)) << trial;
+            for (int k = 0; k < 20; ++k) {
+                ASSERT_FALSE(planes.meets(Ball{ball.centre + towards((hull - 1e-6) * unit(rng)), ball.radius})) << trial << " " << k;
+            }
+            // Straight towards the hull's centre by 1.5 times the clearance: the farthest plane is crossed.
+            const Eigen::Vector3d middle = 0.5 * (s.a + s.b);
+            if (planes.clearance(Ball{ball.centre + 1.5 * hull * (middle - ball.centre).normalized(), ball.radius}) < 0.6 * hull) ++hull_reached;
+            ++hull_clear;
+        }
+    }
+    EXPECT_GT(shaft_clear, 1000);
+    EXPECT_GT(shaft_reached, shaft_clear / 2) << "the shaft's clearance is the distance, not far below it";
+    EXPECT_GT(hull_clear, 500);
+    EXPECT_GT(hull_reached, hull_clear / 2);
+    EXPECT_GT(deep, 200);
+}
+
 TEST(Hierarchy, CollapseRetiresAndSubdivideBringsTheSameChildrenBack) {
     Face f;
     f.edge_s = Eigen::Vector3d(1, 0, 0);
