@@ -22,6 +22,44 @@ namespace {
 
 using namespace influence_test;  // NOLINT(google-build-using-namespace)
 
+// The statue scene's sphere clustered (the cluster tests below).
+EstimatorOptions statueClusteredOptions() {
+    EstimatorOptions options;
+    options.refine_unobserved = true;
+    options.radiosity.cluster_min_faces = 24;
+    return options;
+}
+
+// The statue scene (data/scenes/statue): a ball beside a real sphere of 320 faces on the floor.
+Scene statueScene() {
+    auto read = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/statue/scene.yaml");
+    EXPECT_TRUE(read) << read.error().message;
+    return read ? *read : Scene{};
+}
+
+// A ball's places around the statue's sphere (radius 0.2 m; the ball's 0.08): `jumps` random
+// places 2 mm to 30 cm from touching it, above the floor, and from each `moves` 5 mm steps towards it.
+struct BallPlace {
+    int jump = 0;
+    int move = 0;
+    Eigen::Vector3d at;
+};
+std::vector<BallPlace> placesAroundStatue(unsigned seed, int jumps, int moves) {
+    const Eigen::Vector3d statue(0.0, 0.3, 0.2);
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> unit(-1.0, 1.0), gap(0.0, 0.3);
+    std::vector<BallPlace> out;
+    for (int jump = 0; jump < jumps; ++jump) {
+        Eigen::Vector3d dir(unit(rng), unit(rng), 0.5 * unit(rng));
+        dir.normalize();
+        Eigen::Vector3d at = statue + (0.2 + 0.08 + 0.002 + gap(rng)) * dir;
+        at.z() = std::max(at.z(), 0.081);
+        const Eigen::Vector3d step = 0.005 * (statue - at).normalized();
+        for (int move = 0; move < moves; ++move, at += step) out.push_back({jump, move, at});
+    }
+    return out;
+}
+
 // A real sphere (320 faces) clustered (RadiosityOptions::cluster_min_faces): the light it and the
 // floor exchange goes through cluster links, which the influence sees as the element links they
 // are linear in. A virtual ball beside it, in front of it and touching it must change the ratio
@@ -29,9 +67,8 @@ using namespace influence_test;  // NOLINT(google-build-using-namespace)
 // nothing through them: the sphere's ratio was up to 0.3 off), and the incremental state equals
 // the dense and the from-scratch solves.
 TEST(Influence, ClusteredRealMeshIsShadowedAsUnclustered) {
-    auto read = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/statue/scene.yaml");
-    ASSERT_TRUE(read) << read.error().message;
-    const Scene& scene = *read;
+    const Scene scene = statueScene();
+    ASSERT_FALSE(scene.real_objects.empty());
     // The estimator's own element sizes (the tests' coarser ones leave the sphere's faces too
     // coarse to see the ball's indirect shadow on them).
     EstimatorOptions options;
@@ -79,13 +116,6 @@ TEST(Influence, ClusteredRealMeshIsShadowedAsUnclustered) {
     EXPECT_LT(std::sqrt(sq / static_cast<double>(texels)), 0.02) << "ratio RMS, clustered against unclustered";
 }
 
-// The statue scene's sphere clustered (the cluster tests below).
-EstimatorOptions statueClusteredOptions() {
-    EstimatorOptions options;
-    options.refine_unobserved = true;
-    options.radiosity.cluster_min_faces = 24;
-    return options;
-}
 
 // A virtual ball partly blocking the cluster links that light a clustered real sphere: each
 // cluster link's per-face transfers share one transmission per class of faces (by how deep in
@@ -98,9 +128,8 @@ EstimatorOptions statueClusteredOptions() {
 // sphere (0.019 RMS, 0.11 at worst): both fail. And over 5 mm moves the incremental state equals a
 // fresh rebuild: a shared answer that changes walks the faces it blocked and blocks again.
 TEST(Influence, SharedClusterTransmissionEqualsPerFace) {
-    auto read = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/statue/scene.yaml");
-    ASSERT_TRUE(read) << read.error().message;
-    const Scene& scene = *read;
+    const Scene scene = statueScene();
+    ASSERT_FALSE(scene.real_objects.empty());
     const EstimatorOptions options = statueClusteredOptions();
     EstimatorOptions per_face = options;
     per_face.influence.share_cluster_links = false;
@@ -171,40 +200,30 @@ TEST(Influence, SharedClusterTransmissionEqualsPerFace) {
 // jumps to random places around the statue and 5 mm moves from each (a group ball that does not
 // hold its faces' balls, or a move that meets a group's shaft but keeps the answer, fails).
 TEST(Influence, SharedClusterAnswersGroupedEqualPerFace) {
-    auto read = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/statue/scene.yaml");
-    ASSERT_TRUE(read) << read.error().message;
-    const Scene& scene = *read;
+    const Scene scene = statueScene();
+    ASSERT_FALSE(scene.real_objects.empty());
     const EstimatorOptions options = statueClusteredOptions();
     EstimatorOptions per_face = options;
     per_face.influence.group_cluster_faces = false;
     auto grouped = make(scene, options);
     auto every = make(scene, per_face);
     ASSERT_GT(grouped->radiosity().clusterLinks().size(), 0u) << "the sphere is clustered";
-    const Eigen::Vector3d statue(0.0, 0.3, 0.2);
-    std::mt19937 rng(7);
-    std::uniform_real_distribution<double> unit(-1.0, 1.0), gap(0.0, 0.3);
     Config config = sceneConfig(scene);
     long blocked = 0, compared = 0;
-    for (int jump = 0; jump < 10; ++jump) {
-        Eigen::Vector3d dir(unit(rng), unit(rng), 0.5 * unit(rng));
-        dir.normalize();
-        Eigen::Vector3d at = statue + (0.2 + 0.08 + 0.002 + gap(rng)) * dir;
-        at.z() = std::max(at.z(), 0.081);
-        const Eigen::Vector3d step = 0.005 * (statue - at).normalized();
-        for (int move = 0; move < 3; ++move, at += step) {
-            config.poses[0] = Rigid3d::fromRpyDeg(at, Eigen::Vector3d::Zero());
-            ASSERT_TRUE(apply(*grouped, config));
-            ASSERT_TRUE(apply(*every, config));
-            const auto a = grouped->influence().clusterLinkInfo();
-            const auto b = every->influence().clusterLinkInfo();
-            ASSERT_EQ(a.size(), b.size());
-            for (std::size_t k = 0; k < a.size(); ++k) {
-                ASSERT_EQ(a[k].blocked_faces, b[k].blocked_faces) << "link " << k << ", ball at " << at.transpose();
-                ASSERT_EQ(a[k].transmission, b[k].transmission) << "link " << k << ", ball at " << at.transpose();
-                blocked += static_cast<long>(a[k].blocked_faces.size());
-            }
-            ++compared;
+    for (const BallPlace& ball : placesAroundStatue(7, 10, 3)) {
+        const Eigen::Vector3d& at = ball.at;
+        config.poses[0] = Rigid3d::fromRpyDeg(at, Eigen::Vector3d::Zero());
+        ASSERT_TRUE(apply(*grouped, config));
+        ASSERT_TRUE(apply(*every, config));
+        const auto a = grouped->influence().clusterLinkInfo();
+        const auto b = every->influence().clusterLinkInfo();
+        ASSERT_EQ(a.size(), b.size());
+        for (std::size_t k = 0; k < a.size(); ++k) {
+            ASSERT_EQ(a[k].blocked_faces, b[k].blocked_faces) << "link " << k << ", ball at " << at.transpose();
+            ASSERT_EQ(a[k].transmission, b[k].transmission) << "link " << k << ", ball at " << at.transpose();
+            blocked += static_cast<long>(a[k].blocked_faces.size());
         }
+        ++compared;
     }
     EXPECT_GT(blocked, 100 * compared) << "the ball blocks cluster links to the sphere's faces";
 }
@@ -218,9 +237,7 @@ TEST(Influence, SharedClusterAnswersGroupedEqualPerFace) {
 // at every leaf (the same leaves; within the propagation's bound); the lazy state also equals a
 // fresh rebuild (which a read answer that changed without its faces walked again fails).
 TEST(Influence, LazyClusterAnswersEqualEager) {
-    auto read = readScene(std::filesystem::path(COMMONLIGHT_SOURCE_DIR) / "data/scenes/statue/scene.yaml");
-    ASSERT_TRUE(read) << read.error().message;
-    Scene scene = *read;
+    Scene scene = statueScene();
     ASSERT_EQ(scene.virtual_objects.size(), 1u);
     scene.virtual_objects.push_back(scene.virtual_objects[0]);
     scene.virtual_objects[1].name = "resting";
@@ -232,50 +249,42 @@ TEST(Influence, LazyClusterAnswersEqualEager) {
     auto eager = make(scene, eager_options);
     auto fresh = make(scene, options);
     ASSERT_GT(lazy->radiosity().clusterLinks().size(), 0u) << "the sphere is clustered";
-    const Eigen::Vector3d statue(0.0, 0.3, 0.2);
-    std::mt19937 rng(11);
-    std::uniform_real_distribution<double> unit(-1.0, 1.0), gap(0.0, 0.3);
     Config config = sceneConfig(scene);
     config.poses[1] = Rigid3d::fromRpyDeg(Eigen::Vector3d(-0.25, 0.3, 0.1), Eigen::Vector3d::Zero());
     long made = 0, left = 0, blocked_made = 0;
-    for (int jump = 0; jump < 8; ++jump) {
-        Eigen::Vector3d dir(unit(rng), unit(rng), 0.5 * unit(rng));
-        dir.normalize();
-        Eigen::Vector3d at = statue + (0.2 + 0.08 + 0.002 + gap(rng)) * dir;
-        at.z() = std::max(at.z(), 0.081);
-        const Eigen::Vector3d step = 0.005 * (statue - at).normalized();
-        for (int move = 0; move < 3; ++move, at += step) {
-            std::ostringstream where;
-            where << "jump " << jump << ", move " << move << ", ball at " << at.transpose();
-            config.poses[0] = Rigid3d::fromRpyDeg(at, Eigen::Vector3d::Zero());
-            ASSERT_TRUE(apply(*lazy, config));
-            ASSERT_TRUE(apply(*eager, config));
-            const auto a = lazy->influence().clusterLinkInfo();
-            const auto b = eager->influence().clusterLinkInfo();
-            ASSERT_EQ(a.size(), b.size());
-            for (std::size_t k = 0; k < a.size(); ++k) {
-                ASSERT_TRUE(b[k].known) << "eager: every answer made";
-                ASSERT_EQ(a[k].blocked_faces, b[k].blocked_faces) << "link " << k << ", " << where.str();
-                if (!a[k].known) {
-                    ++left;
-                    continue;
-                }
-                ++made;
-                if (!a[k].blocked_faces.empty()) ++blocked_made;
-                ASSERT_EQ(a[k].transmission, b[k].transmission) << "link " << k << ", " << where.str();
+    constexpr int kMoves = 3;
+    for (const BallPlace& ball : placesAroundStatue(11, 8, kMoves)) {
+        const Eigen::Vector3d& at = ball.at;
+        std::ostringstream where;
+        where << "jump " << ball.jump << ", move " << ball.move << ", ball at " << at.transpose();
+        config.poses[0] = Rigid3d::fromRpyDeg(at, Eigen::Vector3d::Zero());
+        ASSERT_TRUE(apply(*lazy, config));
+        ASSERT_TRUE(apply(*eager, config));
+        const auto a = lazy->influence().clusterLinkInfo();
+        const auto b = eager->influence().clusterLinkInfo();
+        ASSERT_EQ(a.size(), b.size());
+        for (std::size_t k = 0; k < a.size(); ++k) {
+            ASSERT_TRUE(b[k].known) << "eager: every answer made";
+            ASSERT_EQ(a[k].blocked_faces, b[k].blocked_faces) << "link " << k << ", " << where.str();
+            if (!a[k].known) {
+                ++left;
+                continue;
             }
-            const std::map<Place, Eigen::Vector3d> da = differenceByPlace(*lazy), db = differenceByPlace(*eager);
-            ASSERT_EQ(da.size(), db.size()) << where.str() << ": the same leaves";
-            const double tolerance = 20.0 * lazy->influence().options().residual * scaleOf(*lazy);
-            double worst = 0.0;
-            for (const auto& [place, d] : da) {
-                const auto it = db.find(place);
-                ASSERT_NE(it, db.end()) << where.str() << ": the same leaves";
-                worst = std::max(worst, (d - it->second).cwiseAbs().maxCoeff());
-            }
-            EXPECT_LE(worst, tolerance) << where.str() << ": B - B~, lazy against eager";
+            ++made;
+            if (!a[k].blocked_faces.empty()) ++blocked_made;
+            ASSERT_EQ(a[k].transmission, b[k].transmission) << "link " << k << ", " << where.str();
         }
-        expectEqualsFresh(*lazy, *fresh, config, "jump " + std::to_string(jump));
+        const std::map<Place, Eigen::Vector3d> da = differenceByPlace(*lazy), db = differenceByPlace(*eager);
+        ASSERT_EQ(da.size(), db.size()) << where.str() << ": the same leaves";
+        const double tolerance = 20.0 * lazy->influence().options().residual * scaleOf(*lazy);
+        double worst = 0.0;
+        for (const auto& [place, d] : da) {
+            const auto it = db.find(place);
+            ASSERT_NE(it, db.end()) << where.str() << ": the same leaves";
+            worst = std::max(worst, (d - it->second).cwiseAbs().maxCoeff());
+        }
+        EXPECT_LE(worst, tolerance) << where.str() << ": B - B~, lazy against eager";
+        if (ball.move == kMoves - 1) expectEqualsFresh(*lazy, *fresh, config, "jump " + std::to_string(ball.jump));
     }
     EXPECT_GT(left, 0) << "some links' transmissions were never read, so not made";
     EXPECT_GT(blocked_made, 0) << "some read links block faces";
