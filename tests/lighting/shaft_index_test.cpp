@@ -159,7 +159,7 @@ TEST(ShaftIndex, HullPlanesAnswerAsTheHullTest) {
 TEST(ShaftIndex, ClearancesBoundHowFarABallMayMove) {
     std::mt19937 rng(17);
     std::uniform_real_distribution<double> u(-1.0, 1.0), r(0.0, 0.4), unit(0.0, 1.0);
-    const auto towards = [&](double length) { return length * Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized(); };
+    const auto towards = [&](double length) -> Eigen::Vector3d { return length * Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized(); };
     int shaft_clear = 0, shaft_reached = 0, hull_clear = 0, hull_reached = 0, deep = 0;
     for (int trial = 0; trial < 4000; ++trial) {
         Shaft s;
