@@ -1,6 +1,6 @@
 // The straight edges of the real proxy geometry (boxes, planes, meshes) and the proxies as
-// occluders, for model-edge refinement (tracking/edge_refine.h). docs/tracking.md
-// ("Model-edge refinement") describes the model.
+// occluders, for model-edge refinement (tracking/edge_refine.h). docs/edge-refine.md
+// describes the model.
 //
 // Edges:
 // - a box gives its 12 edges, each with the outward normals of its two faces;

@@ -1,6 +1,6 @@
 // Model-edge refinement of the camera pose (seed 000, section 3.1: the calibration is refined by
-// maximising the image gradient at the projections of model edges). docs/tracking.md
-// ("Model-edge refinement") has the model, the parameters and how failures are reported.
+// maximising the image gradient at the projections of model edges). docs/edge-refine.md
+// has the model, the parameters and how failures are reported.
 //
 // Pipeline of refinePoseWithEdges, coarse to fine over an image pyramid:
 //   Step 1: sample points along the projected model edges (tracking/edge_model.h) every
@@ -77,7 +77,7 @@ struct EdgeRefineResult {
     // The refined pose when ok; the initial pose otherwise.
     Rigid3d cam_from_world;
     // Covariance of the refined pose (pose_types.h convention): the edges' cluster-robust
-    // covariance (docs/tracking.md), fused with the prior's information when a prior is given.
+    // covariance (docs/edge-refine.md), fused with the prior's information when a prior is given.
     // Zero when not ok.
     Matrix6d covariance = Matrix6d::Zero();
     int edges_used = 0;                  // model edges with at least one matched point (final iteration)

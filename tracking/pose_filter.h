@@ -1,5 +1,5 @@
 // Temporal filter of the camera pose: a constant-velocity Kalman filter on SE(3) (an error-state
-// EKF). docs/tracking.md ("Temporal filter") has the model and the parameters.
+// EKF). docs/pose-filter.md has the model and the parameters.
 //
 // State: the pose T = cam_from_world and the camera's velocity nu, a twist (omega, v) in the
 // left-perturbation convention of tracking/pose_types.h, so that the constant-velocity motion is

@@ -103,7 +103,7 @@ struct TrackerOptions {
     PoseFilterOptions filter_options;
     // A measurement the filter's gate refuses is still taken, and the filter started again from
     // it, when it rests on two or more of the scene's tags whose corners the bundle fits within
-    // this many pixels RMS (the camera jumped; docs/tracking.md "Hard cases").
+    // this many pixels RMS (the camera jumped; docs/pose-filter.md "Hard cases").
     double jump_max_rms_px = 1.5;
     bool edges = false;  // needs the scene's proxy geometry
     EdgeRefineOptions edge_options;
