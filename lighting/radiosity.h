@@ -69,7 +69,7 @@ struct RadiosityOptions {
     double consistency_tolerance = 0.1;
     int consistency_rounds = 8;
     int max_elements = 8000;         // leaf budget
-    int visibility_rays = 4;         // jittered rays per link (16 for near pairs)
+    int visibility_rays = 4;         // jittered rays per link (16 where its pilot finds it partly blocked or the receiver partly hidden)
     bool hierarchical = true;        // false: every pair of leaves linked (the uniform-grid gather baseline)
     // Clustering of small real proxies (Smits et al. 1994; lighting/radiosity_cluster.cpp): a real
     // object with at least cluster_min_faces faces (a mesh, a real sphere's 320 triangles), or
