@@ -145,7 +145,8 @@ struct Tracker::State {
     }
 
     std::vector<PixelWindow> windows(const std::optional<Rigid3d>& predicted) const {
-        return trackingWindows(camera, tags, predicted, last_detections, options);
+        return trackingWindows(camera, tags, predicted, last_detections, options,
+                               options.verify_skip_occluded ? occluders() : nullptr);
     }
 };
 
@@ -542,18 +543,9 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                     if (other != item.id) others.push_back(s.patterns.get(other));
                 }
                 const Rigid3d predicted_cam_from_tag = *basis * item.world_from_tag;
-                if (s.options.verify_skip_occluded && s.occluders()) {
-                    // 3 x 3 points on the black square, against the proxies from the camera centre.
-                    const Eigen::Vector3d eye = basis->inverse().translation;
-                    int hidden = 0;
-                    for (int j = -1; j <= 1; ++j) {
-                        for (int i = -1; i <= 1; ++i) {
-                            const Eigen::Vector3d p =
-                                item.world_from_tag * Eigen::Vector3d(0.4 * i * item.size, 0.4 * j * item.size, 0.0);
-                            hidden += s.occluders()->occluded(eye, p, 1e-3) ? 1 : 0;
-                        }
-                    }
-                    if (hidden >= 3) continue;
+                if (s.options.verify_skip_occluded && s.occluders() &&
+                    hiddenByProxies(*s.occluders(), basis->inverse().translation, item)) {
+                    continue;
                 }
                 const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *pattern, others, item.size,
                                                              predicted_cam_from_tag, s.options.verify, knownAt(item.id));

@@ -49,11 +49,16 @@ std::vector<PixelWindow> mergeOverlapping(std::vector<PixelWindow> windows) {
 std::vector<PixelWindow> trackingWindows(const CameraModel& camera, const TagSet& tags,
                                          const std::optional<Rigid3d>& predicted,
                                          const std::vector<TagDetection>& last_detections,
-                                         const TrackerOptions& options) {
+                                         const TrackerOptions& options, const EdgeModel* occluders) {
     std::vector<PixelWindow> out;
     std::vector<int> covered;
     if (predicted) {
+        const Eigen::Vector3d eye = predicted->inverse().translation;
         for (const TagItem& item : tags.items) {
+            // Its back to the camera, or behind a proxy: not in view (the verification skips the
+            // hidden ones too), unless the last frame detected it (below).
+            if (facesAway(*predicted * item.world_from_tag)) continue;
+            if (occluders && hiddenByProxies(*occluders, eye, item)) continue;
             std::array<Eigen::Vector2d, 4> corners;
             bool ok = true;
             for (int c = 0; c < 4 && ok; ++c) {
@@ -91,6 +96,22 @@ std::vector<PixelWindow> trackingWindows(const CameraModel& camera, const TagSet
         out.push_back(grownBox(d.corners, options.window_margin, options.window_min_margin_px));
     }
     return mergeOverlapping(std::move(out));
+}
+
+bool facesAway(const Rigid3d& cam_from_tag) {
+    // The camera centre in the tag's frame: in front of the printed side when its z is positive.
+    return !(cam_from_tag.inverse().translation.z() > 0.0);
+}
+
+bool hiddenByProxies(const EdgeModel& occluders, const Eigen::Vector3d& eye, const TagItem& item) {
+    int hidden = 0;
+    for (int j = -1; j <= 1; ++j) {
+        for (int i = -1; i <= 1; ++i) {
+            const Eigen::Vector3d p = item.world_from_tag * Eigen::Vector3d(0.4 * i * item.size, 0.4 * j * item.size, 0.0);
+            hidden += occluders.occluded(eye, p, 1e-3) ? 1 : 0;
+        }
+    }
+    return hidden >= 3;
 }
 
 double shorterSpan(const std::array<Eigen::Vector2d, 4>& c) {

@@ -9,6 +9,7 @@
 #include <Eigen/Core>
 
 #include "core/camera_model.h"
+#include "tracking/edge_model.h"
 #include "tracking/tag_align.h"
 #include "tracking/tag_detector.h"
 #include "tracking/tracker.h"
@@ -33,12 +34,21 @@ std::vector<PixelWindow> mergeOverlapping(std::vector<PixelWindow> windows);
 
 // Tracking mode's windows (TrackerOptions::tracking_mode): around each scene tag `predicted`
 // puts in the image whose black square's shorter span is at least window_min_span_px times the
-// decimation, and where the last frame detected the others (tags the scene does not place, or
-// all of them without a prediction); merged where they overlap.
+// decimation, that faces the camera and that `occluders` (when given) do not hide, and where the
+// last frame detected the others (tags the scene does not place, or all of them without a
+// prediction); merged where they overlap.
 std::vector<PixelWindow> trackingWindows(const CameraModel& camera, const TagSet& tags,
                                          const std::optional<Rigid3d>& predicted,
                                          const std::vector<TagDetection>& last_detections,
-                                         const TrackerOptions& options);
+                                         const TrackerOptions& options, const EdgeModel* occluders = nullptr);
+
+// Whether the tag's printed side (+z, docs/formats-scene.md) faces away from the camera: the
+// camera centre on its plane or behind it.
+bool facesAway(const Rigid3d& cam_from_tag);
+
+// Whether the proxies hide the tag from `eye` (world): 3 or more of 3 x 3 points on its black
+// square (0.4 of its size apart) behind them.
+bool hiddenByProxies(const EdgeModel& occluders, const Eigen::Vector3d& eye, const TagItem& item);
 
 // A quad's shorter side over its longer (opposite sides averaged); 0 for a degenerate one.
 double squareAspect(const std::array<Eigen::Vector2d, 4>& corners);
