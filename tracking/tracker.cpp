@@ -544,7 +544,7 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
                 }
                 const Rigid3d predicted_cam_from_tag = *basis * item.world_from_tag;
                 if (s.options.verify_skip_occluded && s.occluders() &&
-                    hiddenByProxies(*s.occluders(), basis->inverse().translation, item)) {
+                    hiddenByProxies(*s.occluders(), basis->inverse().translation, item, 3)) {
                     continue;
                 }
                 const TagVerifyResult v = verifyPredictedTag(gray8, s.camera, *pattern, others, item.size,

@@ -58,7 +58,7 @@ std::vector<PixelWindow> trackingWindows(const CameraModel& camera, const TagSet
             // Its back to the camera, or behind a proxy: not in view (the verification skips the
             // hidden ones too), unless the last frame detected it (below).
             if (facesAway(*predicted * item.world_from_tag)) continue;
-            if (occluders && hiddenByProxies(*occluders, eye, item)) continue;
+            if (occluders && hiddenByProxies(*occluders, eye, item, 9)) continue;
             std::array<Eigen::Vector2d, 4> corners;
             bool ok = true;
             for (int c = 0; c < 4 && ok; ++c) {
@@ -103,7 +103,7 @@ bool facesAway(const Rigid3d& cam_from_tag) {
     return !(cam_from_tag.inverse().translation.z() > 0.0);
 }
 
-bool hiddenByProxies(const EdgeModel& occluders, const Eigen::Vector3d& eye, const TagItem& item) {
+bool hiddenByProxies(const EdgeModel& occluders, const Eigen::Vector3d& eye, const TagItem& item, int min_hidden) {
     int hidden = 0;
     for (int j = -1; j <= 1; ++j) {
         for (int i = -1; i <= 1; ++i) {
@@ -111,7 +111,7 @@ bool hiddenByProxies(const EdgeModel& occluders, const Eigen::Vector3d& eye, con
             hidden += occluders.occluded(eye, p, 1e-3) ? 1 : 0;
         }
     }
-    return hidden >= 3;
+    return hidden >= min_hidden;
 }
 
 double shorterSpan(const std::array<Eigen::Vector2d, 4>& c) {
