@@ -104,11 +104,16 @@ bool facesAway(const Rigid3d& cam_from_tag) {
 }
 
 bool hiddenByProxies(const EdgeModel& occluders, const Eigen::Vector3d& eye, const TagItem& item, int min_hidden) {
-    int hidden = 0;
+    // Stops as soon as the answer is known: a window (9 of 9) at the first point in view, which
+    // for a tag in view is the first one.
+    int hidden = 0, tested = 0;
     for (int j = -1; j <= 1; ++j) {
         for (int i = -1; i <= 1; ++i) {
             const Eigen::Vector3d p = item.world_from_tag * Eigen::Vector3d(0.4 * i * item.size, 0.4 * j * item.size, 0.0);
             hidden += occluders.occluded(eye, p, 1e-3) ? 1 : 0;
+            ++tested;
+            if (hidden >= min_hidden) return true;
+            if (hidden + (9 - tested) < min_hidden) return false;
         }
     }
     return hidden >= min_hidden;
