@@ -10,9 +10,11 @@
 #include <Eigen/Eigenvalues>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
+#include <unsupported/Eigen/LevenbergMarquardt>
 
 #include "tracking/option_checks.h"
 #include "tracking/projection.h"
+#include "tracking/se3_jacobians.h"
 
 namespace commonlight::tracking {
 namespace {
@@ -43,6 +45,85 @@ void toRvecTvec(const Rigid3d& pose, cv::Mat& rvec, cv::Mat& tvec) {
 }
 
 bool finiteMat(const cv::Mat& m) { return cv::checkRange(m, true, nullptr, -1e12, 1e12); }
+
+// The four corners' reprojection error in the distorted image as a function of the pose's
+// (rvec, tvec), the parameters cv::solvePnPRefineLM refines, for Eigen's Levenberg-Marquardt
+// (MINPACK's lmder): residuals through our lens model, the Jacobian analytic (projectWithJacobian
+// for the camera-frame point, the left Jacobian of SO(3) for the rotation vector). A corner that
+// leaves the lens model's valid radius stops the solver (the caller then runs OpenCV's).
+// Dynamic sizes: the module's QR solve does not compile for a fixed-size Jacobian (Eigen 3.4).
+struct CornerReprojection : Eigen::DenseFunctor<double> {
+    CornerReprojection() : Eigen::DenseFunctor<double>(6, 8) {}
+    const std::array<Eigen::Vector3d, 4>* object = nullptr;
+    const std::array<Eigen::Vector2d, 4>* corners = nullptr;
+    const CameraModel* camera = nullptr;
+
+    static Eigen::Matrix3d rotation(const Eigen::VectorXd& x) {
+        const Eigen::Vector3d r = x.head<3>();
+        const double angle = r.norm();
+        return angle > 0 ? Eigen::AngleAxisd(angle, r / angle).toRotationMatrix() : Eigen::Matrix3d::Identity();
+    }
+    int operator()(const Eigen::VectorXd& x, Eigen::VectorXd& residuals) const {
+        const Eigen::Matrix3d r = rotation(x);
+        for (std::size_t i = 0; i < 4; ++i) {
+            const auto p = camera->project(r * (*object)[i] + x.tail<3>());
+            if (!p) return -1;
+            residuals.segment<2>(2 * static_cast<Eigen::Index>(i)) = *p - (*corners)[i];
+        }
+        return 0;
+    }
+    int df(const Eigen::VectorXd& x, JacobianType& jacobian) const {
+        const Eigen::Vector3d rv = x.head<3>();
+        const Eigen::Matrix3d r = rotation(x);
+        // R(r + d) ~= exp(J_l(r) d) R(r): J_l = I + (1 - cos a)/a^2 [r]x + (a - sin a)/a^3 [r]x^2.
+        const double a = rv.norm();
+        const double c1 = a > 1e-6 ? (1.0 - std::cos(a)) / (a * a) : 0.5;
+        const double c2 = a > 1e-6 ? (a - std::sin(a)) / (a * a * a) : 1.0 / 6.0;
+        const Eigen::Matrix3d k = hat3(rv);
+        const Eigen::Matrix3d left = Eigen::Matrix3d::Identity() + c1 * k + c2 * k * k;
+        for (std::size_t i = 0; i < 4; ++i) {
+            const Eigen::Vector3d rotated = r * (*object)[i];
+            const auto proj = projectWithJacobian(*camera, rotated + x.tail<3>());
+            if (!proj) return -1;
+            const auto row = 2 * static_cast<Eigen::Index>(i);
+            jacobian.block<2, 3>(row, 0) = proj->d_pixel_d_p * (-hat3(rotated) * left);
+            jacobian.block<2, 3>(row, 3) = proj->d_pixel_d_p;
+        }
+        return 0;
+    }
+};
+
+// Levenberg-Marquardt on the corners from `start` by Eigen's module (cv::solvePnPRefineLM costs
+// about 0.5 M instructions a call through cv::Mat: docs/tracking.md, "Speed (issue 13)").
+// nullopt when a corner leaves the lens model's valid radius or the result is not finite.
+std::optional<Rigid3d> refineCornersLm(const std::array<Eigen::Vector3d, 4>& object,
+                                       const std::array<Eigen::Vector2d, 4>& corners, const CameraModel& camera,
+                                       const Rigid3d& start) {
+    CornerReprojection f;
+    f.object = &object;
+    f.corners = &corners;
+    f.camera = &camera;
+    const Eigen::AngleAxisd aa(start.rotation.normalized());
+    Eigen::VectorXd x(6);
+    x << aa.angle() * aa.axis(), start.translation;
+    Eigen::LevenbergMarquardt<CornerReprojection> lm(f);
+    // As the OpenCV call: stops when a step changes the parameters by under 1e-9 relative (1 nm at
+    // 1 m), after at most 30 accepted steps; no stop on the cost's relative reduction.
+    lm.setXtol(1e-9);
+    lm.setFtol(0.0);
+    lm.setMaxfev(400);
+    auto status = lm.minimizeInit(x);
+    if (status == Eigen::LevenbergMarquardtSpace::UserAsked) return std::nullopt;
+    do {
+        status = lm.minimizeOneStep(x);
+    } while (status == Eigen::LevenbergMarquardtSpace::Running && lm.iterations() <= 30);
+    if (status == Eigen::LevenbergMarquardtSpace::UserAsked || !x.allFinite()) return std::nullopt;
+    const Eigen::Vector3d rv = x.head<3>();
+    const double angle = rv.norm();
+    const Eigen::Quaterniond q = angle > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(angle, rv / angle))
+                                           : Eigen::Quaterniond::Identity();
+    return Rigid3d(q, x.tail<3>());
+}
 
 // Quad size in pixels (longest side).
 double quadScale(const std::array<Eigen::Vector2d, 4>& c) {
@@ -218,19 +299,25 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
 
     // Step 3: refine each with Levenberg-Marquardt on the reprojection error in the distorted image.
     std::vector<TagPoseCandidate> candidates;
+    std::array<Eigen::Vector3d, 4> object_in_tag;
+    for (int i = 0; i < 4; ++i) object_in_tag[static_cast<std::size_t>(i)] = tagCornerInTag(i, size);
     const auto refineStart = [&](const Rigid3d& start) {
-        cv::Mat rvec, tvec;
-        toRvecTvec(start, rvec, tvec);
         Rigid3d refined = start;
-        try {
-            // Stops when a step changes the parameters by under 1e-9 relative (1 nm at 1 m):
-            // 1e-12 bought nothing but iterations (wide's solve step 0.64 -> 0.54 ms per frame).
-            cv::solvePnPRefineLM(object, distorted, k_mat, dist, rvec, tvec,
-                                 cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 30, 1e-9));
-            if (!finiteMat(rvec) || !finiteMat(tvec)) return;  // never an unrefined pose as a result
-            refined = fromRvecTvec(rvec, tvec);
-        } catch (const cv::Exception&) {
-            return;
+        if (const auto lm = refineCornersLm(object_in_tag, corners, camera, start); lm && lm->isValid()) {
+            refined = *lm;
+        } else {
+            try {
+                cv::Mat rvec, tvec;
+                toRvecTvec(start, rvec, tvec);
+                // Stops when a step changes the parameters by under 1e-9 relative (1 nm at 1 m):
+                // 1e-12 bought nothing but iterations (wide's solve step 0.64 -> 0.54 ms per frame).
+                cv::solvePnPRefineLM(object, distorted, k_mat, dist, rvec, tvec,
+                                     cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 30, 1e-9));
+                if (!finiteMat(rvec) || !finiteMat(tvec)) return;  // never an unrefined pose as a result
+                refined = fromRvecTvec(rvec, tvec);
+            } catch (const cv::Exception&) {
+                return;
+            }
         }
         // LM stops where it cannot improve; a start that is already the minimum (exact corners)
         // may then reproject marginally better than LM's last step: keep the better of the two.

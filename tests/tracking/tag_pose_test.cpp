@@ -10,6 +10,9 @@
 #include <numbers>
 #include <random>
 
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core/eigen.hpp>
+
 namespace commonlight::tracking {
 namespace {
 
@@ -248,6 +251,60 @@ TEST(TagPose, StrongDistortionCornersAreUndistortedAndFitted) {
     ASSERT_TRUE(pose) << pose.error().message;
     EXPECT_LT(rotationErrorDeg(pose->cam_from_tag, truth), 1e-5);
     EXPECT_LT(pose->rms_px, 1e-6);
+}
+
+// The refinement ends at a minimum of the corners' reprojection error in the distorted image:
+// OpenCV's solvePnPRefineLM, run from each candidate to convergence (500 steps, 1e-14), moves it by
+// nothing and improves it by nothing. Noisy corners under strong distortion (k1 -0.4, k2 0.1, p1
+// 0.002), near the image corner, so that IPPE's start on the undistorted corners is not the minimum.
+TEST(TagPose, CandidatesAreMinimaOfTheDistortedReprojection) {
+    CameraModel cam = camera(-0.4);
+    cam.distortion.k2 = 0.1;
+    cam.distortion.p1 = 0.002;
+    cv::Mat k_mat;
+    cv::eigen2cv(cam.K(), k_mat);
+    const cv::Mat dist = (cv::Mat_<double>(1, 5) << cam.distortion.k1, cam.distortion.k2, cam.distortion.p1,
+                          cam.distortion.p2, cam.distortion.k3);
+    std::mt19937 rng(11);
+    std::normal_distribution<double> noise(0.0, 0.3);
+    int candidates = 0;
+    double max_moved_deg = 0.0, max_gain_px = 0.0;
+    for (int trial = 0; trial < 40; ++trial) {
+        const Rigid3d truth = tagPose(0.6 + 0.02 * trial, 10.0 + trial, 7.0 * trial, Vector3d(0.25, 0.12, 0));
+        Corners corners = project(cam, truth, 0.05);
+        for (auto& c : corners) c += Vector2d(noise(rng), noise(rng));
+        const auto pose = solveTagPose(0, corners, 0.05, cam);
+        ASSERT_TRUE(pose) << pose.error().message;
+        for (const TagPoseCandidate& c : pose->candidates) {
+            std::vector<cv::Point3d> object;
+            std::vector<cv::Point2d> image;
+            for (int i = 0; i < 4; ++i) {
+                const Vector3d o = tagCornerInTag(i, 0.05);
+                object.emplace_back(o.x(), o.y(), o.z());
+                image.emplace_back(corners[i].x(), corners[i].y());
+            }
+            cv::Mat rmat, rvec, tvec;
+            cv::eigen2cv(Eigen::Matrix3d(c.cam_from_tag.rotationMatrix()), rmat);
+            cv::Rodrigues(rmat, rvec);
+            cv::eigen2cv(Vector3d(c.cam_from_tag.translation), tvec);
+            cv::solvePnPRefineLM(object, image, k_mat, dist, rvec, tvec,
+                                 cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 500, 1e-14));
+            cv::Rodrigues(rvec, rmat);
+            Eigen::Matrix3d r;
+            cv::cv2eigen(rmat, r);
+            Vector3d t;
+            cv::cv2eigen(tvec, t);
+            const Rigid3d converged(Eigen::Quaterniond(r), t);
+            max_moved_deg = std::max(max_moved_deg, rotationErrorDeg(converged, c.cam_from_tag));
+            max_gain_px = std::max(max_gain_px, c.rms_px - tagReprojectionRms(corners, 0.05, cam, converged));
+            ++candidates;
+        }
+    }
+    std::printf("  %d candidates: OpenCV's converged LM moves them by at most %.2g deg, lowers the RMS by at most %.2g px\n",
+                candidates, max_moved_deg, max_gain_px);
+    EXPECT_GE(candidates, 40);
+    EXPECT_LT(max_moved_deg, 1e-3);
+    EXPECT_LT(max_gain_px, 1e-7);
 }
 
 TEST(TagPose, DegenerateCornersAreErrorsNotNan) {
