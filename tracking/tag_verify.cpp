@@ -124,6 +124,13 @@ public:
         model_.assign(static_cast<std::size_t>(width * height), 0.0);
         blurred_.assign(model_.size(), 0.0);
         m_.resize(mask_.size());
+        // The mask as runs of consecutive pixels of one row, in its order (the vertical blur's
+        // loops over them are contiguous, so the compiler vectorizes them).
+        for (std::size_t i = 0; i < mask_.size(); ++i) {
+            if (runs_.empty() || runs_.back().y != mask_y_[i] || runs_.back().x1 + 1 != mask_x_[i])
+                runs_.push_back({mask_y_[i], mask_x_[i], mask_x_[i] - 1, static_cast<int>(i)});
+            ++runs_.back().x1;
+        }
     }
     std::size_t samples() const { return mask_.size(); }
     double imageStddev() const { return std::sqrt(image_ss_ / static_cast<double>(image_.size())); }
@@ -296,22 +303,21 @@ private:
                 // The optics: the level's Gaussian each way, edges clamped (rows over the spans
                 // the vertical pass reads, columns at the mask's pixels only; the clamping only
                 // within 2 px of an edge).
+                const double k0 = k[0], k1 = k[1], k2 = k[2], k3 = k[3], k4 = k[4];
                 const auto clampedTap = [&](const double* row, int x, int t) {
                     return k[static_cast<std::size_t>(t + 2)] * row[std::clamp(x + t, 0, width_ - 1)];
                 };
                 for (int y = 0; y < height_; ++y) {
                     const double* row = model_.data() + static_cast<std::size_t>(y * width_);
-                    double* out = blurred_.data() + static_cast<std::size_t>(y * width_);
+                    double* __restrict out = blurred_.data() + static_cast<std::size_t>(y * width_);
                     const int lo = blur_lo_[static_cast<std::size_t>(y)], hi = blur_hi_[static_cast<std::size_t>(y)];
                     const int inner_lo = std::max(lo, 2), inner_hi = std::min(hi, width_ - 3);
                     for (int x = lo; x <= hi; ++x) {
                         if (x >= inner_lo && x <= inner_hi) {
-                            // The run without clamping.
-                            for (; x <= inner_hi; ++x) {
-                                double v = 0;
-                                for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * row[x + t];
-                                out[x] = v;
-                            }
+                            // The run without clamping: the same products summed in the same
+                            // order as the clamped taps (0 + the first is the first: all are >= 0).
+                            for (; x <= inner_hi; ++x)
+                                out[x] = k0 * row[x - 2] + k1 * row[x - 1] + k2 * row[x] + k3 * row[x + 1] + k4 * row[x + 2];
                             if (x > hi) break;
                         }
                         double v = 0;
@@ -319,22 +325,18 @@ private:
                         out[x] = v;
                     }
                 }
-                for (std::size_t i = 0; i < mask_.size(); ++i) {
-                    const int p = mask_[i];
-                    const int y = mask_y_[i];
-                    double v = 0;
-                    if (y >= 2 && y + 2 < height_) {
-                        for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * blurred_[static_cast<std::size_t>(p + t * width_)];
-                    } else {
-                        const int x = mask_x_[i];
-                        for (int t = -2; t <= 2; ++t) {
-                            v += k[static_cast<std::size_t>(t + 2)] *
-                                 blurred_[static_cast<std::size_t>(std::clamp(y + t, 0, height_ - 1) * width_ + x)];
-                        }
-                    }
-                    m_[i] = v;
-                    sm += v;
+                // Vertically at the mask's pixels, run by run (rows clamped to the box: the rows
+                // the clamped index reads).
+                for (const Run& r : runs_) {
+                    const auto rowAt = [&](int t) {
+                        return blurred_.data() + static_cast<std::size_t>(std::clamp(r.y + t, 0, height_ - 1) * width_);
+                    };
+                    const double *r0 = rowAt(-2), *r1 = rowAt(-1), *r2 = rowAt(0), *r3 = rowAt(1), *r4 = rowAt(2);
+                    double* __restrict out = m_.data() + r.i0;
+                    for (int x = r.x0; x <= r.x1; ++x)
+                        out[x - r.x0] = k0 * r0[x] + k1 * r1[x] + k2 * r2[x] + k3 * r3[x] + k4 * r4[x];
                 }
+                for (std::size_t i = 0; i < mask_.size(); ++i) sm += m_[i];
             }
             sm /= static_cast<double>(mask_.size());
             double smg = 0, smm = 0;
@@ -355,6 +357,10 @@ private:
     std::vector<Eigen::Vector2d> uv_;
     std::vector<Eigen::Vector4d> range_;  // per pixel, its sub-samples' min and max u, min and max v
     std::vector<int> mask_, mask_x_, mask_y_;
+    struct Run {
+        int y, x0, x1, i0;  // row, first and last column, index of the first in mask_
+    };
+    std::vector<Run> runs_;
     // Per row of the box: the columns the horizontal blur computes, and those the model renders
     // (empty when lo > hi).
     std::vector<int> blur_lo_, blur_hi_, render_lo_, render_hi_;
