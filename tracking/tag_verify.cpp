@@ -122,14 +122,18 @@ public:
         for (double& g : image_) g -= mean;  // centred once: the NCC needs the image's deviations only
         for (double g : image_) image_ss_ += g * g;
         model_.assign(static_cast<std::size_t>(width * height), 0.0);
-        blurred_.assign(model_.size(), 0.0);
-        m_.resize(mask_.size());
+        blurred_.assign(3 * model_.size(), 0.0);
+        m_.resize(3 * mask_.size());
         // The mask as runs of consecutive pixels of one row, in its order (the vertical blur's
         // loops over them are contiguous, so the compiler vectorizes them).
         for (std::size_t i = 0; i < mask_.size(); ++i) {
             if (runs_.empty() || runs_.back().y != mask_y_[i] || runs_.back().x1 + 1 != mask_x_[i])
-                runs_.push_back({mask_y_[i], mask_x_[i], mask_x_[i] - 1, static_cast<int>(i)});
+                runs_.push_back({mask_y_[i], mask_x_[i], mask_x_[i] - 1, static_cast<int>(i), {}});
             ++runs_.back().x1;
+        }
+        for (Run& r : runs_) {
+            for (int t = -2; t <= 2; ++t)
+                r.rows[static_cast<std::size_t>(t + 2)] = static_cast<std::size_t>(std::clamp(r.y + t, 0, height - 1) * width);
         }
     }
     std::size_t samples() const { return mask_.size(); }
@@ -291,63 +295,88 @@ private:
             }
         }
         double best = -2.0;
-        for (const auto& k : kernels_) {
-            double sm = 0;
-            if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
-                // No blur: the model itself (what the sums below give, exactly).
-                for (std::size_t i = 0; i < mask_.size(); ++i) {
-                    m_[i] = model_[static_cast<std::size_t>(mask_[i])];
-                    sm += m_[i];
-                }
-            } else {
-                // The optics: the level's Gaussian each way, edges clamped (rows over the spans
-                // the vertical pass reads, columns at the mask's pixels only; the clamping only
-                // within 2 px of an edge).
-                const double k0 = k[0], k1 = k[1], k2 = k[2], k3 = k[3], k4 = k[4];
-                const auto clampedTap = [&](const double* row, int x, int t) {
-                    return k[static_cast<std::size_t>(t + 2)] * row[std::clamp(x + t, 0, width_ - 1)];
-                };
-                for (int y = 0; y < height_; ++y) {
-                    const double* row = model_.data() + static_cast<std::size_t>(y * width_);
-                    double* __restrict out = blurred_.data() + static_cast<std::size_t>(y * width_);
-                    const int lo = blur_lo_[static_cast<std::size_t>(y)], hi = blur_hi_[static_cast<std::size_t>(y)];
-                    const int inner_lo = std::max(lo, 2), inner_hi = std::min(hi, width_ - 3);
-                    for (int x = lo; x <= hi; ++x) {
-                        if (x >= inner_lo && x <= inner_hi) {
-                            // The run without clamping: the same products summed in the same
-                            // order as the clamped taps (0 + the first is the first: all are >= 0).
-                            for (; x <= inner_hi; ++x)
-                                out[x] = k0 * row[x - 2] + k1 * row[x - 1] + k2 * row[x] + k3 * row[x + 1] + k4 * row[x + 2];
-                            if (x > hi) break;
-                        }
-                        double v = 0;
-                        for (int t = -2; t <= 2; ++t) v += clampedTap(row, x, t);
-                        out[x] = v;
-                    }
-                }
-                // Vertically at the mask's pixels, run by run (rows clamped to the box: the rows
-                // the clamped index reads).
-                for (const Run& r : runs_) {
-                    const auto rowAt = [&](int t) {
-                        return blurred_.data() + static_cast<std::size_t>(std::clamp(r.y + t, 0, height_ - 1) * width_);
-                    };
-                    const double *r0 = rowAt(-2), *r1 = rowAt(-1), *r2 = rowAt(0), *r3 = rowAt(1), *r4 = rowAt(2);
-                    double* __restrict out = m_.data() + r.i0;
-                    for (int x = r.x0; x <= r.x1; ++x)
-                        out[x - r.x0] = k0 * r0[x] + k1 * r1[x] + k2 * r2[x] + k3 * r3[x] + k4 * r4[x];
-                }
-                for (std::size_t i = 0; i < mask_.size(); ++i) sm += m_[i];
-            }
+        // The NCC of one blur level's values at the mask's pixels.
+        const auto score = [&](const double* m, double sm) {
             sm /= static_cast<double>(mask_.size());
             double smg = 0, smm = 0;
             for (std::size_t i = 0; i < mask_.size(); ++i) {
-                const double a = m_[i] - sm;
+                const double a = m[i] - sm;
                 smg += a * image_[i];
                 smm += a * a;
             }
             if (smm > 0 && image_ss_ > 0) best = std::max(best, smg / std::sqrt(smm * image_ss_));
+        };
+        // The blur levels three at a time (one pass over the model's rows and the mask's runs for
+        // the three; each level's values the sums they were one level at a time), the no-blur
+        // level as the model itself. The best is a maximum: the levels' order does not change it.
+        std::array<const std::array<double, 5>*, 3> group{};
+        int grouped = 0;
+        const auto flush = [&] {
+            if (grouped == 3) blurLevels<3>(group);
+            if (grouped == 2) blurLevels<2>(group);
+            if (grouped == 1) blurLevels<1>(group);
+            for (int g = 0; g < grouped; ++g) {
+                const double* m = m_.data() + static_cast<std::size_t>(g) * mask_.size();
+                double sm = 0;
+                for (std::size_t i = 0; i < mask_.size(); ++i) sm += m[i];
+                score(m, sm);
+            }
+            grouped = 0;
+        };
+        for (const auto& k : kernels_) {
+            if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
+                // No blur: the model itself (what the sums below give, exactly).
+                double sm = 0;
+                for (std::size_t i = 0; i < mask_.size(); ++i) {
+                    m_[i] = model_[static_cast<std::size_t>(mask_[i])];
+                    sm += m_[i];
+                }
+                score(m_.data(), sm);
+                continue;
+            }
+            group[static_cast<std::size_t>(grouped++)] = &k;
+            if (grouped == 3) flush();
         }
+        flush();
         return best > -2.0 ? best : 0.0;
+    }
+
+    // G blur levels of the model: the Gaussian each way, edges clamped (rows over the spans the
+    // vertical pass reads, columns at the mask's pixels only; the clamping only within 2 px of an
+    // edge), into m_'s first G blocks. Each value is the five products summed left to right, as
+    // the taps were (0 + the first is the first: all are >= 0).
+    template <int G>
+    void blurLevels(const std::array<const std::array<double, 5>*, 3>& levels) const {
+        const std::size_t area = static_cast<std::size_t>(width_ * height_), n = mask_.size();
+        for (int y = 0; y < height_; ++y) {
+            const double* row = model_.data() + static_cast<std::size_t>(y * width_);
+            double* out = blurred_.data() + static_cast<std::size_t>(y * width_);
+            const int lo = blur_lo_[static_cast<std::size_t>(y)], hi = blur_hi_[static_cast<std::size_t>(y)];
+            for (int x = lo; x <= hi; ++x) {
+                const bool inner = x >= 2 && x <= width_ - 3;
+                const int t0 = inner ? x - 2 : std::clamp(x - 2, 0, width_ - 1), t1 = inner ? x - 1 : std::clamp(x - 1, 0, width_ - 1);
+                const int t3 = inner ? x + 1 : std::clamp(x + 1, 0, width_ - 1), t4 = inner ? x + 2 : std::clamp(x + 2, 0, width_ - 1);
+                const double a = row[t0], b = row[t1], c = row[x], d = row[t3], e = row[t4];
+                for (int g = 0; g < G; ++g) {
+                    const std::array<double, 5>& k = *levels[static_cast<std::size_t>(g)];
+                    out[static_cast<std::size_t>(g) * area + static_cast<std::size_t>(x)] =
+                        k[0] * a + k[1] * b + k[2] * c + k[3] * d + k[4] * e;
+                }
+            }
+        }
+        for (const Run& r : runs_) {
+            const double *r0 = blurred_.data() + r.rows[0], *r1 = blurred_.data() + r.rows[1],
+                         *r2 = blurred_.data() + r.rows[2], *r3 = blurred_.data() + r.rows[3],
+                         *r4 = blurred_.data() + r.rows[4];
+            for (int x = r.x0; x <= r.x1; ++x) {
+                for (int g = 0; g < G; ++g) {
+                    const std::array<double, 5>& k = *levels[static_cast<std::size_t>(g)];
+                    const std::size_t o = static_cast<std::size_t>(g) * area + static_cast<std::size_t>(x);
+                    m_[static_cast<std::size_t>(g) * n + static_cast<std::size_t>(r.i0 + x - r.x0)] =
+                        k[0] * r0[o] + k[1] * r1[o] + k[2] * r2[o] + k[3] * r3[o] + k[4] * r4[o];
+                }
+            }
+        }
     }
 
     int total_;
@@ -359,6 +388,7 @@ private:
     std::vector<int> mask_, mask_x_, mask_y_;
     struct Run {
         int y, x0, x1, i0;  // row, first and last column, index of the first in mask_
+        std::array<std::size_t, 5> rows{};  // offsets of rows y - 2 .. y + 2 (clamped to the box)
     };
     std::vector<Run> runs_;
     // Per row of the box: the columns the horizontal blur computes, and those the model renders
