@@ -348,6 +348,10 @@ private:
     template <int G>
     void blurLevels(const std::array<const std::array<double, 5>*, 3>& levels) const {
         const std::size_t area = static_cast<std::size_t>(width_ * height_), n = mask_.size();
+        double kk[G][5];  // the levels' taps, held in registers
+        for (int g = 0; g < G; ++g) {
+            for (int t = 0; t < 5; ++t) kk[g][t] = (*levels[static_cast<std::size_t>(g)])[static_cast<std::size_t>(t)];
+        }
         for (int y = 0; y < height_; ++y) {
             const double* row = model_.data() + static_cast<std::size_t>(y * width_);
             double* out = blurred_.data() + static_cast<std::size_t>(y * width_);
@@ -358,7 +362,7 @@ private:
                 const int t3 = inner ? x + 1 : std::clamp(x + 1, 0, width_ - 1), t4 = inner ? x + 2 : std::clamp(x + 2, 0, width_ - 1);
                 const double a = row[t0], b = row[t1], c = row[x], d = row[t3], e = row[t4];
                 for (int g = 0; g < G; ++g) {
-                    const std::array<double, 5>& k = *levels[static_cast<std::size_t>(g)];
+                    const double* k = kk[g];
                     out[static_cast<std::size_t>(g) * area + static_cast<std::size_t>(x)] =
                         k[0] * a + k[1] * b + k[2] * c + k[3] * d + k[4] * e;
                 }
@@ -370,7 +374,7 @@ private:
                          *r4 = blurred_.data() + r.rows[4];
             for (int x = r.x0; x <= r.x1; ++x) {
                 for (int g = 0; g < G; ++g) {
-                    const std::array<double, 5>& k = *levels[static_cast<std::size_t>(g)];
+                    const double* k = kk[g];
                     const std::size_t o = static_cast<std::size_t>(g) * area + static_cast<std::size_t>(x);
                     m_[static_cast<std::size_t>(g) * n + static_cast<std::size_t>(r.i0 + x - r.x0)] =
                         k[0] * r0[o] + k[1] * r1[o] + k[2] * r2[o] + k[3] * r3[o] + k[4] * r4[o];
