@@ -10,6 +10,7 @@
 #include <functional>
 #include <limits>
 #include <memory>
+#include <type_traits>
 #include <utility>
 #include <opencv2/imgproc.hpp>
 
@@ -352,33 +353,63 @@ private:
         for (int g = 0; g < G; ++g) {
             for (int t = 0; t < 5; ++t) kk[g][t] = (*levels[static_cast<std::size_t>(g)])[static_cast<std::size_t>(t)];
         }
+        // One output of each level from the five values around it (lane-wise the same operations
+        // where two neighbours are done at once).
+        const auto taps = [&](auto a, auto b, auto c, auto d, auto e, auto store) {
+            for (int g = 0; g < G; ++g) {
+                const double* k = kk[g];
+#if defined(__SSE2__)
+                if constexpr (!std::is_same_v<decltype(a), double>) {  // __m128d
+                    __m128d v = _mm_mul_pd(_mm_set1_pd(k[0]), a);
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[1]), b));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), c));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[3]), d));
+                    store(g, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[4]), e)));
+                } else
+#endif
+                {
+                    store(g, k[0] * a + k[1] * b + k[2] * c + k[3] * d + k[4] * e);
+                }
+            }
+        };
         for (int y = 0; y < height_; ++y) {
             const double* row = model_.data() + static_cast<std::size_t>(y * width_);
             double* out = blurred_.data() + static_cast<std::size_t>(y * width_);
             const int lo = blur_lo_[static_cast<std::size_t>(y)], hi = blur_hi_[static_cast<std::size_t>(y)];
             for (int x = lo; x <= hi; ++x) {
-                const bool inner = x >= 2 && x <= width_ - 3;
-                const int t0 = inner ? x - 2 : std::clamp(x - 2, 0, width_ - 1), t1 = inner ? x - 1 : std::clamp(x - 1, 0, width_ - 1);
-                const int t3 = inner ? x + 1 : std::clamp(x + 1, 0, width_ - 1), t4 = inner ? x + 2 : std::clamp(x + 2, 0, width_ - 1);
-                const double a = row[t0], b = row[t1], c = row[x], d = row[t3], e = row[t4];
-                for (int g = 0; g < G; ++g) {
-                    const double* k = kk[g];
-                    out[static_cast<std::size_t>(g) * area + static_cast<std::size_t>(x)] =
-                        k[0] * a + k[1] * b + k[2] * c + k[3] * d + k[4] * e;
+                const std::size_t ox = static_cast<std::size_t>(x);
+#if defined(__SSE2__)
+                if (x >= 2 && x + 1 <= std::min(hi, width_ - 3)) {  // x and x + 1, neither clamped
+                    const double* q = row + x;
+                    taps(_mm_loadu_pd(q - 2), _mm_loadu_pd(q - 1), _mm_loadu_pd(q), _mm_loadu_pd(q + 1), _mm_loadu_pd(q + 2),
+                         [&](int g, __m128d v) { _mm_storeu_pd(out + static_cast<std::size_t>(g) * area + ox, v); });
+                    ++x;
+                    continue;
                 }
+#endif
+                const auto at = [&](int t) { return row[std::clamp(x + t, 0, width_ - 1)]; };
+                taps(at(-2), at(-1), at(0), at(1), at(2),
+                     [&](int g, double v) { out[static_cast<std::size_t>(g) * area + ox] = v; });
             }
         }
         for (const Run& r : runs_) {
-            const double *r0 = blurred_.data() + r.rows[0], *r1 = blurred_.data() + r.rows[1],
-                         *r2 = blurred_.data() + r.rows[2], *r3 = blurred_.data() + r.rows[3],
-                         *r4 = blurred_.data() + r.rows[4];
-            for (int x = r.x0; x <= r.x1; ++x) {
-                for (int g = 0; g < G; ++g) {
-                    const double* k = kk[g];
-                    const std::size_t o = static_cast<std::size_t>(g) * area + static_cast<std::size_t>(x);
-                    m_[static_cast<std::size_t>(g) * n + static_cast<std::size_t>(r.i0 + x - r.x0)] =
-                        k[0] * r0[o] + k[1] * r1[o] + k[2] * r2[o] + k[3] * r3[o] + k[4] * r4[o];
+            for (int g = 0; g < G; ++g) {
+                const double* k = kk[g];
+                const double* base = blurred_.data() + static_cast<std::size_t>(g) * area;
+                const double *r0 = base + r.rows[0], *r1 = base + r.rows[1], *r2 = base + r.rows[2], *r3 = base + r.rows[3],
+                             *r4 = base + r.rows[4];
+                double* out = m_.data() + static_cast<std::size_t>(g) * n + static_cast<std::size_t>(r.i0 - r.x0);
+                int x = r.x0;
+#if defined(__SSE2__)
+                for (; x + 1 <= r.x1; x += 2) {
+                    __m128d v = _mm_mul_pd(_mm_set1_pd(k[0]), _mm_loadu_pd(r0 + x));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[1]), _mm_loadu_pd(r1 + x)));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), _mm_loadu_pd(r2 + x)));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[3]), _mm_loadu_pd(r3 + x)));
+                    _mm_storeu_pd(out + x, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[4]), _mm_loadu_pd(r4 + x))));
                 }
+#endif
+                for (; x <= r.x1; ++x) out[x] = k[0] * r0[x] + k[1] * r1[x] + k[2] * r2[x] + k[3] * r3[x] + k[4] * r4[x];
             }
         }
     }
