@@ -56,8 +56,8 @@ public:
     static constexpr int kSub = 9;  // sub-samples per pixel (3 x 3)
     Matcher(const ImageView& gray8, const Linearizer& lin, const cv::Matx33d& pixel_to_cells, int total,
             const Eigen::Matrix2d& cells_per_px, int x0, int y0, int width, int height,
-            std::vector<std::array<double, 5>> kernels)
-        : total_(total), cells_per_px_(cells_per_px), width_(width), height_(height), kernels_(std::move(kernels)) {
+            std::vector<std::array<double, 5>> kernels, bool reference)
+        : reference_(reference), total_(total), cells_per_px_(cells_per_px), width_(width), height_(height), kernels_(std::move(kernels)) {
         // Sub-samples at each pixel of the box (3 x 3), in cells of the drawn tag; the inner mask
         // keeps pixels whose centre is at least half a cell inside the drawn square (the outer half
         // of the white border sees the unknown surroundings through the blur).
@@ -325,6 +325,10 @@ private:
             grouped = 0;
         };
         for (const auto& k : kernels_) {
+            if (reference_) {
+                score(m_.data(), referenceLevel(k));
+                continue;
+            }
             if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
                 // No blur: the model itself (what the sums below give, exactly).
                 double sm = 0;
@@ -342,6 +346,32 @@ private:
         return best > -2.0 ? best : 0.0;
     }
 
+    // One level the plain way (TagVerifyOptions::reference_ncc; the loops before issue 13's pass
+    // 9): each tap added in turn, pixel by pixel, into m_; returns the sum of m_.
+    double referenceLevel(const std::array<double, 5>& k) const {
+        double sm = 0;
+        if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
+            for (std::size_t i = 0; i < mask_.size(); ++i) sm += m_[i] = model_[static_cast<std::size_t>(mask_[i])];
+            return sm;
+        }
+        for (int y = 0; y < height_; ++y) {
+            for (int x = blur_lo_[static_cast<std::size_t>(y)]; x <= blur_hi_[static_cast<std::size_t>(y)]; ++x) {
+                double v = 0;
+                for (int t = -2; t <= 2; ++t)
+                    v += k[static_cast<std::size_t>(t + 2)] * model_[static_cast<std::size_t>(y * width_ + std::clamp(x + t, 0, width_ - 1))];
+                blurred_[static_cast<std::size_t>(y * width_ + x)] = v;
+            }
+        }
+        for (std::size_t i = 0; i < mask_.size(); ++i) {
+            double v = 0;
+            for (int t = -2; t <= 2; ++t) {
+                v += k[static_cast<std::size_t>(t + 2)] *
+                     blurred_[static_cast<std::size_t>(std::clamp(mask_y_[i] + t, 0, height_ - 1) * width_ + mask_x_[i])];
+            }
+            sm += m_[i] = v;
+        }
+        return sm;
+    }
     // G blur levels of the model: the Gaussian each way, edges clamped (rows over the spans the
     // vertical pass reads, columns at the mask's pixels only; the clamping only within 2 px of an
     // edge), into m_'s first G blocks. Each value is the five products summed left to right, as
@@ -414,6 +444,7 @@ private:
         }
     }
 
+    bool reference_ = false;
     int total_;
     Eigen::Matrix2d cells_per_px_;
     int width_, height_;
@@ -521,7 +552,7 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
         jac.col(0) = cellsAt(centre + Eigen::Vector2d(0.5, 0)) - cellsAt(centre - Eigen::Vector2d(0.5, 0));
         jac.col(1) = cellsAt(centre + Eigen::Vector2d(0, 0.5)) - cellsAt(centre - Eigen::Vector2d(0, 0.5));
         return std::make_unique<Matcher>(gray8, Linearizer::get(options.srgb), h, total, jac, x0, y0, x1 - x0 + 1,
-                                         y1 - y0 + 1, kernels);
+                                         y1 - y0 + 1, kernels, options.reference_ncc);
     };
     std::unique_ptr<Matcher> matcher = makeMatcher(to_cells);
     if (matcher->samples() < 16) {
