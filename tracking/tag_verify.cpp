@@ -61,26 +61,34 @@ public:
         // Sub-samples at each pixel of the box (3 x 3), in cells of the drawn tag; the inner mask
         // keeps pixels whose centre is at least half a cell inside the drawn square (the outer half
         // of the white border sees the unknown surroundings through the blur).
-        uv_.reserve(static_cast<std::size_t>(width * height * kSub));
-        range_.reserve(static_cast<std::size_t>(width * height));
+        uv_.resize(static_cast<std::size_t>(width * height * kSub));
+        range_.resize(static_cast<std::size_t>(width * height));
         std::vector<int> mask_lo(static_cast<std::size_t>(height), width), mask_hi(static_cast<std::size_t>(height), -1);
+        const cv::Matx33d& h = pixel_to_cells;
         for (int y = 0; y < height; ++y) {
             for (int x = 0; x < width; ++x) {
-                Eigen::Vector4d range(1e300, -1e300, 1e300, -1e300);
+                double u_lo = 1e300, u_hi = -1e300, v_lo = 1e300, v_hi = -1e300;
                 bool finite = true;
+                Eigen::Vector2d* uv = uv_.data() + static_cast<std::size_t>(y * width + x) * kSub;
                 for (int j = 0; j < 3; ++j) {
+                    const double py = y0 + y + (j - 1) / 3.0;
                     for (int i = 0; i < 3; ++i) {
-                        uv_.push_back(toCells(pixel_to_cells, x0 + x + (i - 1) / 3.0, y0 + y + (j - 1) / 3.0));
-                        const Eigen::Vector2d& q = uv_.back();
-                        finite = finite && q.allFinite();
-                        range = {std::min(range[0], q.x()), std::max(range[1], q.x()), std::min(range[2], q.y()),
-                                 std::max(range[3], q.y())};
+                        // toCells written out (cv::Matx's product sums from 0 in this order).
+                        const double px = x0 + x + (i - 1) / 3.0;
+                        const double q0 = 0.0 + h(0, 0) * px + h(0, 1) * py + h(0, 2) * 1.0;
+                        const double q1 = 0.0 + h(1, 0) * px + h(1, 1) * py + h(1, 2) * 1.0;
+                        const double q2 = 0.0 + h(2, 0) * px + h(2, 1) * py + h(2, 2) * 1.0;
+                        const double u = q0 / q2, v = q1 / q2;
+                        *uv++ = Eigen::Vector2d(u, v);
+                        finite = finite && std::isfinite(u) && std::isfinite(v);
+                        u_lo = std::min(u_lo, u), u_hi = std::max(u_hi, u);
+                        v_lo = std::min(v_lo, v), v_hi = std::max(v_hi, v);
                     }
                 }
                 // A sub-sample at infinity or NaN (a pixel on the tag plane's horizon): extremes
                 // whose floors never agree, so that pixel always takes the sub-sample loop.
-                if (!finite) range = {-1e300, 1e300, -1e300, 1e300};
-                range_.push_back(range);
+                range_[static_cast<std::size_t>(y * width + x)] =
+                    finite ? Eigen::Vector4d(u_lo, u_hi, v_lo, v_hi) : Eigen::Vector4d(-1e300, 1e300, -1e300, 1e300);
                 const Eigen::Vector2d c = toCells(pixel_to_cells, x0 + x, y0 + y);
                 const bool inner = c.x() >= 0.5 && c.y() >= 0.5 && c.x() <= total - 0.5 && c.y() <= total - 0.5;
                 if (inner) {
