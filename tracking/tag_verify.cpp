@@ -10,6 +10,7 @@
 #include <functional>
 #include <limits>
 #include <memory>
+#include <type_traits>
 #include <utility>
 #include <opencv2/imgproc.hpp>
 
@@ -55,31 +56,39 @@ public:
     static constexpr int kSub = 9;  // sub-samples per pixel (3 x 3)
     Matcher(const ImageView& gray8, const Linearizer& lin, const cv::Matx33d& pixel_to_cells, int total,
             const Eigen::Matrix2d& cells_per_px, int x0, int y0, int width, int height,
-            std::vector<std::array<double, 5>> kernels)
-        : total_(total), cells_per_px_(cells_per_px), width_(width), height_(height), kernels_(std::move(kernels)) {
+            std::vector<std::array<double, 5>> kernels, bool reference)
+        : reference_(reference), total_(total), cells_per_px_(cells_per_px), width_(width), height_(height), kernels_(std::move(kernels)) {
         // Sub-samples at each pixel of the box (3 x 3), in cells of the drawn tag; the inner mask
         // keeps pixels whose centre is at least half a cell inside the drawn square (the outer half
         // of the white border sees the unknown surroundings through the blur).
-        uv_.reserve(static_cast<std::size_t>(width * height * kSub));
-        range_.reserve(static_cast<std::size_t>(width * height));
+        uv_.resize(static_cast<std::size_t>(width * height * kSub));
+        range_.resize(static_cast<std::size_t>(width * height));
         std::vector<int> mask_lo(static_cast<std::size_t>(height), width), mask_hi(static_cast<std::size_t>(height), -1);
+        const cv::Matx33d& h = pixel_to_cells;
         for (int y = 0; y < height; ++y) {
             for (int x = 0; x < width; ++x) {
-                Eigen::Vector4d range(1e300, -1e300, 1e300, -1e300);
+                double u_lo = 1e300, u_hi = -1e300, v_lo = 1e300, v_hi = -1e300;
                 bool finite = true;
+                Eigen::Vector2d* uv = uv_.data() + static_cast<std::size_t>(y * width + x) * kSub;
                 for (int j = 0; j < 3; ++j) {
+                    const double py = y0 + y + (j - 1) / 3.0;
                     for (int i = 0; i < 3; ++i) {
-                        uv_.push_back(toCells(pixel_to_cells, x0 + x + (i - 1) / 3.0, y0 + y + (j - 1) / 3.0));
-                        const Eigen::Vector2d& q = uv_.back();
-                        finite = finite && q.allFinite();
-                        range = {std::min(range[0], q.x()), std::max(range[1], q.x()), std::min(range[2], q.y()),
-                                 std::max(range[3], q.y())};
+                        // toCells written out (cv::Matx's product sums from 0 in this order).
+                        const double px = x0 + x + (i - 1) / 3.0;
+                        const double q0 = 0.0 + h(0, 0) * px + h(0, 1) * py + h(0, 2) * 1.0;
+                        const double q1 = 0.0 + h(1, 0) * px + h(1, 1) * py + h(1, 2) * 1.0;
+                        const double q2 = 0.0 + h(2, 0) * px + h(2, 1) * py + h(2, 2) * 1.0;
+                        const double u = q0 / q2, v = q1 / q2;
+                        *uv++ = Eigen::Vector2d(u, v);
+                        finite = finite && std::isfinite(u) && std::isfinite(v);
+                        u_lo = std::min(u_lo, u), u_hi = std::max(u_hi, u);
+                        v_lo = std::min(v_lo, v), v_hi = std::max(v_hi, v);
                     }
                 }
                 // A sub-sample at infinity or NaN (a pixel on the tag plane's horizon): extremes
                 // whose floors never agree, so that pixel always takes the sub-sample loop.
-                if (!finite) range = {-1e300, 1e300, -1e300, 1e300};
-                range_.push_back(range);
+                range_[static_cast<std::size_t>(y * width + x)] =
+                    finite ? Eigen::Vector4d(u_lo, u_hi, v_lo, v_hi) : Eigen::Vector4d(-1e300, 1e300, -1e300, 1e300);
                 const Eigen::Vector2d c = toCells(pixel_to_cells, x0 + x, y0 + y);
                 const bool inner = c.x() >= 0.5 && c.y() >= 0.5 && c.x() <= total - 0.5 && c.y() <= total - 0.5;
                 if (inner) {
@@ -122,8 +131,19 @@ public:
         for (double& g : image_) g -= mean;  // centred once: the NCC needs the image's deviations only
         for (double g : image_) image_ss_ += g * g;
         model_.assign(static_cast<std::size_t>(width * height), 0.0);
-        blurred_.assign(model_.size(), 0.0);
-        m_.resize(mask_.size());
+        blurred_.assign(3 * model_.size(), 0.0);
+        m_.resize(3 * mask_.size());
+        // The mask as runs of consecutive pixels of one row, in its order (the vertical blur's
+        // loops over them are contiguous, so the compiler vectorizes them).
+        for (std::size_t i = 0; i < mask_.size(); ++i) {
+            if (runs_.empty() || runs_.back().y != mask_y_[i] || runs_.back().x1 + 1 != mask_x_[i])
+                runs_.push_back({mask_y_[i], mask_x_[i], mask_x_[i] - 1, static_cast<int>(i), {}});
+            ++runs_.back().x1;
+        }
+        for (Run& r : runs_) {
+            for (int t = -2; t <= 2; ++t)
+                r.rows[static_cast<std::size_t>(t + 2)] = static_cast<std::size_t>(std::clamp(r.y + t, 0, height - 1) * width);
+        }
     }
     std::size_t samples() const { return mask_.size(); }
     double imageStddev() const { return std::sqrt(image_ss_ / static_cast<double>(image_.size())); }
@@ -284,70 +304,155 @@ private:
             }
         }
         double best = -2.0;
-        for (const auto& k : kernels_) {
-            double sm = 0;
-            if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
-                // No blur: the model itself (what the sums below give, exactly).
-                for (std::size_t i = 0; i < mask_.size(); ++i) {
-                    m_[i] = model_[static_cast<std::size_t>(mask_[i])];
-                    sm += m_[i];
-                }
-            } else {
-                // The optics: the level's Gaussian each way, edges clamped (rows over the spans
-                // the vertical pass reads, columns at the mask's pixels only; the clamping only
-                // within 2 px of an edge).
-                const auto clampedTap = [&](const double* row, int x, int t) {
-                    return k[static_cast<std::size_t>(t + 2)] * row[std::clamp(x + t, 0, width_ - 1)];
-                };
-                for (int y = 0; y < height_; ++y) {
-                    const double* row = model_.data() + static_cast<std::size_t>(y * width_);
-                    double* out = blurred_.data() + static_cast<std::size_t>(y * width_);
-                    const int lo = blur_lo_[static_cast<std::size_t>(y)], hi = blur_hi_[static_cast<std::size_t>(y)];
-                    const int inner_lo = std::max(lo, 2), inner_hi = std::min(hi, width_ - 3);
-                    for (int x = lo; x <= hi; ++x) {
-                        if (x >= inner_lo && x <= inner_hi) {
-                            // The run without clamping.
-                            for (; x <= inner_hi; ++x) {
-                                double v = 0;
-                                for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * row[x + t];
-                                out[x] = v;
-                            }
-                            if (x > hi) break;
-                        }
-                        double v = 0;
-                        for (int t = -2; t <= 2; ++t) v += clampedTap(row, x, t);
-                        out[x] = v;
-                    }
-                }
-                for (std::size_t i = 0; i < mask_.size(); ++i) {
-                    const int p = mask_[i];
-                    const int y = mask_y_[i];
-                    double v = 0;
-                    if (y >= 2 && y + 2 < height_) {
-                        for (int t = -2; t <= 2; ++t) v += k[static_cast<std::size_t>(t + 2)] * blurred_[static_cast<std::size_t>(p + t * width_)];
-                    } else {
-                        const int x = mask_x_[i];
-                        for (int t = -2; t <= 2; ++t) {
-                            v += k[static_cast<std::size_t>(t + 2)] *
-                                 blurred_[static_cast<std::size_t>(std::clamp(y + t, 0, height_ - 1) * width_ + x)];
-                        }
-                    }
-                    m_[i] = v;
-                    sm += v;
-                }
-            }
+        // The NCC of one blur level's values at the mask's pixels.
+        const auto score = [&](const double* m, double sm) {
             sm /= static_cast<double>(mask_.size());
             double smg = 0, smm = 0;
             for (std::size_t i = 0; i < mask_.size(); ++i) {
-                const double a = m_[i] - sm;
+                const double a = m[i] - sm;
                 smg += a * image_[i];
                 smm += a * a;
             }
             if (smm > 0 && image_ss_ > 0) best = std::max(best, smg / std::sqrt(smm * image_ss_));
+        };
+        // The blur levels three at a time (one pass over the model's rows and the mask's runs for
+        // the three; each level's values the sums they were one level at a time), the no-blur
+        // level as the model itself. The best is a maximum: the levels' order does not change it.
+        std::array<const std::array<double, 5>*, 3> group{};
+        int grouped = 0;
+        const auto flush = [&] {
+            if (grouped == 3) blurLevels<3>(group);
+            if (grouped == 2) blurLevels<2>(group);
+            if (grouped == 1) blurLevels<1>(group);
+            for (int g = 0; g < grouped; ++g) {
+                const double* m = m_.data() + static_cast<std::size_t>(g) * mask_.size();
+                double sm = 0;
+                for (std::size_t i = 0; i < mask_.size(); ++i) sm += m[i];
+                score(m, sm);
+            }
+            grouped = 0;
+        };
+        for (const auto& k : kernels_) {
+            if (reference_) {
+                score(m_.data(), referenceLevel(k));
+                continue;
+            }
+            if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
+                // No blur: the model itself (what the sums below give, exactly).
+                double sm = 0;
+                for (std::size_t i = 0; i < mask_.size(); ++i) {
+                    m_[i] = model_[static_cast<std::size_t>(mask_[i])];
+                    sm += m_[i];
+                }
+                score(m_.data(), sm);
+                continue;
+            }
+            group[static_cast<std::size_t>(grouped++)] = &k;
+            if (grouped == 3) flush();
         }
+        flush();
         return best > -2.0 ? best : 0.0;
     }
 
+    // One level the plain way (TagVerifyOptions::reference_ncc; the loops before issue 13's pass
+    // 9): each tap added in turn, pixel by pixel, into m_; returns the sum of m_.
+    double referenceLevel(const std::array<double, 5>& k) const {
+        double sm = 0;
+        if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
+            for (std::size_t i = 0; i < mask_.size(); ++i) sm += m_[i] = model_[static_cast<std::size_t>(mask_[i])];
+            return sm;
+        }
+        for (int y = 0; y < height_; ++y) {
+            for (int x = blur_lo_[static_cast<std::size_t>(y)]; x <= blur_hi_[static_cast<std::size_t>(y)]; ++x) {
+                double v = 0;
+                for (int t = -2; t <= 2; ++t)
+                    v += k[static_cast<std::size_t>(t + 2)] * model_[static_cast<std::size_t>(y * width_ + std::clamp(x + t, 0, width_ - 1))];
+                blurred_[static_cast<std::size_t>(y * width_ + x)] = v;
+            }
+        }
+        for (std::size_t i = 0; i < mask_.size(); ++i) {
+            double v = 0;
+            for (int t = -2; t <= 2; ++t) {
+                v += k[static_cast<std::size_t>(t + 2)] *
+                     blurred_[static_cast<std::size_t>(std::clamp(mask_y_[i] + t, 0, height_ - 1) * width_ + mask_x_[i])];
+            }
+            sm += m_[i] = v;
+        }
+        return sm;
+    }
+    // G blur levels of the model: the Gaussian each way, edges clamped (rows over the spans the
+    // vertical pass reads, columns at the mask's pixels only; the clamping only within 2 px of an
+    // edge), into m_'s first G blocks. Each value is the five products summed left to right, as
+    // the taps were (0 + the first is the first: all are >= 0).
+    template <int G>
+    void blurLevels(const std::array<const std::array<double, 5>*, 3>& levels) const {
+        const std::size_t area = static_cast<std::size_t>(width_ * height_), n = mask_.size();
+        double kk[G][5];  // the levels' taps, held in registers
+        for (int g = 0; g < G; ++g) {
+            for (int t = 0; t < 5; ++t) kk[g][t] = (*levels[static_cast<std::size_t>(g)])[static_cast<std::size_t>(t)];
+        }
+        // One output of each level from the five values around it (lane-wise the same operations
+        // where two neighbours are done at once).
+        const auto taps = [&](auto a, auto b, auto c, auto d, auto e, auto store) {
+            for (int g = 0; g < G; ++g) {
+                const double* k = kk[g];
+#if defined(__SSE2__)
+                if constexpr (!std::is_same_v<decltype(a), double>) {  // __m128d
+                    __m128d v = _mm_mul_pd(_mm_set1_pd(k[0]), a);
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[1]), b));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), c));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[3]), d));
+                    store(g, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[4]), e)));
+                } else
+#endif
+                {
+                    store(g, k[0] * a + k[1] * b + k[2] * c + k[3] * d + k[4] * e);
+                }
+            }
+        };
+        for (int y = 0; y < height_; ++y) {
+            const double* row = model_.data() + static_cast<std::size_t>(y * width_);
+            double* out = blurred_.data() + static_cast<std::size_t>(y * width_);
+            const int lo = blur_lo_[static_cast<std::size_t>(y)], hi = blur_hi_[static_cast<std::size_t>(y)];
+            for (int x = lo; x <= hi; ++x) {
+                const std::size_t ox = static_cast<std::size_t>(x);
+#if defined(__SSE2__)
+                if (x >= 2 && x + 1 <= std::min(hi, width_ - 3)) {  // x and x + 1, neither clamped
+                    const double* q = row + x;
+                    taps(_mm_loadu_pd(q - 2), _mm_loadu_pd(q - 1), _mm_loadu_pd(q), _mm_loadu_pd(q + 1), _mm_loadu_pd(q + 2),
+                         [&](int g, __m128d v) { _mm_storeu_pd(out + static_cast<std::size_t>(g) * area + ox, v); });
+                    ++x;
+                    continue;
+                }
+#endif
+                const auto at = [&](int t) { return row[std::clamp(x + t, 0, width_ - 1)]; };
+                taps(at(-2), at(-1), at(0), at(1), at(2),
+                     [&](int g, double v) { out[static_cast<std::size_t>(g) * area + ox] = v; });
+            }
+        }
+        for (const Run& r : runs_) {
+            for (int g = 0; g < G; ++g) {
+                const double* k = kk[g];
+                const double* base = blurred_.data() + static_cast<std::size_t>(g) * area;
+                const double *r0 = base + r.rows[0], *r1 = base + r.rows[1], *r2 = base + r.rows[2], *r3 = base + r.rows[3],
+                             *r4 = base + r.rows[4];
+                double* out = m_.data() + static_cast<std::size_t>(g) * n + static_cast<std::size_t>(r.i0 - r.x0);
+                int x = r.x0;
+#if defined(__SSE2__)
+                for (; x + 1 <= r.x1; x += 2) {
+                    __m128d v = _mm_mul_pd(_mm_set1_pd(k[0]), _mm_loadu_pd(r0 + x));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[1]), _mm_loadu_pd(r1 + x)));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), _mm_loadu_pd(r2 + x)));
+                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[3]), _mm_loadu_pd(r3 + x)));
+                    _mm_storeu_pd(out + x, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[4]), _mm_loadu_pd(r4 + x))));
+                }
+#endif
+                for (; x <= r.x1; ++x) out[x] = k[0] * r0[x] + k[1] * r1[x] + k[2] * r2[x] + k[3] * r3[x] + k[4] * r4[x];
+            }
+        }
+    }
+
+    bool reference_ = false;
     int total_;
     Eigen::Matrix2d cells_per_px_;
     int width_, height_;
@@ -355,6 +460,11 @@ private:
     std::vector<Eigen::Vector2d> uv_;
     std::vector<Eigen::Vector4d> range_;  // per pixel, its sub-samples' min and max u, min and max v
     std::vector<int> mask_, mask_x_, mask_y_;
+    struct Run {
+        int y, x0, x1, i0;  // row, first and last column, index of the first in mask_
+        std::array<std::size_t, 5> rows{};  // offsets of rows y - 2 .. y + 2 (clamped to the box)
+    };
+    std::vector<Run> runs_;
     // Per row of the box: the columns the horizontal blur computes, and those the model renders
     // (empty when lo > hi).
     std::vector<int> blur_lo_, blur_hi_, render_lo_, render_hi_;
@@ -450,7 +560,7 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
         jac.col(0) = cellsAt(centre + Eigen::Vector2d(0.5, 0)) - cellsAt(centre - Eigen::Vector2d(0.5, 0));
         jac.col(1) = cellsAt(centre + Eigen::Vector2d(0, 0.5)) - cellsAt(centre - Eigen::Vector2d(0, 0.5));
         return std::make_unique<Matcher>(gray8, Linearizer::get(options.srgb), h, total, jac, x0, y0, x1 - x0 + 1,
-                                         y1 - y0 + 1, kernels);
+                                         y1 - y0 + 1, kernels, options.reference_ncc);
     };
     std::unique_ptr<Matcher> matcher = makeMatcher(to_cells);
     if (matcher->samples() < 16) {

@@ -71,6 +71,9 @@ struct TagVerifyOptions {
     // when its pattern correlated at least this much (but under min_ncc) the first time.
     double retry_min_ncc = 0.7;
     bool srgb = true;  // pixels are sRGB-encoded (as TagAlignOptions::srgb)
+    // Tests: the NCC's blur levels through plain scalar loops, one tap and one pixel at a time
+    // (what the vectorized passes must equal exactly; docs/tracking.md, "Speed (issue 13)").
+    bool reference_ncc = false;
 };
 
 struct TagVerifyResult {

@@ -9,6 +9,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
+#include <cstdint>
 #include <cmath>
 #include <cstdio>
 #include <vector>
@@ -387,6 +389,61 @@ TEST(TinyTagsSequence, TheSearchClimbsToTheGridsShiftFromAnyPredictionWithinIt) 
     EXPECT_GE(beyond_first_ring, 20);
     EXPECT_GE(far, 10);
     EXPECT_EQ(far_found, far);
+}
+
+// The verification's NCC through its vectorized blur passes (three levels at once, two pixels at
+// a time) equals the plain scalar loops (TagVerifyOptions::reference_ncc) exactly: every field
+// of the result, over predictions off by up to a pixel, blur level sets that make groups of one,
+// two and three, the frame with a tag replaced and one covered, a noisy copy, and a flat image
+// (no contrast: refused, no NaN).
+TEST(TinyTagsSequence, TheVectorizedNccEqualsThePlainLoops) {
+    const VerifyScene vs;
+    TagPatternCache patterns("tag36h11");
+    Image noisy = vs.image.clone(), flat = vs.image.clone();
+    std::uint64_t state = 7;
+    const auto next = [&] { return (state = state * 6364136223846793005ull + 1442695040888963407ull) >> 33; };
+    for (std::size_t i = 0; i < noisy.sizeBytes(); ++i) {
+        noisy.data()[i] =
+            static_cast<std::uint8_t>(std::clamp(static_cast<int>(noisy.data()[i]) + static_cast<int>(next() % 41) - 20, 0, 255));
+        flat.data()[i] = 128;
+    }
+    const std::vector<std::vector<double>> level_sets = {{0.0, 0.5, 0.75, 1.0}, {0.5}, {0.75, 0.0, 1.0}, {0.0, 0.4, 0.6, 0.8, 1.0, 1.2}};
+    int compared = 0, accepted = 0, flat_refused = 0;
+    for (const TagItem& item : vs.tags.items) {
+        if (item.id < 2) continue;
+        std::vector<const TagPattern*> others;
+        for (int k = 1; k <= 8; ++k) others.push_back(patterns.get(item.id + 100 + k));
+        for (int trial = 0; trial < 4; ++trial) {
+            // The prediction off by up to about a pixel at the tags' distance.
+            const Eigen::Vector3d off(1e-3 * (static_cast<double>(next() % 2001) / 1000.0 - 1.0),
+                                      1e-3 * (static_cast<double>(next() % 2001) / 1000.0 - 1.0), 0.0);
+            const Rigid3d cam_from_tag = Rigid3d(Eigen::Quaterniond::Identity(), off) * vs.truth * item.world_from_tag;
+            for (const Image* img : std::array<const Image*, 4>{&vs.image, &vs.wrong, &noisy, &flat}) {
+                TagVerifyOptions fast;
+                fast.blur_sigma_px = level_sets[static_cast<std::size_t>(trial)];
+                TagVerifyOptions plain = fast;
+                plain.reference_ncc = true;
+                const TagVerifyResult a = verifyPredictedTag(img->view(), vs.cam, *patterns.get(item.id), others, item.size, cam_from_tag, fast);
+                const TagVerifyResult b = verifyPredictedTag(img->view(), vs.cam, *patterns.get(item.id), others, item.size, cam_from_tag, plain);
+                ++compared;
+                EXPECT_EQ(a.ok, b.ok) << item.id;
+                EXPECT_EQ(a.reason, b.reason) << item.id;
+                EXPECT_EQ(a.ncc, b.ncc) << item.id;
+                EXPECT_EQ(a.ncc_square, b.ncc_square) << item.id;
+                EXPECT_EQ(a.ncc_other, b.ncc_other) << item.id;
+                EXPECT_EQ(a.shift_px, b.shift_px) << item.id;
+                EXPECT_EQ(a.grid_shifts_tried, b.grid_shifts_tried) << item.id;
+                EXPECT_FALSE(std::isnan(a.ncc)) << item.id;
+                accepted += a.ok ? 1 : 0;
+                if (img == &flat) {
+                    EXPECT_FALSE(a.ok);
+                    flat_refused += a.ok ? 0 : 1;
+                }
+            }
+        }
+    }
+    std::printf("verifications compared: %d (%d accepted, %d on the flat image refused)\n", compared, accepted, flat_refused);
+    EXPECT_GT(accepted, 10);
 }
 
 }  // namespace
