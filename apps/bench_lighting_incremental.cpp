@@ -17,7 +17,12 @@
 #include <map>
 #include <numbers>
 #include <random>
+#include <cstdlib>
 #include <tuple>
+#if __has_include(<valgrind/callgrind.h>)
+#include <valgrind/callgrind.h>
+#define CL_HAVE_CALLGRIND 1
+#endif
 
 #include "apps/bench_lighting.h"
 #include "apps/bench_lighting_common.h"
@@ -38,6 +43,27 @@ using lighting::Mode;
 namespace {
 
 constexpr double kPi = std::numbers::pi;
+
+// CL_CG_MOVES=N: under `valgrind --tool=callgrind --instr-atstart=no --collect-atstart=no`, collect
+// the first N incremental moves' updates only (not the setup, the truth or the full re-solves).
+int callgrindMoves() {
+    const char* v = std::getenv("CL_CG_MOVES");
+    return v ? std::atoi(v) : 0;
+}
+
+void callgrindCollect(bool on) {
+#ifdef CL_HAVE_CALLGRIND
+    if (on) {
+        CALLGRIND_START_INSTRUMENTATION;
+        CALLGRIND_TOGGLE_COLLECT;
+    } else {
+        CALLGRIND_TOGGLE_COLLECT;
+        CALLGRIND_STOP_INSTRUMENTATION;
+    }
+#else
+    (void)on;
+#endif
+}
 
 double msSince(std::chrono::steady_clock::time_point t0) {
     return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
@@ -367,12 +393,16 @@ Result<nlohmann::json> runScene(const BenchLightingOptions& o, const PathScene& 
     std::vector<RatioFigures> inc_ratio, full_ratio;
     DirectAnalysis direct;
     int most_leaves = 0;
+    const int cg_moves = callgrindMoves();
     for (int k = 1; k <= n; ++k) {
         const int step = k % n;  // back to the start: the loop closes
         const std::vector<Rigid3d> poses = posesAt(s, ps, step, n);
         const auto t0 = std::chrono::steady_clock::now();
         const double c0 = cpuMs();
+        const bool collect = k <= cg_moves;
+        if (collect) callgrindCollect(true);
         CL_TRY(LightingSnapshot snapshot, inc->update(poses));
+        if (collect) callgrindCollect(false);
         update_ms.push_back(msSince(t0));
         cpu_ms.push_back(cpuMs() - c0);
         if (inc->stats().full) return fail(ErrorCode::kInternal, "bench: a move made a full update");

@@ -98,6 +98,7 @@ void VirtualInfluence::Impl::grow() {
     answers.resize(n);
     has_terms.resize(n, 0);
     masks.resize(n);
+    link_hulls.resize(n);
     corr_source.resize(n, 0);
     self.d_.resize(n, Eigen::Vector3d::Zero());
     self.tilde_.resize(n, Eigen::Vector3d::Zero());
@@ -152,11 +153,19 @@ Shaft VirtualInfluence::Impl::lightShaft(int element, int light) const {
 }
 
 bool VirtualInfluence::Impl::linkMeetsBall(int element, int source, const Ball& ball) const {
-    const ElementShape& e = shape[static_cast<std::size_t>(element)];
-    const ElementShape& s = shape[static_cast<std::size_t>(source)];
     if (!shaftMeetsBall(elementShaft(element, source), ball)) return false;
-    // (hullMeetsBall() tries the segments between the ends first: most shafts in a shadow.)
-    return hullMeetsBall(e.polygon(), s.polygon(), ball);
+    // (The segments between the ends first: most shafts in a shadow. Then the hull's planes, found
+    // once per element and source: hullMeetsBall()'s answer.)
+    return linkHull(element, source).meets(ball);
+}
+
+const CachedHull& VirtualInfluence::Impl::linkHull(int element, int source) const {
+    auto& list = link_hulls[static_cast<std::size_t>(element)];
+    for (const auto& [key, hull] : list) {
+        if (key == source) return hull;
+    }
+    list.emplace_back(source, CachedHull::of(shape[static_cast<std::size_t>(element)].polygon(), shape[static_cast<std::size_t>(source)].polygon()));
+    return list.back().second;
 }
 
 bool VirtualInfluence::Impl::lightMeetsBall(int element, int light, const Ball& ball) const {

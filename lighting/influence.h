@@ -102,6 +102,10 @@ struct InfluenceOptions {
     // a shaft the ball met stays met while it has travelled less than how deep it met (test
     // CachedPairsLeftAloneKeepTheCandidates). False: every pair tested at every move.
     bool idle_cached_pairs = true;
+    // A blocked base link's open pairs (points, normals, kernel weights) kept per element and
+    // source from its first answer, so a re-answer traces the virtual rays alone (the same sums;
+    // test CachedLinkPointsEqualFresh). False: the points made again at every answer.
+    bool cache_link_points = true;
     // The area lights' direct light is drawn per texel where the objects change it
     // (lighting/texel_direct.h): the elements' own direct transmission only feeds D's share that
     // others receive, so a penumbra splits no element and takes the pilot's estimate.

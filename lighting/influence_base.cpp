@@ -44,6 +44,7 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
     d.answers.assign(n, Answers{});
     d.has_terms.assign(n, 0);
     d.masks.assign(n, {});
+    d.link_hulls.assign(n, {});
     d.selection.assign(n, Selection{});
     d.entries.assign(n, {});
     d.bound_level.assign(n, -1);

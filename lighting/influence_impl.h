@@ -83,13 +83,26 @@ struct Reach {
 
 // Which visibility pairs the real scene blocks, kept per leaf and light (key -1 - k) or per leaf
 // and link source (key s): the real scene never changes, so a move costs virtual rays only.
+// A blocked base link's pairs the real scene leaves open, as transmissionToSource() traces them
+// (both ends' points lifted as the rays take them, the kernel weight), in the pairs' order: a
+// re-answer traces their virtual rays only.
+struct LinkPoints {
+    struct Pair {
+        Eigen::Vector3d xr, xs;
+        double w = 0.0;
+    };
+    Eigen::Vector3d nr = Eigen::Vector3d::Zero(), ns = Eigen::Vector3d::Zero();  // the two ends' normals
+    std::vector<Pair> pairs;
+};
+
 struct RealMask {
     int key = 0;
     std::uint64_t pilot = 0;
     std::uint64_t full = 0;
     std::uint64_t pilot_hidden = 0;  // and which pairs start on the leaf's hidden part (under a box)
     std::uint64_t full_hidden = 0;
-    std::uint8_t have = 0;  // bit 0: pilot known, bit 1: full known
+    std::uint8_t have = 0;  // bit 0: pilot known, bit 1: full known, bit 2: `points` known
+    std::shared_ptr<const LinkPoints> points;  // a base link's (key >= 0) open pairs, once traced
 };
 
 // A base leaf's blockers worth computing (lighting/influence.h `link_epsilon`): lights and base
@@ -257,6 +270,9 @@ struct VirtualInfluence::Impl {
     std::vector<Answers> answers;
     std::vector<char> has_terms;  // any element (active): direct or cluster (leaves), corrections (link level)
     std::vector<std::vector<RealMask>> masks;
+    // By element: the hulls linkMeetsBall() tests, per source, found once (both ends are static
+    // real elements). Only the thread walking the element reads or grows its list.
+    mutable std::vector<std::vector<std::pair<int, CachedHull>>> link_hulls;
     std::vector<Selection> selection;                      // base leaves
     std::vector<std::vector<std::pair<int, int>>> entries;  // base leaves: (object, base link)
     std::vector<int> bound_level;                           // base leaves: the footprint level used
@@ -329,6 +345,7 @@ struct VirtualInfluence::Impl {
     void cacheShape(int element);
     // The tight tests (cone of balls first, then the hull's planes).
     bool linkMeetsBall(int element, int source, const Ball& ball) const;
+    const CachedHull& linkHull(int element, int source) const;
     bool lightMeetsBall(int element, int light, const Ball& ball) const;
     bool farLightMeetsBall(int element, int light, const Ball& ball) const;
     // lightMeetsBall() / linkMeetsBall() for pair i of an object's cache, the hull's planes found once.

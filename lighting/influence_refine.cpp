@@ -24,7 +24,7 @@ RealMask& VirtualInfluence::Impl::mask(int element, int key) {
     for (RealMask& m : list) {
         if (m.key == key) return m;
     }
-    list.push_back(RealMask{key, 0, 0, 0});
+    list.push_back(RealMask{key, 0, 0, 0, 0, 0, nullptr});
     return list.back();
 }
 
@@ -148,11 +148,32 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
 double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, std::uint32_t mask_bits) {
     const Radiosity& rad = self.radiosity_;
     const RayScene& rays = self.rays_;
+    RealMask& m = mask(c, s);
+    if (self.options_.cache_link_points && (m.have & 4u) != 0) {
+        // The open pairs' points and weights kept from the first answer: the same sums in the same
+        // order, the virtual rays alone traced again.
+        const LinkPoints& lp = *m.points;
+        double open_real = 0.0, open_all = 0.0;
+        bool any_blocked = false, any_open = false;
+        for (const LinkPoints::Pair& p : lp.pairs) {
+            open_real += p.w;
+            if (rays.occludedVirtual(p.xr, lp.nr, p.xs, lp.ns, mask_bits)) {
+                any_blocked = true;
+            } else {
+                any_open = true;
+                open_all += p.w;
+            }
+        }
+        mixed = any_blocked && any_open;
+        return open_real > 0.0 ? open_all / open_real : 1.0;
+    }
     const ElementGeometry gr = rad.geometry(c), gs = rad.geometry(s);
     const double floor2 = std::pow(0.05 * std::sqrt(std::min(rad.hierarchy()[c].area, rad.hierarchy()[s].area)), 2);
     const bool partial = rad.exposure(c) < 1.0;
-    RealMask& m = mask(c, s);
     const bool known = (m.have & 1u) != 0;
+    auto points = std::make_shared<LinkPoints>();
+    points->nr = gr.normal;
+    points->ns = gs.normal;
     std::uint64_t computed = 0;
     const int n = std::clamp(self.options_.direct_per_texel ? self.options_.texel_link_pairs : self.options_.link_pairs, 1, 64);
     const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0x5eedull, rad.hierarchy().key(c)), rad.hierarchy().key(s));
@@ -187,6 +208,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         }
         if (real_blocked) continue;
         open_real += w;
+        points->pairs.push_back(LinkPoints::Pair{xr, xs, w});
         if (rays.occludedVirtual(xr, gr.normal, xs, gs.normal, mask_bits)) {
             any_blocked = true;
         } else {
@@ -198,6 +220,10 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         m.pilot = computed;
         m.pilot_hidden = computed_hidden;
         m.have = static_cast<std::uint8_t>(m.have | 1u);
+    }
+    if (self.options_.cache_link_points) {
+        m.points = std::move(points);
+        m.have = static_cast<std::uint8_t>(m.have | 4u);
     }
     mixed = any_blocked && any_open;
     return open_real > 0.0 ? open_all / open_real : 1.0;

@@ -554,6 +554,8 @@ RayHit RayScene::intersectAll(const Eigen::Vector3d& origin, const Eigen::Vector
 
 RayHit RayScene::intersectVirtualExcept(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, int excluded,
                                         double max_distance) const {
+    // The excluded object alone: every hit is on it (the steps below end with none).
+    if (impl_->virtual_scenes.size() == 1 && excluded == 0) return {};
     // Few virtual objects: step past hits on the excluded one.
     Eigen::Vector3d o = origin;
     double travelled = 0.0;

@@ -157,6 +157,67 @@ bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Ve
     return true;
 }
 
+CachedHull CachedHull::of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b) {
+    CachedHull out;
+    out.count_a = static_cast<std::uint8_t>(std::min(a.size(), kMaxEnds));
+    out.count_b = static_cast<std::uint8_t>(std::min(b.size(), kMaxEnds));
+    std::copy_n(a.begin(), out.count_a, out.ends_a.begin());
+    std::copy_n(b.begin(), out.count_b, out.ends_b.begin());
+    if (!a.empty()) out.ca = meanOf(a);
+    if (!b.empty()) out.cb = meanOf(b);
+    // hullMeetsBall()'s candidates and its face-plane rule (every vertex within `tol` of one side).
+    const auto consider = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
+        const double length2 = n.squaredNorm();
+        if (!(length2 > 1e-30)) return;
+        n /= std::sqrt(length2);
+        double lo = 0.0, hi = 0.0;
+        for (const Eigen::Vector3d& x : a) {
+            const double s = (x - origin).dot(n);
+            lo = std::min(lo, s);
+            hi = std::max(hi, s);
+        }
+        for (const Eigen::Vector3d& x : b) {
+            const double s = (x - origin).dot(n);
+            lo = std::min(lo, s);
+            hi = std::max(hi, s);
+        }
+        const double tol = 1e-9 * std::max(1.0, hi - lo);
+        if (hi <= tol) {
+            out.planes.push_back({n.x(), n.y(), n.z(), n.dot(origin)});
+        } else if (lo >= -tol) {
+            out.planes.push_back({-n.x(), -n.y(), -n.z(), -n.dot(origin)});
+        }
+    };
+    for (int pass = 0; pass < 2; ++pass) {
+        const std::span<const Eigen::Vector3d> p = pass == 0 ? a : b, q = pass == 0 ? b : a;
+        const std::size_t n = p.size();
+        if (n >= 3) consider(p[0], (p[1] - p[0]).cross(p[2] - p[0]));
+        if (n < 2) continue;
+        for (std::size_t i = 0; i < (n == 2 ? 1 : n); ++i) {
+            const Eigen::Vector3d& e0 = p[i];
+            const Eigen::Vector3d& e1 = p[(i + 1) % n];
+            for (const Eigen::Vector3d& r : q) consider(e0, (e1 - e0).cross(r - e0));
+        }
+    }
+    return out;
+}
+
+bool CachedHull::meets(const Ball& ball) const {
+    if (count_a > 0 && count_b > 0) {
+        if (segmentMeetsBall(ca, cb, ball)) return true;
+        for (std::size_t i = 0; i < count_a; ++i) {
+            if (segmentMeetsBall(ends_a[i], cb, ball)) return true;
+        }
+        for (std::size_t i = 0; i < count_b; ++i) {
+            if (segmentMeetsBall(ca, ends_b[i], ball)) return true;
+        }
+    }
+    for (const auto& p : planes) {
+        if (p[0] * ball.centre.x() + p[1] * ball.centre.y() + p[2] * ball.centre.z() - p[3] > ball.radius) return false;
+    }
+    return true;
+}
+
 HullPlanes HullPlanes::of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b) {
     HullPlanes out;
     // The candidates hullMeetsBall() tries (each end's plane, every plane through an edge of one end

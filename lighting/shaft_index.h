@@ -101,6 +101,22 @@ struct HullPlanes {
     double depth(const Ball& ball) const { return -clearance(ball); }
 };
 
+// hullMeetsBall() with everything that depends on the two ends alone found once (a link's shaft
+// tested at every move: VirtualInfluence's reach tests): the ends' means, the segments' ends and
+// the face planes in double precision. The same answer as hullMeetsBall() (the same segments, the
+// same face planes, the same strict comparison; a plane's offset is folded in, which changes the
+// signed distance by round-off only).
+struct CachedHull {
+    Eigen::Vector3d ca = Eigen::Vector3d::Zero(), cb = Eigen::Vector3d::Zero();
+    static constexpr std::size_t kMaxEnds = 4;                  // polygons of at most 4 vertices
+    std::array<Eigen::Vector3d, kMaxEnds> ends_a{}, ends_b{};  // the two polygons' vertices
+    std::uint8_t count_a = 0, count_b = 0;
+    std::vector<std::array<double, 4>> planes;  // unit outward normal, offset
+    // (Both ends of at most kMaxEnds vertices.)
+    static CachedHull of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b);
+    bool meets(const Ball& ball) const;
+};
+
 class ShaftIndex {
 public:
     // Builds the hierarchy over `shafts` (ids are their positions). Errors: Embree failed

@@ -125,6 +125,38 @@ TEST(RayScene, SphereInClosedFormAgreesWithEmbree) {
 // Embree's own (intersectVirtual() has no such test) for segments through the cube, past its
 // corners (which lie on the ball) and from inside it, with the cube off its object origin, rotated
 // and moved.
+// intersectVirtualExcept() (the probes' rays leaving their object): with the excluded object
+// alone, nothing (from inside it, through it); with a second object, that one's hit beyond it.
+TEST(RayScene, IntersectVirtualExceptSeesOnlyTheOthers) {
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.3;
+    for (const bool two : {false, true}) {
+        std::vector<VirtualShape> shapes{sphere};
+        if (two) shapes.push_back(cube());
+        auto built = RayScene::build(floorFace(), {}, shapes);
+        ASSERT_TRUE(built) << built.error().message;
+        RayScene& rays = **built;
+        rays.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 0)));
+        if (two) rays.setVirtualPose(1, Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(2, 0, 0)));
+        ASSERT_TRUE(rays.commitVirtual());
+        for (const Eigen::Vector3d& origin : {Eigen::Vector3d(0.1, 0, 0), Eigen::Vector3d(-1, 0, 0)}) {
+            ASSERT_EQ(rays.intersectVirtual(origin, Eigen::Vector3d::UnitX()).index, 0) << two;
+            const RayHit hit = rays.intersectVirtualExcept(origin, Eigen::Vector3d::UnitX(), 0);
+            if (two) {
+                ASSERT_EQ(hit.kind, HitKind::kVirtual);
+                EXPECT_EQ(hit.index, 1);
+                EXPECT_NEAR(hit.distance, 1.8 - origin.x(), 1e-4);
+            } else {
+                EXPECT_EQ(hit.kind, HitKind::kNone);
+            }
+            // Excluding the other one: the sphere.
+            if (two) {
+                EXPECT_EQ(rays.intersectVirtualExcept(origin, Eigen::Vector3d::UnitX(), 1).index, 0);
+            }
+        }
+    }
+}
+
 TEST(RayScene, MeshBoundingBallKeepsEmbreesAnswer) {
     const Eigen::Vector3d offset(0.5, -0.3, 0.2);
     auto built = RayScene::build(floorFace(), {}, {cube(offset)});

@@ -151,6 +151,40 @@ TEST(ShaftIndex, HullPlanesAnswerAsTheHullTest) {
     EXPECT_GT(misses, 500);
 }
 
+// The hull found once (CachedHull: the influence's reach tests of a link at every move) answers
+// exactly as hullMeetsBall(): random pairs of squares, and a square and a point, against random
+// balls, many of them grazing the hull (a point of the hull's boundary region, the radius tiny).
+TEST(ShaftIndex, CachedHullAnswersAsTheHullTest) {
+    std::mt19937 rng(43);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    int meets = 0, misses = 0;
+    for (int trial = 0; trial < 200; ++trial) {
+        const Eigen::Vector3d ca(u(rng), u(rng), u(rng)), cb(1.5 + u(rng), u(rng), 2 * u(rng));
+        const double ha = 0.05 + 0.3 * u(rng), hb = 0.01 + 0.3 * u(rng);
+        const Eigen::Vector3d ea = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fa = ea.unitOrthogonal();
+        const Eigen::Vector3d eb = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fb = eb.unitOrthogonal();
+        const std::vector<Eigen::Vector3d> pa{ca - ha * ea - ha * fa, ca + ha * ea - ha * fa, ca + ha * ea + ha * fa, ca - ha * ea + ha * fa};
+        const std::vector<Eigen::Vector3d> pb{cb - hb * eb - hb * fb, cb + hb * eb - hb * fb, cb + hb * eb + hb * fb, cb - hb * eb + hb * fb};
+        const std::vector<Eigen::Vector3d> apex{cb};
+        for (const auto& other : {pb, apex}) {
+            const CachedHull hull = CachedHull::of(pa, other);
+            for (int k = 0; k < 200; ++k) {
+                Ball ball{Eigen::Vector3d(-0.5 + 3.5 * u(rng), -1.0 + 3.0 * u(rng), -1.0 + 4.0 * u(rng)), 0.2 * u(rng)};
+                if (k % 2 == 1) {
+                    // Near a vertex of the hull, within a few millimetres.
+                    const Eigen::Vector3d& v = k % 4 == 1 ? pa[static_cast<std::size_t>(k / 4) % 4] : other[static_cast<std::size_t>(k / 4) % other.size()];
+                    ball = Ball{v + 0.004 * Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5), 0.002 * u(rng)};
+                }
+                const bool exact = hullMeetsBall(pa, other, ball);
+                ASSERT_EQ(hull.meets(ball), exact) << trial << " " << k;
+                (exact ? meets : misses) += 1;
+            }
+        }
+    }
+    EXPECT_GT(meets, 5000);
+    EXPECT_GT(misses, 5000);
+}
+
 // The clearances by which an object's cached shafts are left alone while it moves
 // (InfluenceOptions::idle_cached_pairs): shaftClearance() is the sampled minimum of the cone's
 // distance less the ball's radius; a ball moved by less than a positive clearance (shaft, hull
