@@ -23,13 +23,17 @@ struct Point {
 double huberWeight(double r, double k) { return r <= k ? 1.0 : k / r; }
 double huberCost(double r, double k) { return r <= k ? 0.5 * r * r : k * (r - 0.5 * k); }
 
-// Robust cost of a pose over every point; infinity when a point does not project.
-double robustCost(const std::vector<Point>& points, const CameraModel& camera, const Rigid3d& cam_from_local, double k) {
+// Robust cost of a pose over every point; infinity when a point does not project. With `bound`,
+// the sum stops (returning infinity) as soon as it reaches the bound: its terms are not negative,
+// so a rounded running sum never decreases and the full sum could not have been below the bound.
+double robustCost(const std::vector<Point>& points, const CameraModel& camera, const Rigid3d& cam_from_local, double k,
+                  double bound = std::numeric_limits<double>::infinity()) {
     double cost = 0.0;
     for (const Point& pt : points) {
         const auto px = camera.project(cam_from_local * pt.p_in_local);
         if (!px) return std::numeric_limits<double>::infinity();
         cost += pt.weight * huberCost((*px - pt.observed).norm(), k);
+        if (cost >= bound) return std::numeric_limits<double>::infinity();
     }
     return cost;
 }
@@ -38,6 +42,7 @@ struct Fit {
     Rigid3d cam_from_local;
     Matrix6d information = Matrix6d::Zero();  // J^T W J
     double chi2 = 0.0;                        // sum of weighted squared residuals
+    double cost = 0.0;                        // robustCost at cam_from_local
     int iterations = 0;
 };
 
@@ -46,9 +51,15 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
     Fit fit;
     double lambda = 1e-3;
     double cost = robustCost(points, camera, pose, options.huber_px);
+    // h and chi2 at `pose` when no step was accepted since they were summed: they are then the
+    // fit's information and chi2 as the loop after this one would sum them again.
+    bool normal_equations_at_pose = false;
+    Matrix6d h;
+    double chi2 = 0.0;
     for (int it = 0; it < options.max_iterations; ++it) {
         fit.iterations = it + 1;
-        Matrix6d h = Matrix6d::Zero();
+        h.setZero();
+        chi2 = 0.0;
         Vector6d g = Vector6d::Zero();
         for (const Point& pt : points) {
             const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
@@ -57,7 +68,9 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
             const double w = pt.weight * huberWeight(r.norm(), options.huber_px);
             h += w * proj->d_pixel_d_xi.transpose() * proj->d_pixel_d_xi;
             g += w * proj->d_pixel_d_xi.transpose() * r;
+            chi2 += w * r.squaredNorm();
         }
+        normal_equations_at_pose = true;
         bool improved = false;
         for (int attempt = 0; attempt < 10 && !improved; ++attempt) {
             Matrix6d damped = h;
@@ -65,13 +78,15 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
             const Vector6d step = -damped.ldlt().solve(g);
             if (!step.allFinite()) break;
             const Rigid3d candidate = expSe3(step) * pose;
-            const double new_cost = robustCost(points, camera, candidate, options.huber_px);
+            // Bounded by `cost`: a candidate that does not lower it is refused either way.
+            const double new_cost = robustCost(points, camera, candidate, options.huber_px, cost);
             if (new_cost < cost) {
                 const bool converged = step.norm() < 1e-10 || (cost - new_cost) < 1e-14 * (1.0 + cost);
                 pose = candidate;
                 cost = new_cost;
                 lambda = std::max(lambda / 10.0, 1e-9);
                 improved = true;
+                normal_equations_at_pose = false;
                 if (converged) it = options.max_iterations;
             } else {
                 lambda *= 10.0;
@@ -80,6 +95,12 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
         if (!improved) break;
     }
     fit.cam_from_local = pose;
+    fit.cost = cost;
+    if (normal_equations_at_pose) {
+        fit.information = h;
+        fit.chi2 = chi2;
+        return fit;
+    }
     for (const Point& pt : points) {
         const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
         if (!proj) continue;
@@ -181,7 +202,7 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
         double fit_cost = std::numeric_limits<double>::infinity();
         for (const Rigid3d* st : distinct) {
             Fit candidate = refine(points, camera, *st, options);
-            const double cost = robustCost(points, camera, candidate.cam_from_local, options.huber_px);
+            const double cost = candidate.cost;
             if (cost < fit_cost) {
                 fit_cost = cost;
                 fit = std::move(candidate);
