@@ -23,17 +23,13 @@ struct Point {
 double huberWeight(double r, double k) { return r <= k ? 1.0 : k / r; }
 double huberCost(double r, double k) { return r <= k ? 0.5 * r * r : k * (r - 0.5 * k); }
 
-// Robust cost of a pose over every point; infinity when a point does not project. With `bound`,
-// the sum stops (returning infinity) as soon as it reaches the bound: its terms are not negative,
-// so a rounded running sum never decreases and the full sum could not have been below the bound.
-double robustCost(const std::vector<Point>& points, const CameraModel& camera, const Rigid3d& cam_from_local, double k,
-                  double bound = std::numeric_limits<double>::infinity()) {
+// Robust cost of a pose over every point; infinity when a point does not project.
+double robustCost(const std::vector<Point>& points, const CameraModel& camera, const Rigid3d& cam_from_local, double k) {
     double cost = 0.0;
     for (const Point& pt : points) {
         const auto px = camera.project(cam_from_local * pt.p_in_local);
         if (!px) return std::numeric_limits<double>::infinity();
         cost += pt.weight * huberCost((*px - pt.observed).norm(), k);
-        if (cost >= bound) return std::numeric_limits<double>::infinity();
     }
     return cost;
 }
@@ -86,8 +82,7 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
             const Vector6d step = -damped.ldlt().solve(g);
             if (!step.allFinite()) break;
             const Rigid3d candidate = expSe3(step) * pose;
-            // Bounded by `cost`: a candidate that does not lower it is refused either way.
-            const double new_cost = robustCost(points, camera, candidate, options.huber_px, cost);
+            const double new_cost = robustCost(points, camera, candidate, options.huber_px);
             if (new_cost < cost) {
                 const bool converged = step.norm() < 1e-10 || (cost - new_cost) < 1e-14 * (1.0 + cost);
                 pose = candidate;
