@@ -34,14 +34,6 @@ double robustCost(const std::vector<Point>& points, const CameraModel& camera, c
     return cost;
 }
 
-// h += w J^T J on the lower triangle only (what the LDLT solves read; the diagonal and trace are
-// in it too), each entry summed as the full product's: (w J(0,i)) J(0,j) + (w J(1,i)) J(1,j).
-void addLowerNormal(Matrix6d& h, const Matrix26d& j, double w) {
-    for (int c = 0; c < 6; ++c) {
-        for (int r = c; r < 6; ++r) h(r, c) += (w * j(0, r)) * j(0, c) + (w * j(1, r)) * j(1, c);
-    }
-}
-
 struct Fit {
     Rigid3d cam_from_local;
     Matrix6d information = Matrix6d::Zero();  // J^T W J
@@ -70,7 +62,7 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
             if (!proj) continue;
             const Eigen::Vector2d r = proj->pixel - pt.observed;
             const double w = pt.weight * huberWeight(r.norm(), options.huber_px);
-            addLowerNormal(h, proj->d_pixel_d_xi, w);
+            h += w * proj->d_pixel_d_xi.transpose() * proj->d_pixel_d_xi;
             g += w * proj->d_pixel_d_xi.transpose() * r;
             chi2 += w * r.squaredNorm();
         }
@@ -109,7 +101,7 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
         if (!proj) continue;
         const Eigen::Vector2d r = proj->pixel - pt.observed;
         const double w = pt.weight * huberWeight(r.norm(), options.huber_px);
-        addLowerNormal(fit.information, proj->d_pixel_d_xi, w);
+        fit.information += w * proj->d_pixel_d_xi.transpose() * proj->d_pixel_d_xi;
         fit.chi2 += w * r.squaredNorm();
     }
     return fit;
