@@ -23,12 +23,16 @@ struct Point {
 double huberWeight(double r, double k) { return r <= k ? 1.0 : k / r; }
 double huberCost(double r, double k) { return r <= k ? 0.5 * r * r : k * (r - 0.5 * k); }
 
-// Robust cost of a pose over every point; infinity when a point does not project.
-double robustCost(const std::vector<Point>& points, const CameraModel& camera, const Rigid3d& cam_from_local, double k) {
+// Robust cost of a pose over every point; infinity when a point does not project. `pixels`, when
+// given (sized as `points`), receives the projections (all of them when the cost is finite).
+double robustCost(const std::vector<Point>& points, const CameraModel& camera, const Rigid3d& cam_from_local, double k,
+                  std::vector<Eigen::Vector2d>* pixels = nullptr) {
     double cost = 0.0;
-    for (const Point& pt : points) {
+    for (std::size_t i = 0; i < points.size(); ++i) {
+        const Point& pt = points[i];
         const auto px = camera.project(cam_from_local * pt.p_in_local);
         if (!px) return std::numeric_limits<double>::infinity();
+        if (pixels) (*pixels)[i] = *px;
         cost += pt.weight * huberCost((*px - pt.observed).norm(), k);
     }
     return cost;
@@ -46,7 +50,10 @@ struct Fit {
 Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d pose, const BundleOptions& options) {
     Fit fit;
     double lambda = 1e-3;
-    double cost = robustCost(points, camera, pose, options.huber_px);
+    // The projections at `pose` (its cost is finite: every start's is, and only a lower cost is
+    // accepted), reused by the Jacobians instead of projecting again; `trial` the candidate's.
+    std::vector<Eigen::Vector2d> pixels(points.size()), trial(points.size());
+    double cost = robustCost(points, camera, pose, options.huber_px, &pixels);
     // h and chi2 at `pose` when no step was accepted since they were summed: they are then the
     // fit's information and chi2 as the loop after this one would sum them again.
     bool normal_equations_at_pose = false;
@@ -57,8 +64,9 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
         h.setZero();
         chi2 = 0.0;
         Vector6d g = Vector6d::Zero();
-        for (const Point& pt : points) {
-            const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
+        for (std::size_t i = 0; i < points.size(); ++i) {
+            const Point& pt = points[i];
+            const auto proj = projectWithJacobian(camera, pose * pt.p_in_local, pixels[i]);
             if (!proj) continue;
             const Eigen::Vector2d r = proj->pixel - pt.observed;
             const double w = pt.weight * huberWeight(r.norm(), options.huber_px);
@@ -74,8 +82,9 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
             const Vector6d step = -damped.ldlt().solve(g);
             if (!step.allFinite()) break;
             const Rigid3d candidate = expSe3(step) * pose;
-            const double new_cost = robustCost(points, camera, candidate, options.huber_px);
+            const double new_cost = robustCost(points, camera, candidate, options.huber_px, &trial);
             if (new_cost < cost) {
+                pixels.swap(trial);
                 const bool converged = step.norm() < 1e-10 || (cost - new_cost) < 1e-14 * (1.0 + cost);
                 pose = candidate;
                 cost = new_cost;
@@ -96,8 +105,9 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
         fit.chi2 = chi2;
         return fit;
     }
-    for (const Point& pt : points) {
-        const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
+    for (std::size_t i = 0; i < points.size(); ++i) {
+        const Point& pt = points[i];
+        const auto proj = projectWithJacobian(camera, pose * pt.p_in_local, pixels[i]);
         if (!proj) continue;
         const Eigen::Vector2d r = proj->pixel - pt.observed;
         const double w = pt.weight * huberWeight(r.norm(), options.huber_px);
