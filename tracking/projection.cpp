@@ -7,7 +7,8 @@ namespace commonlight::tracking {
 namespace {
 
 // The Jacobian at a point in front of the camera whose pixel is known.
-inline ProjectionWithJacobian withJacobian(const CameraModel& camera, const Eigen::Vector3d& p, const Eigen::Vector2d& pixel) {
+inline ProjectionWithJacobian withJacobian(const CameraModel& camera, const Eigen::Vector3d& p,
+                                           const Eigen::Vector2d& pixel) {
     const double inv_z = 1.0 / p.z();
     const Eigen::Vector2d xy(p.x() * inv_z, p.y() * inv_z);
     // d(xy)/d(p): the pinhole.
