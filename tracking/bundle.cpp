@@ -23,12 +23,16 @@ struct Point {
 double huberWeight(double r, double k) { return r <= k ? 1.0 : k / r; }
 double huberCost(double r, double k) { return r <= k ? 0.5 * r * r : k * (r - 0.5 * k); }
 
-// Robust cost of a pose over every point; infinity when a point does not project.
-double robustCost(const std::vector<Point>& points, const CameraModel& camera, const Rigid3d& cam_from_local, double k) {
+// Robust cost of a pose over every point; infinity when a point does not project. `pixels`, when
+// given (sized as `points`), receives the projections (all of them when the cost is finite).
+double robustCost(const std::vector<Point>& points, const CameraModel& camera, const Rigid3d& cam_from_local, double k,
+                  std::vector<Eigen::Vector2d>* pixels = nullptr) {
     double cost = 0.0;
-    for (const Point& pt : points) {
+    for (std::size_t i = 0; i < points.size(); ++i) {
+        const Point& pt = points[i];
         const auto px = camera.project(cam_from_local * pt.p_in_local);
         if (!px) return std::numeric_limits<double>::infinity();
+        if (pixels) (*pixels)[i] = *px;
         cost += pt.weight * huberCost((*px - pt.observed).norm(), k);
     }
     return cost;
@@ -38,6 +42,7 @@ struct Fit {
     Rigid3d cam_from_local;
     Matrix6d information = Matrix6d::Zero();  // J^T W J
     double chi2 = 0.0;                        // sum of weighted squared residuals
+    double cost = 0.0;                        // robustCost at cam_from_local
     int iterations = 0;
 };
 
@@ -45,19 +50,31 @@ struct Fit {
 Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d pose, const BundleOptions& options) {
     Fit fit;
     double lambda = 1e-3;
-    double cost = robustCost(points, camera, pose, options.huber_px);
+    // The projections at `pose` (its cost is finite: every start's is, and only a lower cost is
+    // accepted), reused by the Jacobians instead of projecting again; `trial` the candidate's.
+    std::vector<Eigen::Vector2d> pixels(points.size()), trial(points.size());
+    double cost = robustCost(points, camera, pose, options.huber_px, &pixels);
+    // h and chi2 at `pose` when no step was accepted since they were summed: they are then the
+    // fit's information and chi2 as the loop after this one would sum them again.
+    bool normal_equations_at_pose = false;
+    Matrix6d h;
+    double chi2 = 0.0;
     for (int it = 0; it < options.max_iterations; ++it) {
         fit.iterations = it + 1;
-        Matrix6d h = Matrix6d::Zero();
+        h.setZero();
+        chi2 = 0.0;
         Vector6d g = Vector6d::Zero();
-        for (const Point& pt : points) {
-            const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
+        for (std::size_t i = 0; i < points.size(); ++i) {
+            const Point& pt = points[i];
+            const auto proj = projectWithJacobian(camera, pose * pt.p_in_local, pixels[i]);
             if (!proj) continue;
             const Eigen::Vector2d r = proj->pixel - pt.observed;
             const double w = pt.weight * huberWeight(r.norm(), options.huber_px);
             h += w * proj->d_pixel_d_xi.transpose() * proj->d_pixel_d_xi;
             g += w * proj->d_pixel_d_xi.transpose() * r;
+            chi2 += w * r.squaredNorm();
         }
+        normal_equations_at_pose = true;
         bool improved = false;
         for (int attempt = 0; attempt < 10 && !improved; ++attempt) {
             Matrix6d damped = h;
@@ -65,13 +82,15 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
             const Vector6d step = -damped.ldlt().solve(g);
             if (!step.allFinite()) break;
             const Rigid3d candidate = expSe3(step) * pose;
-            const double new_cost = robustCost(points, camera, candidate, options.huber_px);
+            const double new_cost = robustCost(points, camera, candidate, options.huber_px, &trial);
             if (new_cost < cost) {
+                pixels.swap(trial);
                 const bool converged = step.norm() < 1e-10 || (cost - new_cost) < 1e-14 * (1.0 + cost);
                 pose = candidate;
                 cost = new_cost;
                 lambda = std::max(lambda / 10.0, 1e-9);
                 improved = true;
+                normal_equations_at_pose = false;
                 if (converged) it = options.max_iterations;
             } else {
                 lambda *= 10.0;
@@ -80,8 +99,15 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
         if (!improved) break;
     }
     fit.cam_from_local = pose;
-    for (const Point& pt : points) {
-        const auto proj = projectWithJacobian(camera, pose * pt.p_in_local);
+    fit.cost = cost;
+    if (normal_equations_at_pose) {
+        fit.information = h;
+        fit.chi2 = chi2;
+        return fit;
+    }
+    for (std::size_t i = 0; i < points.size(); ++i) {
+        const Point& pt = points[i];
+        const auto proj = projectWithJacobian(camera, pose * pt.p_in_local, pixels[i]);
         if (!proj) continue;
         const Eigen::Vector2d r = proj->pixel - pt.observed;
         const double w = pt.weight * huberWeight(r.norm(), options.huber_px);
@@ -181,7 +207,7 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
         double fit_cost = std::numeric_limits<double>::infinity();
         for (const Rigid3d* st : distinct) {
             Fit candidate = refine(points, camera, *st, options);
-            const double cost = robustCost(points, camera, candidate.cam_from_local, options.huber_px);
+            const double cost = candidate.cost;
             if (cost < fit_cost) {
                 fit_cost = cost;
                 fit = std::move(candidate);

@@ -4,10 +4,11 @@
 
 namespace commonlight::tracking {
 
-std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p) {
-    if (!(p.z() > 1e-9) || !p.allFinite()) return std::nullopt;
-    const auto pixel = camera.project(p);
-    if (!pixel) return std::nullopt;
+namespace {
+
+// The Jacobian at a point in front of the camera whose pixel is known.
+inline ProjectionWithJacobian withJacobian(const CameraModel& camera, const Eigen::Vector3d& p,
+                                           const Eigen::Vector2d& pixel) {
     const double inv_z = 1.0 / p.z();
     const Eigen::Vector2d xy(p.x() * inv_z, p.y() * inv_z);
     // d(xy)/d(p): the pinhole.
@@ -33,10 +34,25 @@ std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& cam
         -p.z(), 0, p.x(), 0, 1, 0,          //
         p.y(), -p.x(), 0, 0, 0, 1;
     ProjectionWithJacobian out;
-    out.pixel = *pixel;
+    out.pixel = pixel;
     out.d_pixel_d_p = d_pix_d_dist * d_dist * d_xy_d_p;
     out.d_pixel_d_xi = out.d_pixel_d_p * d_p_d_xi;
     return out;
+}
+
+}  // namespace
+
+std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p) {
+    if (!(p.z() > 1e-9) || !p.allFinite()) return std::nullopt;
+    const auto pixel = camera.project(p);
+    if (!pixel) return std::nullopt;
+    return withJacobian(camera, p, *pixel);
+}
+
+std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p,
+                                                          const Eigen::Vector2d& pixel) {
+    if (!(p.z() > 1e-9) || !p.allFinite()) return std::nullopt;
+    return withJacobian(camera, p, pixel);
 }
 
 }  // namespace commonlight::tracking

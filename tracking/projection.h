@@ -21,5 +21,9 @@ struct ProjectionWithJacobian {
 // nullopt when the point is behind the camera (z <= 1e-9 m) or beyond the lens model's valid
 // radius. The distortion's 2x2 Jacobian is taken by central differences (exact to ~1e-9 px).
 std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p_in_cam);
+// The same with `pixel` = camera.project(p_in_cam) already known (it must be, and not nullopt):
+// the projection is not repeated.
+std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p_in_cam,
+                                                          const Eigen::Vector2d& pixel);
 
 }  // namespace commonlight::tracking

@@ -9,6 +9,7 @@
 #include <cstdio>
 
 #include "tracking/bundle.h"
+#include "tracking/projection.h"
 
 namespace commonlight::tracking {
 namespace {
@@ -77,6 +78,22 @@ Rigid3d viewOf(const Vector3d& origin) {
     auto world_from_cam = worldFromCamLookingAt(origin + Vector3d(0.3, -0.9, 1.5), origin + Vector3d(0, 0, 0.75));
     EXPECT_TRUE(world_from_cam);
     return world_from_cam->inverse();
+}
+
+// The bundle's LM passes the pixel its cost already projected: the Jacobian must be the one
+// projecting again gives, bit for bit (the bundle's output is unchanged by the reuse).
+TEST(Bundle, JacobianFromTheKnownPixelEqualsProjectingAgain) {
+    const CameraModel cam = camera();
+    for (const Vector3d& p : {Vector3d(0.1, -0.05, 0.9), Vector3d(-0.4, 0.3, 0.7), Vector3d(0.0, 0.0, 2.0)}) {
+        const auto full = projectWithJacobian(cam, p);
+        ASSERT_TRUE(full.has_value());
+        const auto reused = projectWithJacobian(cam, p, *cam.project(p));
+        ASSERT_TRUE(reused.has_value());
+        EXPECT_EQ(reused->pixel, full->pixel);
+        EXPECT_EQ(reused->d_pixel_d_xi, full->d_pixel_d_xi);
+        EXPECT_EQ(reused->d_pixel_d_p, full->d_pixel_d_p);
+    }
+    EXPECT_FALSE(projectWithJacobian(cam, Vector3d(0.1, 0.0, -1.0), Vector2d(0, 0)).has_value());
 }
 
 TEST(Bundle, NoiseFreeIsExact) {
