@@ -157,15 +157,14 @@ bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Ve
     return true;
 }
 
-CachedHull CachedHull::of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b) {
-    CachedHull out;
-    out.count_a = static_cast<std::uint8_t>(std::min(a.size(), kMaxEnds));
-    out.count_b = static_cast<std::uint8_t>(std::min(b.size(), kMaxEnds));
-    std::copy_n(a.begin(), out.count_a, out.ends_a.begin());
-    std::copy_n(b.begin(), out.count_b, out.ends_b.begin());
-    if (!a.empty()) out.ca = meanOf(a);
-    if (!b.empty()) out.cb = meanOf(b);
-    // hullMeetsBall()'s candidates and its face-plane rule (every vertex within `tol` of one side).
+namespace {
+
+// The face planes of the convex hull of `a` and `b` among the candidates hullMeetsBall() tries
+// (each end's plane, every plane through an edge of one end and a vertex of the other): a
+// candidate is a face plane when every vertex is within a round-off tolerance of one side.
+// `face(n, offset)` gets each with its outward unit normal n (n . x = offset on the plane).
+template <class Face>
+void forEachFacePlane(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b, Face&& face) {
     const auto consider = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
         const double length2 = n.squaredNorm();
         if (!(length2 > 1e-30)) return;
@@ -182,11 +181,9 @@ CachedHull CachedHull::of(std::span<const Eigen::Vector3d> a, std::span<const Ei
             hi = std::max(hi, s);
         }
         const double tol = 1e-9 * std::max(1.0, hi - lo);
-        if (hi <= tol) {
-            out.planes.push_back({n.x(), n.y(), n.z(), n.dot(origin)});
-        } else if (lo >= -tol) {
-            out.planes.push_back({-n.x(), -n.y(), -n.z(), -n.dot(origin)});
-        }
+        if (hi > tol && lo < -tol) return;  // not a face plane
+        if (hi > tol) n = -n;               // every vertex above: outward is -n
+        face(n, n.dot(origin));
     };
     for (int pass = 0; pass < 2; ++pass) {
         const std::span<const Eigen::Vector3d> p = pass == 0 ? a : b, q = pass == 0 ? b : a;
@@ -199,6 +196,21 @@ CachedHull CachedHull::of(std::span<const Eigen::Vector3d> a, std::span<const Ei
             for (const Eigen::Vector3d& r : q) consider(e0, (e1 - e0).cross(r - e0));
         }
     }
+}
+
+}  // namespace
+
+CachedHull CachedHull::of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b) {
+    CachedHull out;
+    out.count_a = static_cast<std::uint8_t>(std::min(a.size(), kMaxEnds));
+    out.count_b = static_cast<std::uint8_t>(std::min(b.size(), kMaxEnds));
+    std::copy_n(a.begin(), out.count_a, out.ends_a.begin());
+    std::copy_n(b.begin(), out.count_b, out.ends_b.begin());
+    if (!a.empty()) out.ca = meanOf(a);
+    if (!b.empty()) out.cb = meanOf(b);
+    forEachFacePlane(a, b, [&](const Eigen::Vector3d& n, double offset) {
+        out.planes.push_back({n.x(), n.y(), n.z(), offset});
+    });
     return out;
 }
 
@@ -220,44 +232,14 @@ bool CachedHull::meets(const Ball& ball) const {
 
 HullPlanes HullPlanes::of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b) {
     HullPlanes out;
-    // The candidates hullMeetsBall() tries (each end's plane, every plane through an edge of one end
-    // and a vertex of the other); the face planes among them (every vertex on one side) are kept.
-    const auto consider = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
-        const double length2 = n.squaredNorm();
-        if (!(length2 > 1e-30) || out.count >= kMax) return;
-        n /= std::sqrt(length2);
-        double lo = 0.0, hi = 0.0;
-        for (const Eigen::Vector3d& x : a) {
-            const double s = (x - origin).dot(n);
-            lo = std::min(lo, s);
-            hi = std::max(hi, s);
-        }
-        for (const Eigen::Vector3d& x : b) {
-            const double s = (x - origin).dot(n);
-            lo = std::min(lo, s);
-            hi = std::max(hi, s);
-        }
-        const double tol = 1e-9 * std::max(1.0, hi - lo);
-        if (hi > tol && lo < -tol) return;  // not a face plane
-        if (hi > tol) n = -n;               // every vertex above: outward is -n
-        const double offset = n.dot(origin);
+    forEachFacePlane(a, b, [&](const Eigen::Vector3d& n, double offset) {
+        if (out.count >= kMax) return;
         for (int i = 0; i < out.count; ++i) {
             const auto& p = out.planes[static_cast<std::size_t>(i)];
             if (std::abs(p[0] - n.x()) + std::abs(p[1] - n.y()) + std::abs(p[2] - n.z()) < 1e-6 && std::abs(p[3] - offset) < 1e-6) return;
         }
         out.planes[out.count++] = {static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z()), static_cast<float>(offset)};
-    };
-    for (int pass = 0; pass < 2; ++pass) {
-        const std::span<const Eigen::Vector3d> p = pass == 0 ? a : b, q = pass == 0 ? b : a;
-        const std::size_t n = p.size();
-        if (n >= 3) consider(p[0], (p[1] - p[0]).cross(p[2] - p[0]));
-        if (n < 2) continue;
-        for (std::size_t i = 0; i < (n == 2 ? 1 : n); ++i) {
-            const Eigen::Vector3d& e0 = p[i];
-            const Eigen::Vector3d& e1 = p[(i + 1) % n];
-            for (const Eigen::Vector3d& r : q) consider(e0, (e1 - e0).cross(r - e0));
-        }
-    }
+    });
     return out;
 }
 
