@@ -146,6 +146,25 @@ struct RayScene::Impl {
         return false;
     }
 
+    // Whether the ray origin + t direction, 0 <= t <= tfar, passes within reach of an enabled
+    // virtual object other than `excluded`: its sphere's or its mesh's bounding ball, widened for
+    // Embree's single precision. A ray that does not cannot hit them (intersectVirtualExcept()).
+    bool othersMayMeet(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar, int excluded) const {
+        const double dd = direction.squaredNorm();
+        const double hi = tfar > 0.0 ? tfar : 0.0;
+        for (std::size_t v = 0; v < sphere_bit.size(); ++v) {
+            if (static_cast<int>(v) == excluded) continue;
+            const bool sphere = sphere_bit[v] != 0u;
+            if (!sphere && mesh_bit[v] == 0u) continue;
+            const Eigen::Vector3d& c = sphere ? sphere_centre[v] : mesh_centre[v];
+            const double r = (sphere ? sphere_radius[v] : mesh_radius[v]) * (1.0 + 1e-4) + 1e-4 * (1.0 + c.norm());
+            const Eigen::Vector3d oc = c - origin;
+            const double t = dd > 0.0 ? std::clamp(oc.dot(direction) / dd, 0.0, hi) : 0.0;
+            if ((oc - t * direction).squaredNorm() <= r * r) return true;
+        }
+        return false;
+    }
+
     // Whether the segment origin + t direction (unit), 0 <= t <= tfar, meets the solid ball.
     static bool segmentMeetsBall(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar,
                                  const Eigen::Vector3d& centre, double radius) {
@@ -556,6 +575,8 @@ RayHit RayScene::intersectVirtualExcept(const Eigen::Vector3d& origin, const Eig
                                         double max_distance) const {
     // The excluded object alone: every hit is on it (the steps below end with none).
     if (impl_->virtual_scenes.size() == 1 && excluded == 0) return {};
+    // A ray that misses every other object's ball cannot hit them.
+    if (!impl_->othersMayMeet(origin, direction, max_distance, excluded)) return {};
     // Few virtual objects: step past hits on the excluded one.
     Eigen::Vector3d o = origin;
     double travelled = 0.0;

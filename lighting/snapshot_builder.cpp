@@ -21,7 +21,7 @@ constexpr double kPi = std::numbers::pi;
 Rgb toRgb(const Eigen::Vector3d& v) { return v.cast<float>(); }
 
 // Fibonacci directions on the sphere: deterministic, near-uniform.
-std::vector<Eigen::Vector3d> sphereDirections(int n) {
+std::vector<Eigen::Vector3d> makeSphereDirections(int n) {
     std::vector<Eigen::Vector3d> dirs;
     dirs.reserve(static_cast<std::size_t>(n));
     const double golden = kPi * (3.0 - std::sqrt(5.0));
@@ -32,6 +32,17 @@ std::vector<Eigen::Vector3d> sphereDirections(int n) {
         dirs.emplace_back(r * std::cos(phi), r * std::sin(phi), z);
     }
     return dirs;
+}
+
+// The same directions, computed once per count and thread (every probe asks for the same count).
+const std::vector<Eigen::Vector3d>& sphereDirections(int n) {
+    thread_local int cached_n = -1;
+    thread_local std::vector<Eigen::Vector3d> cached;
+    if (n != cached_n) {
+        cached = makeSphereDirections(n);
+        cached_n = n;
+    }
+    return cached;
 }
 
 std::array<double, 9> basis(const Eigen::Vector3d& n) {
@@ -516,7 +527,7 @@ ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3
                                 int directions, std::uint64_t seed, bool other_objects) {
     const RayScene& rays = radiosity.rays();
     const Hierarchy& h = radiosity.hierarchy();
-    const std::vector<Eigen::Vector3d> dirs = sphereDirections(directions);
+    const std::vector<Eigen::Vector3d>& dirs = sphereDirections(directions);
     std::array<Eigen::Vector3d, 9> ind{}, dir{};
     for (auto& c : ind) c.setZero();
     for (auto& c : dir) c.setZero();

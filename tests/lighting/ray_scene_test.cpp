@@ -1,7 +1,7 @@
 // lighting/ray_scene.h: a virtual sphere's visibility in closed form against Embree's own sphere
 // (the same object traced through its instance by intersectVirtual()), with a mesh object beside
 // it (still traced by Embree), masks, a disabled object and a moved one; a mesh traced only where a
-// segment meets its bounding ball, with Embree's answer.
+// segment meets its bounding ball, with Embree's answer; intersectVirtualExcept()'s ball test.
 #include "lighting/ray_scene.h"
 
 #include <gtest/gtest.h>
@@ -155,6 +155,68 @@ TEST(RayScene, IntersectVirtualExceptSeesOnlyTheOthers) {
             }
         }
     }
+}
+
+// intersectVirtualExcept() skips a ray that misses every other object's ball: its answer is the
+// plain one (intersectVirtual(), stepping past the excluded object's hits) for rays grazing a
+// sphere and a cube's corners, from inside the excluded sphere too, with an object disabled.
+TEST(RayScene, IntersectVirtualExceptBallTestKeepsTheAnswer) {
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.3;
+    auto built = RayScene::build(floorFace(), {}, {sphere, cube(), sphere, sphere});
+    ASSERT_TRUE(built) << built.error().message;
+    RayScene& rays = **built;
+    const Eigen::Vector3d at[4] = {{0, 0, 0}, {1.5, 0.2, 0.1}, {-0.4, 1.4, 0.3}, {0, -2, 0}};
+    const Eigen::Quaterniond q(Eigen::AngleAxisd(0.6, Eigen::Vector3d(1, 2, 3).normalized()));
+    for (int v = 0; v < 4; ++v) rays.setVirtualPose(v, Rigid3d(v == 1 ? q : Eigen::Quaterniond::Identity(), at[v]));
+    rays.setVirtualEnabled(3, false);
+    ASSERT_TRUE(rays.commitVirtual());
+    const auto plain = [&](Eigen::Vector3d o, const Eigen::Vector3d& d, int excluded, double max_distance) {
+        double travelled = 0.0;
+        for (int guard = 0; guard < 16; ++guard) {
+            RayHit hit = rays.intersectVirtual(o, d, max_distance - travelled);
+            if (hit.kind == HitKind::kNone || hit.index != excluded) {
+                if (hit.kind != HitKind::kNone) hit.distance += travelled;
+                return hit;
+            }
+            o += (hit.distance + rays.epsilon()) * d;
+            travelled += hit.distance + rays.epsilon();
+        }
+        return RayHit{};
+    };
+    std::mt19937 rng(17);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    int hits = 0, misses = 0;
+    for (int k = 0; k < 6000; ++k) {
+        const int excluded = k % 3 == 2 ? 1 : 0;
+        // Aim at a point just inside or just outside a sphere's surface or a cube's corner.
+        Eigen::Vector3d target;
+        if (k % 2 == 0) {
+            const Eigen::Vector3d n = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+            target = at[2] + (0.3 + 0.002 * u(rng)) * n;
+        } else {
+            const Eigen::Vector3d corner(k % 4 == 1 ? 0.2 : -0.2, k % 5 ? 0.2 : -0.2, k % 7 ? 0.2 : -0.2);
+            target = at[1] + q * corner + 0.002 * Eigen::Vector3d(u(rng), u(rng), u(rng));
+        }
+        const Eigen::Vector3d o = k % 4 == 0 ? Eigen::Vector3d(0.1 * u(rng), 0.1 * u(rng), 0.1 * u(rng))
+                                             : target + 2.0 * Eigen::Vector3d(u(rng), u(rng), u(rng));
+        const Eigen::Vector3d d = (target - o).normalized();
+        // Past the target, or stopping short of it.
+        const double max_distance = k % 5 == 0 ? (target - o).norm() * 0.5 : 1e30;
+        const RayHit want = plain(o, d, excluded, max_distance);
+        const RayHit got = rays.intersectVirtualExcept(o, d, excluded, max_distance);
+        ASSERT_EQ(got.kind, want.kind) << "ray " << k;
+        if (want.kind == HitKind::kNone) {
+            ++misses;
+            continue;
+        }
+        ++hits;
+        EXPECT_EQ(got.index, want.index) << "ray " << k;
+        EXPECT_EQ(got.distance, want.distance) << "ray " << k;
+        EXPECT_NE(got.index, 3) << "ray " << k;
+    }
+    EXPECT_GT(hits, 1000);
+    EXPECT_GT(misses, 1000);
 }
 
 TEST(RayScene, MeshBoundingBallKeepsEmbreesAnswer) {
