@@ -6,6 +6,7 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <map>
 #include <numbers>
 #include <numeric>
 #include <optional>
@@ -35,14 +36,13 @@ std::vector<Eigen::Vector3d> makeSphereDirections(int n) {
 }
 
 // The same directions, computed once per count and thread (every probe asks for the same count).
+// Kept per count in a map, never replaced: a reference stays valid even if TBB runs another
+// probe with another count on this thread while the first one waits.
 const std::vector<Eigen::Vector3d>& sphereDirections(int n) {
-    thread_local int cached_n = -1;
-    thread_local std::vector<Eigen::Vector3d> cached;
-    if (n != cached_n) {
-        cached = makeSphereDirections(n);
-        cached_n = n;
-    }
-    return cached;
+    thread_local std::map<int, std::vector<Eigen::Vector3d>> cached;
+    auto [it, made] = cached.try_emplace(n);
+    if (made) it->second = makeSphereDirections(n);
+    return it->second;
 }
 
 std::array<double, 9> basis(const Eigen::Vector3d& n) {
