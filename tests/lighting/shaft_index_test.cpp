@@ -115,6 +115,21 @@ TEST(ShaftIndex, ConeOfBallsHoldsTheHullOfTheTwoEnds) {
     }
 }
 
+// Two randomly placed and turned squares a little apart (the draws in a fixed order), and the
+// second's centre alone (a square and a point).
+struct SquarePair {
+    std::vector<Eigen::Vector3d> pa, pb, apex;
+};
+SquarePair randomSquarePair(std::mt19937& rng, std::uniform_real_distribution<double>& u) {
+    const Eigen::Vector3d ca(u(rng), u(rng), u(rng)), cb(1.5 + u(rng), u(rng), 2 * u(rng));
+    const double ha = 0.05 + 0.3 * u(rng), hb = 0.01 + 0.3 * u(rng);
+    const Eigen::Vector3d ea = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fa = ea.unitOrthogonal();
+    const Eigen::Vector3d eb = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fb = eb.unitOrthogonal();
+    return {{ca - ha * ea - ha * fa, ca + ha * ea - ha * fa, ca + ha * ea + ha * fa, ca - ha * ea + ha * fa},
+            {cb - hb * eb - hb * fb, cb + hb * eb - hb * fb, cb + hb * eb + hb * fb, cb - hb * eb + hb * fb},
+            {cb}};
+}
+
 // The hull's face planes found once answer as hullMeetsBall() does: on random pairs of squares
 // (and a square and a point) against random balls, the same answer wherever the ball is not within
 // the planes' slack of touching the hull; and never "misses" where hullMeetsBall() "meets".
@@ -123,13 +138,7 @@ TEST(ShaftIndex, HullPlanesAnswerAsTheHullTest) {
     std::uniform_real_distribution<double> u(0.0, 1.0);
     int meets = 0, misses = 0;
     for (int trial = 0; trial < 200; ++trial) {
-        const Eigen::Vector3d ca(u(rng), u(rng), u(rng)), cb(1.5 + u(rng), u(rng), 2 * u(rng));
-        const double ha = 0.05 + 0.3 * u(rng), hb = 0.01 + 0.3 * u(rng);
-        const Eigen::Vector3d ea = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fa = ea.unitOrthogonal();
-        const Eigen::Vector3d eb = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fb = eb.unitOrthogonal();
-        const std::vector<Eigen::Vector3d> pa{ca - ha * ea - ha * fa, ca + ha * ea - ha * fa, ca + ha * ea + ha * fa, ca - ha * ea + ha * fa};
-        const std::vector<Eigen::Vector3d> pb{cb - hb * eb - hb * fb, cb + hb * eb - hb * fb, cb + hb * eb + hb * fb, cb - hb * eb + hb * fb};
-        const std::vector<Eigen::Vector3d> apex{cb};
+        const auto [pa, pb, apex] = randomSquarePair(rng, u);
         for (const auto& other : {pb, apex}) {
             const HullPlanes planes = HullPlanes::of(pa, other);
             ASSERT_GT(planes.count, 0);
@@ -159,13 +168,7 @@ TEST(ShaftIndex, CachedHullAnswersAsTheHullTest) {
     std::uniform_real_distribution<double> u(0.0, 1.0);
     int meets = 0, misses = 0;
     for (int trial = 0; trial < 200; ++trial) {
-        const Eigen::Vector3d ca(u(rng), u(rng), u(rng)), cb(1.5 + u(rng), u(rng), 2 * u(rng));
-        const double ha = 0.05 + 0.3 * u(rng), hb = 0.01 + 0.3 * u(rng);
-        const Eigen::Vector3d ea = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fa = ea.unitOrthogonal();
-        const Eigen::Vector3d eb = Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, u(rng) - 0.5).normalized(), fb = eb.unitOrthogonal();
-        const std::vector<Eigen::Vector3d> pa{ca - ha * ea - ha * fa, ca + ha * ea - ha * fa, ca + ha * ea + ha * fa, ca - ha * ea + ha * fa};
-        const std::vector<Eigen::Vector3d> pb{cb - hb * eb - hb * fb, cb + hb * eb - hb * fb, cb + hb * eb + hb * fb, cb - hb * eb + hb * fb};
-        const std::vector<Eigen::Vector3d> apex{cb};
+        const auto [pa, pb, apex] = randomSquarePair(rng, u);
         for (const auto& other : {pb, apex}) {
             const CachedHull hull = CachedHull::of(pa, other);
             for (int k = 0; k < 200; ++k) {
