@@ -234,8 +234,12 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
         // Step 3: robust LM from each.
         Fit fit;
         double fit_cost = std::numeric_limits<double>::infinity();
+        int iterations_all_starts = 0;
         for (const Rigid3d* st : distinct) {
-            Fit candidate = refine(points, camera, *st, options, RefineStop{fit_cost});
+            Fit candidate = refine(points, camera, *st, options,
+                                   RefineStop{options.give_up_hopeless_starts ? fit_cost
+                                                                              : std::numeric_limits<double>::infinity()});
+            iterations_all_starts += candidate.iterations;
             const double cost = candidate.cost;
             if (cost < fit_cost && !candidate.abandoned) {
                 fit_cost = cost;
@@ -272,6 +276,7 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
         }
         result.cam_from_world = fit.cam_from_local * local_from_world;
         result.iterations = fit.iterations;
+        result.iterations_all_starts = iterations_all_starts;
         const auto n = static_cast<double>(points.size());
         result.rms_px = std::sqrt(total / n);
         for (int i : active) result.tags_used.push_back(used[static_cast<std::size_t>(i)].tag->detection->id);
