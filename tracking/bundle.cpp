@@ -58,7 +58,7 @@ constexpr double kAbandonMargin = 4.0;
 // step's decrease is given up: its fit is returned with `abandoned` set and loses to the earlier
 // one. A start in the other planar minimum of a board crawls to the iteration cap at a cost
 // thousands of times the winner's (Huber's reweighting converges linearly there), and those
-// steps were most of the bundle's (docs/history/tracking-passes-6.md, pass 11). A start heading
+// steps were most of the bundle's (docs/history/tracking-passes-5.md, pass 11). A start heading
 // for the winner's own minimum (within 1e-6 of its cost) runs on: it may end a rounding error
 // below it.
 struct RefineStop {

@@ -16,7 +16,7 @@ inline ProjectionWithJacobian withJacobian(const CameraModel& camera, const Eige
     d_xy_d_p << inv_z, 0, -xy.x() * inv_z, 0, inv_z, -xy.y() * inv_z;
     // d(distorted xy)/d(xy), analytic: the derivative of CameraModel::distortNormalized's
     // polynomial (it replaced central differences, four evaluations of the model, exact to
-    // ~1e-10; docs/history/tracking-passes-6.md, pass 11).
+    // ~1e-10; docs/history/tracking-passes-5.md, pass 11).
     Eigen::Matrix2d d_dist;
     if (camera.distortion.isZero()) {
         d_dist.setIdentity();
