@@ -44,10 +44,29 @@ struct Fit {
     double chi2 = 0.0;                        // sum of weighted squared residuals
     double cost = 0.0;                        // robustCost at cam_from_local
     int iterations = 0;
+    bool abandoned = false;                   // given up (refine's RefineStop): information and chi2 not summed
 };
 
-// Levenberg-Marquardt with Huber weights (iteratively reweighted).
-Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d pose, const BundleOptions& options) {
+// How many times the last accepted step's cost decrease every remaining step is allowed before a
+// start is given up as unable to beat `to_beat` (below).
+constexpr double kAbandonMargin = 4.0;
+
+// Levenberg-Marquardt with Huber weights (iteratively reweighted). `to_beat`: the lowest final
+// cost of the starts refined before this one. Once the damping is down to Gauss-Newton (lambda
+// at most 1e-6: three accepted steps in a row from the start), a start whose cost stays above
+// `to_beat` even if each of its remaining steps lowered it by kAbandonMargin times the last
+// step's decrease is given up: its fit is returned with `abandoned` set and loses to the earlier
+// one. A start in the other planar minimum of a board crawls to the iteration cap at a cost
+// thousands of times the winner's (Huber's reweighting converges linearly there), and those
+// steps were most of the bundle's (docs/history/tracking-passes-5.md, pass 11). A start heading
+// for the winner's own minimum (within 1e-6 of its cost) runs on: it may end a rounding error
+// below it.
+struct RefineStop {
+    double to_beat = std::numeric_limits<double>::infinity();
+};
+
+Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d pose, const BundleOptions& options,
+           const RefineStop& stop = {}) {
     Fit fit;
     double lambda = 1e-3;
     // The projections at `pose` (its cost is finite: every start's is, and only a lower cost is
@@ -86,11 +105,21 @@ Fit refine(const std::vector<Point>& points, const CameraModel& camera, Rigid3d 
             if (new_cost < cost) {
                 pixels.swap(trial);
                 const bool converged = step.norm() < 1e-10 || (cost - new_cost) < 1e-14 * (1.0 + cost);
+                const double remaining = options.max_iterations - 1 - it;
+                const bool hopeless =
+                    lambda <= 1e-6 &&
+                    new_cost - kAbandonMargin * remaining * (cost - new_cost) > stop.to_beat + 1e-6 * (1.0 + stop.to_beat);
                 pose = candidate;
                 cost = new_cost;
                 lambda = std::max(lambda / 10.0, 1e-9);
                 improved = true;
                 normal_equations_at_pose = false;
+                if (hopeless) {
+                    fit.cam_from_local = pose;
+                    fit.cost = cost;
+                    fit.abandoned = true;
+                    return fit;
+                }
                 if (converged) it = options.max_iterations;
             } else {
                 lambda *= 10.0;
@@ -205,10 +234,14 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
         // Step 3: robust LM from each.
         Fit fit;
         double fit_cost = std::numeric_limits<double>::infinity();
+        int iterations_all_starts = 0;
         for (const Rigid3d* st : distinct) {
-            Fit candidate = refine(points, camera, *st, options);
+            Fit candidate = refine(points, camera, *st, options,
+                                   RefineStop{options.give_up_hopeless_starts ? fit_cost
+                                                                              : std::numeric_limits<double>::infinity()});
+            iterations_all_starts += candidate.iterations;
             const double cost = candidate.cost;
-            if (cost < fit_cost) {
+            if (cost < fit_cost && !candidate.abandoned) {
                 fit_cost = cost;
                 fit = std::move(candidate);
             }
@@ -243,6 +276,7 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
         }
         result.cam_from_world = fit.cam_from_local * local_from_world;
         result.iterations = fit.iterations;
+        result.iterations_all_starts = iterations_all_starts;
         const auto n = static_cast<double>(points.size());
         result.rms_px = std::sqrt(total / n);
         for (int i : active) result.tags_used.push_back(used[static_cast<std::size_t>(i)].tag->detection->id);

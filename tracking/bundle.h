@@ -31,6 +31,9 @@ struct BundleOptions {
     double outlier_px = 3.0;       // a tag whose corner RMS exceeds this after the fit is rejected
     double corner_sigma_px = 0.5;  // assumed corner noise for the covariance (raised when the residuals say more)
     int max_iterations = 30;
+    // A start that cannot end below an earlier start's cost is given up (bundle.cpp's refine; the
+    // same result up to rounding where it would have reached the winner's own minimum).
+    bool give_up_hopeless_starts = true;
     Result<void> validate() const;
 };
 
@@ -50,7 +53,8 @@ struct BundleResult {
     std::vector<int> tags_rejected;  // ids rejected as outliers
     std::vector<int> tags_unknown;   // ids the scene does not place
     double rms_px = 0.0;             // over the corners of the tags used
-    int iterations = 0;
+    int iterations = 0;              // of the start that won
+    int iterations_all_starts = 0;   // summed over every start refined (the last outlier round's)
 };
 
 // Fails with kBadInput when no tag of the scene is among `tags` or no start reprojects the

@@ -1,12 +1,11 @@
 #include "tracking/edge_profile.h"
 
+#include "tracking/edge_profile_kernels.h"
+
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <vector>
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
 
 namespace commonlight::tracking {
 
@@ -63,58 +62,15 @@ std::optional<double> edgeOffset(const ImageView& img, const Linearizer& lin, co
             if (!inside(img, q.x(), q.y())) return std::nullopt;
         }
     }
-    // Three profiles 0.5 px apart along the edge, averaged: less noise, same edge.
-    const std::array<Eigen::Vector2d, 3> offsets = {-0.5 * along, 0.0 * along, 0.5 * along};
-    const double* lut = lin.lut;
-#if defined(__SSE2__)
-    // Two steps at once (k, k + 1; the last alone in both lanes), each lane the scalar loop's
-    // operations in its order (below), so the same values: the profile is most of the
-    // alignment's time (docs/tracking.md, "Speed (issue 13)", pass 9).
-    const std::size_t stride = img.stride;
-    const __m128d px = _mm_set1_pd(p.x()), py = _mm_set1_pd(p.y()), nx = _mm_set1_pd(n.x()), ny = _mm_set1_pd(n.y());
-    const __m128d one = _mm_set1_pd(1.0);
-    for (int k = -steps - 1; k <= steps + 1; k += 2) {
-        const int k1 = std::min(k + 1, steps + 1);
-        const __m128d s = _mm_mul_pd(_mm_set_pd(k1, k), _mm_set1_pd(kStep));
-        const __m128d ax = _mm_add_pd(px, _mm_mul_pd(s, nx)), ay = _mm_add_pd(py, _mm_mul_pd(s, ny));
-        __m128d sum = _mm_setzero_pd();
-        for (const Eigen::Vector2d& offset : offsets) {
-            const __m128d qx = _mm_add_pd(ax, _mm_set1_pd(offset.x())), qy = _mm_add_pd(ay, _mm_set1_pd(offset.y()));
-            const __m128i ix = _mm_cvttpd_epi32(qx), iy = _mm_cvttpd_epi32(qy);
-            const __m128d fx = _mm_sub_pd(qx, _mm_cvtepi32_pd(ix)), fy = _mm_sub_pd(qy, _mm_cvtepi32_pd(iy));
-            const std::uint8_t* ra = img.data + static_cast<std::size_t>(_mm_cvtsi128_si32(iy)) * stride +
-                                     _mm_cvtsi128_si32(ix);
-            const std::uint8_t* rb = img.data + static_cast<std::size_t>(_mm_cvtsi128_si32(_mm_shuffle_epi32(iy, 1))) * stride +
-                                     _mm_cvtsi128_si32(_mm_shuffle_epi32(ix, 1));
-            const __m128d v00 = _mm_loadh_pd(_mm_load_sd(lut + ra[0]), lut + rb[0]);
-            const __m128d v01 = _mm_loadh_pd(_mm_load_sd(lut + ra[1]), lut + rb[1]);
-            const __m128d v10 = _mm_loadh_pd(_mm_load_sd(lut + ra[stride]), lut + rb[stride]);
-            const __m128d v11 = _mm_loadh_pd(_mm_load_sd(lut + ra[stride + 1]), lut + rb[stride + 1]);
-            const __m128d gx = _mm_sub_pd(one, fx);
-            const __m128d top = _mm_add_pd(_mm_mul_pd(gx, v00), _mm_mul_pd(fx, v01));
-            const __m128d bottom = _mm_add_pd(_mm_mul_pd(gx, v10), _mm_mul_pd(fx, v11));
-            sum = _mm_add_pd(sum, _mm_add_pd(_mm_mul_pd(_mm_sub_pd(one, fy), top), _mm_mul_pd(fy, bottom)));
-        }
-        double two[2];
-        _mm_storeu_pd(two, _mm_div_pd(sum, _mm_set1_pd(3.0)));
-        values[k + steps + 1] = two[0];
-        if (k1 > k) values[k1 + steps + 1] = two[1];
+    // Three profiles 0.5 px apart along the edge, averaged: less noise, same edge. Four steps at
+    // once where the CPU has AVX2, else two (SSE2): the same values (edge_profile_kernels.h); the
+    // profile is most of the alignment's time (docs/tracking.md, "Speed (issue 13)").
+    static const bool avx2 = detail::avx2Available();
+    if (avx2 && img.stride * static_cast<std::size_t>(img.height) < (std::size_t{1} << 31)) {
+        detail::sampleProfileAvx2(img, lin.lut, p, n, along, steps, values);
+    } else {
+        detail::sampleProfileSse2(img, lin.lut, p, n, along, steps, values);
     }
-#else
-    for (int k = -steps - 1; k <= steps + 1; ++k) {
-        const Eigen::Vector2d across = p + (k * kStep) * n;
-        double sum = 0.0;
-        for (const Eigen::Vector2d& offset : offsets) {
-            const Eigen::Vector2d q = across + offset;
-            const int x0 = static_cast<int>(q.x()), y0 = static_cast<int>(q.y());
-            const double fx = q.x() - x0, fy = q.y() - y0;
-            const std::uint8_t* r0 = img.data + static_cast<std::size_t>(y0) * img.stride + x0;
-            const std::uint8_t* r1 = r0 + img.stride;
-            sum += (1 - fy) * ((1 - fx) * lut[r0[0]] + fx * lut[r0[1]]) + fy * ((1 - fx) * lut[r1[0]] + fx * lut[r1[1]]);
-        }
-        values[k + steps + 1] = sum / 3.0;
-    }
-#endif
     // Central differences at k = -steps..steps (index i + 1 in values).
     int best = -1;
     double best_d = 0.0;

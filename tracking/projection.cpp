@@ -14,18 +14,21 @@ inline ProjectionWithJacobian withJacobian(const CameraModel& camera, const Eige
     // d(xy)/d(p): the pinhole.
     Eigen::Matrix<double, 2, 3> d_xy_d_p;
     d_xy_d_p << inv_z, 0, -xy.x() * inv_z, 0, inv_z, -xy.y() * inv_z;
-    // d(distorted xy)/d(xy): central differences; the model is a polynomial, so h = 1e-6 leaves
-    // a truncation error of order h^2 * (third derivative) ~ 1e-12.
+    // d(distorted xy)/d(xy), analytic: the derivative of CameraModel::distortNormalized's
+    // polynomial (it replaced central differences, four evaluations of the model, exact to
+    // ~1e-10; docs/history/tracking-passes-5.md, pass 11).
     Eigen::Matrix2d d_dist;
     if (camera.distortion.isZero()) {
         d_dist.setIdentity();
     } else {
-        constexpr double h = 1e-6;
-        for (int k = 0; k < 2; ++k) {
-            Eigen::Vector2d step = Eigen::Vector2d::Zero();
-            step[k] = h;
-            d_dist.col(k) = (camera.distortNormalized(xy + step) - camera.distortNormalized(xy - step)) / (2 * h);
-        }
+        const Distortion& d = camera.distortion;
+        const double x = xy.x(), y = xy.y();
+        const double r2 = x * x + y * y;
+        const double radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3));
+        const double dradial_dr2 = d.k1 + r2 * (2.0 * d.k2 + 3.0 * r2 * d.k3);
+        const double cross = 2.0 * x * y * dradial_dr2 + 2.0 * d.p1 * x + 2.0 * d.p2 * y;
+        d_dist << radial + 2.0 * x * x * dradial_dr2 + 2.0 * d.p1 * y + 6.0 * d.p2 * x, cross,  //
+            cross, radial + 2.0 * y * y * dradial_dr2 + 6.0 * d.p1 * y + 2.0 * d.p2 * x;
     }
     const Eigen::Matrix2d d_pix_d_dist = Eigen::Vector2d(camera.fx, camera.fy).asDiagonal();
     // d(p)/d(xi) = [ -[p]x | I ].

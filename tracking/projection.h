@@ -19,7 +19,7 @@ struct ProjectionWithJacobian {
 };
 
 // nullopt when the point is behind the camera (z <= 1e-9 m) or beyond the lens model's valid
-// radius. The distortion's 2x2 Jacobian is taken by central differences (exact to ~1e-9 px).
+// radius. The distortion's 2x2 Jacobian is analytic.
 std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p_in_cam);
 // The same with `pixel` = camera.project(p_in_cam) already known (it must be, and not nullopt):
 // the projection is not repeated.

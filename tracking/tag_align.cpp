@@ -204,6 +204,11 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
             const Eigen::Vector3d bright_tag(e.to_bright.x(), e.to_bright.y(), 0.0);
             // The boundary where the model puts it: the pattern's, moved `dilation` cells into the white.
             const Eigen::Vector3d shift = (dilation * size * pattern.cell()) * bright_tag;
+            // The boundary's direction and one cell of its bright normal, in the camera frame
+            // (the same for its three points).
+            const Eigen::Vector3d along_tag(size * (e.b - e.a).x(), size * (e.b - e.a).y(), 0.0);
+            const Eigen::Vector3d along_cam = pose.rotation * along_tag;
+            const Eigen::Vector3d bright_cam = pose.rotation * (size * pattern.cell() * bright_tag);
             // Three points per cell boundary, away from its ends (where other boundaries meet);
             // not one within `corner_clearance_px` of an L junction. A blur rounds a region's
             // convex corner, and the edge found near it lies inside the region (measured on the
@@ -218,15 +223,13 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
                 if (!proj) continue;
                 // Image directions of the boundary and of its dark-to-bright normal: the tag's
                 // directions through the projection's Jacobian (one cell of the bright direction).
-                const Eigen::Vector3d along_tag(size * (e.b - e.a).x(), size * (e.b - e.a).y(), 0.0);
-                const Eigen::Vector2d along_px = proj->d_pixel_d_p * (pose.rotation * along_tag);
+                const Eigen::Vector2d along_px = proj->d_pixel_d_p * along_cam;
                 if (clear_corners && ((t < 0.5 && e.corner_a) || (t > 0.5 && e.corner_b)) &&
                     std::min(t, 1.0 - t) * along_px.norm() < options.corner_clearance_px) {
                     continue;
                 }
                 const Eigen::Vector2d along = along_px.normalized();
-                const Eigen::Vector2d bright_px =
-                    proj->d_pixel_d_p * (pose.rotation * (size * pattern.cell() * bright_tag));
+                const Eigen::Vector2d bright_px = proj->d_pixel_d_p * bright_cam;
                 Eigen::Vector2d n(-along.y(), along.x());
                 if (n.dot(bright_px) < 0) n = -n;
                 if (!n.allFinite()) continue;
@@ -240,8 +243,13 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
                 const double cell_here = n.dot(bright_px);
                 j(6) = options.estimate_dilation ? cell_here : 0.0;
                 const double w = std::abs(r) <= options.huber_px ? 1.0 : options.huber_px / std::abs(r);
-                h += w * j.transpose() * j;
-                g += w * j.transpose() * r;
+                // h += w j^T j on the lower triangle only (the LDLT solves below read no other),
+                // each element the product Eigen's outer product forms: j(col) * (w j(row)).
+                const Vector7d wj = w * j.transpose();
+                for (int col = 0; col < 7; ++col) {
+                    for (int row = col; row < 7; ++row) h(row, col) += j(col) * wj(row);
+                }
+                g += wj * r;
                 sum2 += r * r;
                 sum_cell_px += cell_here;
                 ++used;
@@ -251,6 +259,7 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
             out.reason = "only " + std::to_string(used) + " cell boundaries found in the image";
             return out;
         }
+        h.triangularView<Eigen::StrictlyUpper>() = h.transpose();
         // The prior pulls the dilation to 0 (and fixes it there when it is not estimated).
         h(6, 6) += options.estimate_dilation ? prior : 1.0;
         g(6) += options.estimate_dilation ? prior * dilation : 0.0;

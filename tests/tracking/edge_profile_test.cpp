@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <optional>
 #include <random>
 #include <vector>
@@ -12,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include "tracking/edge_profile.h"
+#include "tracking/edge_profile_kernels.h"
 
 namespace commonlight::tracking {
 namespace {
@@ -120,6 +122,47 @@ TEST(EdgeProfile, VectorizedSamplingGivesTheScalarLoopsOffsets) {
     EXPECT_GT(found, 1000);
     EXPECT_GT(refused, 300);
     EXPECT_GT(outside, 50);
+}
+
+// Each sampling kernel (SSE2, and AVX2 where the CPU has it: edgeOffset takes that one) gives the
+// plain loop's values bit for bit, for every profile length (the last vector's lanes past the
+// profile's end written nowhere), on random images, points and directions.
+TEST(EdgeProfile, EveryKernelGivesThePlainLoopsValues) {
+    std::mt19937 rng(29);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    constexpr int kW = 97, kH = 71, kStride = 101;
+    std::vector<std::uint8_t> pixels(static_cast<std::size_t>(kStride * kH));
+    for (std::uint8_t& v : pixels) v = static_cast<std::uint8_t>(rng() & 0xff);
+    const ImageView img{PixelFormat::kGray8, kW, kH, kStride, pixels.data(), pixels.size()};
+    const Linearizer& lin = Linearizer::get(true);
+    std::printf("  AVX2 kernel %s\n", detail::avx2Available() ? "tested" : "not available on this CPU");
+    int compared = 0;
+    for (int trial = 0; trial < 2000; ++trial) {
+        const int steps = 1 + trial % 27;
+        const double a = 2 * M_PI * uni(rng);
+        const Eigen::Vector2d n(std::cos(a), std::sin(a)), along(-n.y(), n.x());
+        const double reach = (steps + 1) * 0.25 + 1.0;
+        const Eigen::Vector2d p(reach + (kW - 1.001 - 2 * reach) * uni(rng), reach + (kH - 1.001 - 2 * reach) * uni(rng));
+        const std::size_t count = static_cast<std::size_t>(2 * steps + 3);
+        constexpr double kUnset = -12345.0;
+        std::vector<double> plain(count + 4, kUnset), sse2(count + 4, kUnset), avx2(count + 4, kUnset);
+        detail::sampleProfilePlain(img, lin.lut, p, n, along, steps, plain.data());
+        detail::sampleProfileSse2(img, lin.lut, p, n, along, steps, sse2.data());
+        if (detail::avx2Available()) {
+            detail::sampleProfileAvx2(img, lin.lut, p, n, along, steps, avx2.data());
+        } else {
+            avx2 = plain;
+        }
+        for (std::size_t i = 0; i < count + 4; ++i) {
+            ASSERT_EQ(sse2[i], plain[i]) << "trial " << trial << " steps " << steps << " index " << i;
+            ASSERT_EQ(avx2[i], plain[i]) << "trial " << trial << " steps " << steps << " index " << i;
+            if (i >= count) {
+                ASSERT_EQ(plain[i], kUnset);
+            }
+        }
+        compared += static_cast<int>(count);
+    }
+    EXPECT_GT(compared, 50000);
 }
 
 }  // namespace
