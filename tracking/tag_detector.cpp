@@ -211,10 +211,15 @@ namespace {
 // pixels the full frame drops. On `bench tracking --cases wide` (tags of 30 px: cells of 2 px
 // decimated) such windows missed tags the full frame found in 9 of 31 frames and found some it
 // missed in 4 (docs/tracking.md, "Windows"; on the grid: the same tags in every frame).
+// Undecimated (the factor 1), a window has no sampling phase and is left as it is: put on the
+// tiles' 4 px grid, step 3b's full-resolution windows (TrackerOptions::verify_redetect_full_res,
+// which no full-frame detection has to match) turned a tag of `tiny75` from verified (corners 0.08
+// px from the truth) to detected late (0.9 px), and the full frame's output would change.
 int windowGrid(double decimate) {
     constexpr int kTile = 4;  // libapriltag 3.3's threshold tile, decimated pixels
     if (decimate == 1.5) return 3 * kTile / 2;
-    return kTile * std::max(1, static_cast<int>(decimate));
+    const int factor = static_cast<int>(decimate);
+    return factor > 1 ? kTile * factor : 1;
 }
 
 int floorToMultiple(int v, int m) { return (v >= 0 ? v / m : -((-v + m - 1) / m)) * m; }
