@@ -90,8 +90,10 @@ public:
     // worker pool, an allocation) is an error, not an empty result.
     Result<std::vector<TagDetection>> detect(const ImageView& gray8);
     // Detects only inside the windows (clipped to the image; empty windows are skipped), without
-    // copying pixels; corners are in full-image pixels. A tag seen by two overlapping windows is
-    // reported once (the detection with the larger decision margin).
+    // copying pixels; corners are in full-image pixels. When decimated, each window is first grown
+    // to the decimation's sampling and threshold grid (up to 4 x decimate - 1 px a side), so that a
+    // tag well inside it is found as the whole frame's detection finds it. A tag seen by two
+    // overlapping windows is reported once (the detection with the larger decision margin).
     Result<std::vector<TagDetection>> detectInWindows(const ImageView& gray8, std::span<const PixelWindow> windows);
 
     const TagDetectorOptions& options() const noexcept { return options_; }

@@ -17,3 +17,6 @@ commonlight_test(tracking tiny_tags SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/tiny_tag
 # ... and in a sequence: a tag the last frame reported is verified on its pattern alone.
 commonlight_test(tracking tiny_tags_sequence SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/tiny_tags_sequence_test.cpp
                  DEPS commonlight::tracking commonlight_test_synthetic_tags)
+# The decimated detector on a window finds what it finds on the whole frame, at any window origin.
+commonlight_test(tracking detector_windows SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/detector_windows_test.cpp
+                 DEPS commonlight::tracking commonlight_test_synthetic_tags)
