@@ -14,6 +14,7 @@
 #include <Eigen/Core>
 
 #include "lighting/influence.h"
+#include "lighting/ray_scene.h"
 
 namespace commonlight::lighting {
 
@@ -86,13 +87,16 @@ struct Reach {
 // A blocked base link's pairs the real scene leaves open, as transmissionToSource() traces them
 // (both ends' points lifted as the rays take them, the kernel weight), in the pairs' order: a
 // re-answer traces their virtual rays only.
+// Each pair is kept as its ray (RayScene::prepareSegment: lifted once), with a ball holding all the
+// rays: an object whose ball misses it blocks none of them (the answer's mask drops it).
 struct LinkPoints {
     struct Pair {
-        Eigen::Vector3d xr, xs;
+        PreparedSegment ray;
         double w = 0.0;
     };
-    Eigen::Vector3d nr = Eigen::Vector3d::Zero(), ns = Eigen::Vector3d::Zero();  // the two ends' normals
     std::vector<Pair> pairs;
+    Eigen::Vector3d centre = Eigen::Vector3d::Zero();  // the rays' ball
+    double radius = 0.0;
 };
 
 struct RealMask {

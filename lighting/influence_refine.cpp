@@ -3,6 +3,8 @@
 // blocked base links, the objects' own light) and how finely they are split.
 #include <tbb/parallel_for.h>
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <cmath>
 #include <numbers>
@@ -143,6 +145,44 @@ double VirtualInfluence::Impl::transmissionToLight(int c, int light, bool& mixed
     return open_real > 0.0 ? open_all / open_real : 1.0;
 }
 
+namespace {
+
+// The ball of a link's kept rays (their ends: the segments lie in it).
+void boundRays(LinkPoints& lp) {
+    Eigen::AlignedBox3d box;
+    for (const LinkPoints::Pair& p : lp.pairs) {
+        if (!(p.ray.tfar > 0.0)) continue;  // never blocked
+        box.extend(p.ray.origin);
+        box.extend(Eigen::Vector3d(p.ray.origin + p.ray.tfar * p.ray.direction));
+    }
+    lp.centre = box.isEmpty() ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : Eigen::Vector3d(box.center());
+    lp.radius = 0.0;
+    for (const LinkPoints::Pair& p : lp.pairs) {
+        if (!(p.ray.tfar > 0.0)) continue;
+        lp.radius = std::max({lp.radius, (p.ray.origin - lp.centre).norm(),
+                              (p.ray.origin + p.ray.tfar * p.ray.direction - lp.centre).norm()});
+    }
+}
+
+// The objects in `mask` whose ball meets the ball of a link's rays: the others block none of them
+// (an object's bit is kept if any object sharing it is near; a margin for the rounding).
+std::uint32_t objectsNear(const RayScene& rays, const LinkPoints& lp, std::uint32_t mask) {
+    std::uint32_t near = 0;
+    const int n = static_cast<int>(rays.virtualCount());
+    for (int v = 0; v < n; ++v) {
+        const std::uint32_t bit = RayScene::virtualBit(v);
+        if ((mask & bit) == 0u || (near & bit) != 0u) continue;
+        Eigen::Vector3d centre;
+        double radius = 0.0;
+        if (!rays.virtualBall(v, centre, radius)) continue;  // disabled: blocks nothing
+        const double reach = lp.radius + radius + 1e-7 * (1.0 + lp.centre.norm() + lp.radius + radius);
+        if ((centre - lp.centre).squaredNorm() <= reach * reach) near |= bit;
+    }
+    return near;
+}
+
+}  // namespace
+
 // The same for a base link's shaft from leaf c to the link's source s (pairs of points of the two
 // elements, kernel-weighted as Radiosity::computeLink weighs them).
 double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, std::uint32_t mask_bits) {
@@ -153,11 +193,12 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         // The open pairs' points and weights kept from the first answer: the same sums in the same
         // order, the virtual rays alone traced again.
         const LinkPoints& lp = *m.points;
+        const std::uint32_t near = objectsNear(rays, lp, mask_bits);
         double open_real = 0.0, open_all = 0.0;
         bool any_blocked = false, any_open = false;
         for (const LinkPoints::Pair& p : lp.pairs) {
             open_real += p.w;
-            if (rays.occludedVirtual(p.xr, lp.nr, p.xs, lp.ns, mask_bits)) {
+            if (near != 0u && rays.occludedVirtual(p.ray, near)) {
                 any_blocked = true;
             } else {
                 any_open = true;
@@ -171,9 +212,8 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     const double floor2 = std::pow(0.05 * std::sqrt(std::min(rad.hierarchy()[c].area, rad.hierarchy()[s].area)), 2);
     const bool partial = rad.exposure(c) < 1.0;
     const bool known = (m.have & 1u) != 0;
+    const bool keep_points = self.options_.cache_link_points;
     auto points = std::make_shared<LinkPoints>();
-    points->nr = gr.normal;
-    points->ns = gs.normal;
     std::uint64_t computed = 0;
     const int n = std::clamp(self.options_.direct_per_texel ? self.options_.texel_link_pairs : self.options_.link_pairs, 1, 64);
     const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0x5eedull, rad.hierarchy().key(c)), rad.hierarchy().key(s));
@@ -208,8 +248,14 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         }
         if (real_blocked) continue;
         open_real += w;
-        points->pairs.push_back(LinkPoints::Pair{xr, xs, w});
-        if (rays.occludedVirtual(xr, gr.normal, xs, gs.normal, mask_bits)) {
+        bool blocked;
+        if (keep_points) {
+            points->pairs.push_back(LinkPoints::Pair{rays.prepareSegment(xr, gr.normal, xs, gs.normal), w});
+            blocked = rays.occludedVirtual(points->pairs.back().ray, mask_bits);
+        } else {
+            blocked = rays.occludedVirtual(xr, gr.normal, xs, gs.normal, mask_bits);
+        }
+        if (blocked) {
             any_blocked = true;
         } else {
             any_open = true;
@@ -221,7 +267,8 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         m.pilot_hidden = computed_hidden;
         m.have = static_cast<std::uint8_t>(m.have | 1u);
     }
-    if (self.options_.cache_link_points) {
+    if (keep_points) {
+        boundRays(*points);
         m.points = std::move(points);
         m.have = static_cast<std::uint8_t>(m.have | 4u);
     }

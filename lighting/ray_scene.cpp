@@ -513,21 +513,37 @@ Eigen::Vector3d lifted(const Eigen::Vector3d& from, const Eigen::Vector3d& norma
 
 }  // namespace
 
-bool RayScene::occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
-                               const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal, std::uint32_t mask) const {
-    if (virtual_scene && impl_->virtual_scenes.empty()) return false;
+PreparedSegment RayScene::prepareSegment(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                                         const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const {
+    PreparedSegment s;
     const Eigen::Vector3d d = to - from;
     const double length = d.norm();
-    if (length <= 2.0 * epsilon_) return false;  // hard case: touching points see each other
+    if (length <= 2.0 * epsilon_) return s;  // hard case: touching points see each other
     const Eigen::Vector3d dir = d / length;
     const Eigen::Vector3d o = lifted(from, from_normal, dir, epsilon_);
     const Eigen::Vector3d t = lifted(to, to_normal, -dir, epsilon_);
     const Eigen::Vector3d span = t - o;
     const double span_length = span.norm();
-    if (!(span_length > 0.0)) return false;
-    const double tfar = to_normal.squaredNorm() > 0.0 ? span_length : span_length - epsilon_;
-    if (virtual_scene) return impl_->occludedVirtual(o, span / span_length, tfar, mask);
-    return impl_->occluded(impl_->real_top, o, span / span_length, tfar, mask);
+    if (!(span_length > 0.0)) return s;
+    s.origin = o;
+    s.direction = span / span_length;
+    s.tfar = to_normal.squaredNorm() > 0.0 ? span_length : span_length - epsilon_;
+    return s;
+}
+
+bool RayScene::occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                               const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal, std::uint32_t mask) const {
+    if (virtual_scene && impl_->virtual_scenes.empty()) return false;
+    const PreparedSegment s = prepareSegment(from, from_normal, to, to_normal);
+    if (virtual_scene) return impl_->occludedVirtual(s.origin, s.direction, s.tfar, mask);
+    return impl_->occluded(impl_->real_top, s.origin, s.direction, s.tfar, mask);
+}
+
+bool RayScene::occludedVirtual(const PreparedSegment& segment, std::uint32_t mask) const {
+    // Without the balls' pre-test of the segment (occludedVirtual() below): it only skips rays
+    // Impl::occludedVirtual() finds open, spheres and meshes' balls first.
+    if (mask == 0u || impl_->virtual_scenes.empty()) return false;
+    return impl_->occludedVirtual(segment.origin, segment.direction, segment.tfar, mask);
 }
 
 bool RayScene::occludedReal(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,

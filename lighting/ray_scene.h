@@ -31,6 +31,14 @@ struct VirtualShape {
     std::vector<Face> faces;     // otherwise: its faces (object frame)
 };
 
+// A segment lifted off its two surfaces once (as occludedVirtual() lifts it), for queries repeated
+// while the virtual objects move: its rays skip the lifting and the balls' pre-test.
+struct PreparedSegment {
+    Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+    Eigen::Vector3d direction = Eigen::Vector3d::Zero();  // unit
+    double tfar = 0.0;  // <= 0: never blocked (the ends touch)
+};
+
 enum class HitKind : std::uint8_t { kNone, kRealFace, kLight, kVirtual };
 
 struct RayHit {
@@ -69,6 +77,11 @@ public:
     // has bit virtualBit(v)).
     bool occludedVirtual(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,
                          const Eigen::Vector3d& to_normal = Eigen::Vector3d::Zero(), std::uint32_t mask = ~0u) const;
+    // The segment occludedVirtual(from, from_normal, to, to_normal, mask) traces, and the same
+    // answer from it: occludedVirtual(prepareSegment(f, nf, t, nt), mask) == occludedVirtual(f, nf, t, nt, mask).
+    PreparedSegment prepareSegment(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
+                                   const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const;
+    bool occludedVirtual(const PreparedSegment& segment, std::uint32_t mask = ~0u) const;
     static std::uint32_t virtualBit(int index) { return std::uint32_t{1} << (static_cast<unsigned>(index) % 32u); }
     // Same for a ray towards infinity along `direction` (unit): distant lights.
     bool occludedRealRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,

@@ -1,7 +1,8 @@
 // lighting/ray_scene.h: a virtual sphere's visibility in closed form against Embree's own sphere
 // (the same object traced through its instance by intersectVirtual()), with a mesh object beside
 // it (still traced by Embree), masks, a disabled object and a moved one; a mesh traced only where a
-// segment meets its bounding ball, with Embree's answer; intersectVirtualExcept()'s ball test.
+// segment meets its bounding ball, with Embree's answer; intersectVirtualExcept()'s ball test; a prepared
+// segment's answer (prepareSegment()) against the plain one.
 #include "lighting/ray_scene.h"
 
 #include <gtest/gtest.h>
@@ -155,6 +156,46 @@ TEST(RayScene, IntersectVirtualExceptSeesOnlyTheOthers) {
             }
         }
     }
+}
+
+// A segment prepared once (prepareSegment(): lifted, without the balls' pre-test) gets the answer
+// of occludedVirtual() on its two ends, for segments through, past and ending on two spheres and a
+// rotated cube, with and without normals, short ones, every mask, an object disabled and moved.
+TEST(RayScene, PreparedSegmentKeepsTheAnswer) {
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.3;
+    auto built = RayScene::build(floorFace(), {}, {sphere, cube(Eigen::Vector3d(0.05, 0, 0)), sphere});
+    ASSERT_TRUE(built) << built.error().message;
+    RayScene& rays = **built;
+    const Eigen::Vector3d at[3] = {{0, 0, 0}, {0.8, 0.2, 0.1}, {-0.3, 0.7, 0.3}};
+    const Eigen::Quaterniond q(Eigen::AngleAxisd(0.6, Eigen::Vector3d(1, 2, 3).normalized()));
+    std::mt19937 rng(23);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    int blocked = 0, open = 0;
+    for (int round = 0; round < 3; ++round) {
+        const Eigen::Vector3d shift = 0.2 * round * Eigen::Vector3d(1, -1, 0.5);
+        for (int v = 0; v < 3; ++v) rays.setVirtualPose(v, Rigid3d(v == 1 ? q : Eigen::Quaterniond::Identity(), at[v] + shift));
+        rays.setVirtualEnabled(2, round != 1);
+        ASSERT_TRUE(rays.commitVirtual());
+        for (int k = 0; k < 6000; ++k) {
+            // Ends near the objects' surfaces (some on them), some segments shorter than the lifts.
+            const int v = k % 3;
+            const Eigen::Vector3d n = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+            const Eigen::Vector3d a = at[v] + shift + (k % 4 == 0 ? 0.3 : 0.3 + 0.8 * std::abs(u(rng))) * n;
+            const Eigen::Vector3d b = k % 11 == 0 ? Eigen::Vector3d(a + rays.epsilon() * Eigen::Vector3d(u(rng), u(rng), u(rng)))
+                                                  : Eigen::Vector3d(at[(k + 1) % 3] + shift + 1.2 * Eigen::Vector3d(u(rng), u(rng), u(rng)));
+            const Eigen::Vector3d na = k % 3 == 0 ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : n;
+            const Eigen::Vector3d nb = k % 5 == 0 ? Eigen::Vector3d(Eigen::Vector3d::Zero())
+                                                  : Eigen::Vector3d(Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized());
+            const std::uint32_t mask = static_cast<std::uint32_t>(k % 8);
+            const PreparedSegment s = rays.prepareSegment(a, na, b, nb);
+            const bool expected = rays.occludedVirtual(a, na, b, nb, mask);
+            ASSERT_EQ(rays.occludedVirtual(s, mask), expected) << "round " << round << " segment " << k;
+            (expected ? blocked : open)++;
+        }
+    }
+    EXPECT_GT(blocked, 1500);
+    EXPECT_GT(open, 3000);
 }
 
 // intersectVirtualExcept() skips a ray that misses every other object's ball: its answer is the
