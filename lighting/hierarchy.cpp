@@ -7,12 +7,6 @@
 
 namespace commonlight::lighting {
 
-bool insideUnit(double a, double b, bool triangle, double tolerance) {
-    if (a < -tolerance || b < -tolerance) return false;
-    if (triangle) return a + b <= 1.0 + tolerance;
-    return a <= 1.0 + tolerance && b <= 1.0 + tolerance;
-}
-
 std::vector<Eigen::Vector3d> ElementGeometry::polygon() const {
     if (triangle) return {corner, corner + edge_s, corner + edge_t};
     return {corner, corner + edge_s, corner + edge_s + edge_t, corner + edge_t};
@@ -49,11 +43,20 @@ Element makeElement(const Face& face, int face_index, const Eigen::Vector2d& st,
 
 }  // namespace
 
+void Hierarchy::add(const Element& e) {
+    elements_.push_back(e);
+    Eigen::Matrix2d m;
+    m.col(0) = e.ds;
+    m.col(1) = e.dt;
+    ab_from_st_.push_back(m.inverse());
+}
+
 Hierarchy::Hierarchy(const std::vector<Face>& faces) : faces_(faces) {
     elements_.reserve(faces.size() * 8);
+    ab_from_st_.reserve(faces.size() * 8);
     for (std::size_t f = 0; f < faces.size(); ++f) {
         roots_.push_back(static_cast<int>(elements_.size()));
-        elements_.push_back(makeElement(faces[f], static_cast<int>(f), Eigen::Vector2d::Zero(), Eigen::Vector2d::UnitX(),
+        add(makeElement(faces[f], static_cast<int>(f), Eigen::Vector2d::Zero(), Eigen::Vector2d::UnitX(),
                                         Eigen::Vector2d::UnitY(), faces[f].triangle));
     }
     leaf_count_ = static_cast<int>(faces.size());
@@ -120,7 +123,7 @@ bool Hierarchy::subdivide(int element, double min_size) {
         c.parent = element;
         c.level = e.level + 1;
         c.buried = e.buried;
-        elements_.push_back(c);
+        add(c);
     }
     leaf_count_ += static_cast<int>(children.size()) - 1;
     return true;
@@ -175,10 +178,7 @@ int Hierarchy::leafAt(int face, Eigen::Vector2d st) const {
         double best_outside = 1e300;
         for (int c = 0; c < e.child_count; ++c) {
             const Element& child = elements_[static_cast<std::size_t>(e.first_child + c)];
-            Eigen::Matrix2d m;
-            m.col(0) = child.ds;
-            m.col(1) = child.dt;
-            const Eigen::Vector2d ab = m.inverse() * (st - child.st);
+            const Eigen::Vector2d ab = ab_from_st_[static_cast<std::size_t>(e.first_child + c)] * (st - child.st);
             if (insideUnit(ab.x(), ab.y(), child.triangle, 1e-9)) {
                 next = e.first_child + c;
                 break;

@@ -94,13 +94,24 @@ public:
     void setExposed(int element, float exposed) { elements_[static_cast<std::size_t>(element)].exposed = exposed; }
 
 private:
+    // Appends an element and its ab_from_st_.
+    void add(const Element& e);
+
     std::vector<Element> elements_;
+    // By element: the inverse of [ds dt], (a, b) = ab_from_st_ * ((s, t) - st). leafAt() descends
+    // through it for every probe ray and texel; computed once when the element is made (the same
+    // Eigen inverse leafAt() took per visit, so the same bits).
+    std::vector<Eigen::Matrix2d> ab_from_st_;
     std::vector<int> roots_;
     std::vector<Face> faces_;  // metric sizes of the (s, t) edges
     int leaf_count_ = 0;
 };
 
 // Whether (a, b) lies in the unit parallelogram / triangle, with a tolerance.
-bool insideUnit(double a, double b, bool triangle, double tolerance = 1e-12);
+inline bool insideUnit(double a, double b, bool triangle, double tolerance = 1e-12) {
+    if (a < -tolerance || b < -tolerance) return false;
+    if (triangle) return a + b <= 1.0 + tolerance;
+    return a <= 1.0 + tolerance && b <= 1.0 + tolerance;
+}
 
 }  // namespace commonlight::lighting

@@ -261,6 +261,9 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
     // Rectangles in texels (i0, j0, i1, j1) of the leaves the last build had and this one has not:
     // the box filters that averaged them are within `reach` of them.
     std::vector<Eigen::Vector4i> gone_rects;
+    // The box (i0, j0, i1, j1) of the texels whose leaf is not known (leaf_of -1): every texel in a
+    // new layout; with the same layout, those whose leaf went.
+    Eigen::Vector4i lost(0, 0, width - 1, height - 1);
     if (same_layout && !same_leaves) {
         // Places of the leaves kept (the same element with the same extent) from the old list to
         // the new; the texels of the rest are rasterised again, and the box filters within a
@@ -277,22 +280,30 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
                 leaves[static_cast<std::size_t>(p)].fields = o.fields;  // compared below, as kept
             }
         }
-        for (int& q : keep.leaf_of) q = q >= 0 ? old_to_new[static_cast<std::size_t>(q)] : -1;
-        for (FaceBuild::Stencil& st : keep.stencils) {
-            for (int q = 0; q < st.n; ++q) {
-                int& leaf = st.leaf[static_cast<std::size_t>(q)];
-                leaf = old_to_new[static_cast<std::size_t>(leaf)];
-            }
-        }
         for (std::size_t q = 0; q < keep.leaves.size(); ++q) {
             if (old_to_new[q] < 0) gone_rects.push_back(texelRect(keep.leaves[q], width, height, reach));
         }
+        // One pass over the texels: their leaves and box filters renumbered, and the box of those
+        // whose leaf went (-1: rasterised or found again below).
         i0 = width, i1 = -1, j0 = height, j1 = -1;
-        for (std::size_t k = 0; k < texels; ++k) {
-            if (keep.leaf_of[k] >= 0) continue;
-            const int i = static_cast<int>(k % static_cast<std::size_t>(width)), j = static_cast<int>(k / static_cast<std::size_t>(width));
-            i0 = std::min(i0, i), i1 = std::max(i1, i), j0 = std::min(j0, j), j1 = std::max(j1, j);
+        for (int j = 0; j < height; ++j) {
+            const std::size_t row = static_cast<std::size_t>(j) * static_cast<std::size_t>(width);
+            int* leaf_of = keep.leaf_of.data() + row;
+            FaceBuild::Stencil* stencils = keep.stencils.data() + row;
+            int lo = width, hi = -1;
+            for (int i = 0; i < width; ++i) {
+                int& q = leaf_of[i];
+                q = q >= 0 ? old_to_new[static_cast<std::size_t>(q)] : -1;
+                if (q < 0) lo = std::min(lo, i), hi = i;
+                FaceBuild::Stencil& st = stencils[i];
+                for (int n = 0; n < st.n; ++n) {
+                    int& leaf = st.leaf[static_cast<std::size_t>(n)];
+                    leaf = old_to_new[static_cast<std::size_t>(leaf)];
+                }
+            }
+            if (lo <= hi) i0 = std::min(i0, lo), i1 = std::max(i1, hi), j0 = std::min(j0, j), j1 = j;
         }
+        lost = {i0, j0, i1, j1};
         if (i0 <= i1) {
             const int r = static_cast<int>(std::ceil(reach)) + 1;
             i0 = std::max(0, i0 - r), i1 = std::min(width - 1, i1 + r), j0 = std::max(0, j0 - r), j1 = std::min(height - 1, j1 + r);
@@ -347,10 +358,12 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
                 }
             }
         }
-        for (std::size_t k = 0; k < texels; ++k) {
-            if (keep.leaf_of[k] >= 0) continue;
-            const int i = static_cast<int>(k % static_cast<std::size_t>(width)), j = static_cast<int>(k / static_cast<std::size_t>(width));
-            keep.leaf_of[k] = placeOf(h.leafAt(f, Eigen::Vector2d((i + 0.5) / width, (j + 0.5) / height)));
+        for (int j = lost[1]; j <= lost[3]; ++j) {
+            for (int i = lost[0]; i <= lost[2]; ++i) {
+                const std::size_t k = m.texel(i, j);
+                if (keep.leaf_of[k] >= 0) continue;
+                keep.leaf_of[k] = placeOf(h.leafAt(f, Eigen::Vector2d((i + 0.5) / width, (j + 0.5) / height)));
+            }
         }
         if (i0 <= i1) {
             tbb::parallel_for(j0, j1 + 1, [&](int j) {

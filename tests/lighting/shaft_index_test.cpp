@@ -308,5 +308,66 @@ TEST(Hierarchy, CollapseRetiresAndSubdivideBringsTheSameChildrenBack) {
     EXPECT_EQ(g.leafCount(), 2);
 }
 
+// leafAt() descends through inverses kept per element (made with the element, not per visit): after
+// splits, collapses, re-activated children and a different split, it finds the leaf whose own
+// (s, t) parallelogram or triangle holds the point, on a skewed parallelogram and a triangle.
+TEST(Hierarchy, LeafAtFindsTheLeafHoldingThePointThroughSplitsAndCollapses) {
+    Face quad;
+    quad.edge_s = Eigen::Vector3d(1.3, 0.2, 0);
+    quad.edge_t = Eigen::Vector3d(0.4, 0.7, 0);
+    Face tri = quad;
+    tri.triangle = true;
+    Hierarchy h({quad, tri});
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    const auto splitSome = [&](double min_size, int count) {
+        for (int n = 0; n < count; ++n) {
+            const int face = n % 2;
+            h.subdivide(h.leafAt(face, Eigen::Vector2d(u(rng), u(rng))), min_size);
+        }
+    };
+    // The leaf holding (s, t) from scratch: its own inverse, taken here.
+    const auto holding = [&](int face, const Eigen::Vector2d& st, int& found) {
+        std::vector<int> leaves;
+        h.leavesUnder(h.root(face), leaves);
+        int count = 0;
+        for (int l : leaves) {
+            Eigen::Matrix2d m;
+            m.col(0) = h[l].ds;
+            m.col(1) = h[l].dt;
+            const Eigen::Vector2d ab = m.inverse() * (st - h[l].st);
+            const double margin = 1e-6;  // away from the borders: one leaf holds the point
+            if (ab.minCoeff() > margin && (h[l].triangle ? ab.sum() : ab.maxCoeff()) < 1.0 - margin) {
+                found = l;
+                ++count;
+            }
+        }
+        return count;
+    };
+    const auto check = [&](const char* stage) {
+        int checked = 0;
+        for (int n = 0; n < 2000; ++n) {
+            const int face = n % 2;
+            Eigen::Vector2d st(u(rng), u(rng));
+            if (face == 1 && st.sum() > 1.0) st = Eigen::Vector2d(1.0, 1.0) - st;
+            int found = -1;
+            if (holding(face, st, found) != 1) continue;  // on a border
+            ++checked;
+            ASSERT_EQ(h.leafAt(face, st), found) << stage << " face " << face << " at (" << st.x() << ", " << st.y() << ")";
+        }
+        EXPECT_GT(checked, 1900) << stage;
+    };
+    splitSome(0.01, 300);
+    check("split");
+    h.collapse(h.root(0));
+    h.collapse(h[h.root(1)].first_child + 1);
+    check("collapsed");
+    splitSome(0.01, 300);  // some retired children come back
+    check("split again");
+    h.collapse(h.root(0));
+    splitSome(0.3, 50);  // coarser: other splits, new children
+    check("split otherwise");
+}
+
 }  // namespace
 }  // namespace commonlight::lighting
