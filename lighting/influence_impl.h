@@ -277,7 +277,7 @@ struct VirtualInfluence::Impl {
     std::vector<Answers> answers;
     std::vector<char> has_terms;  // any element (active): direct or cluster (leaves), corrections (link level)
     std::vector<std::vector<RealMask>> masks;
-    // By element: the hulls linkMeetsBall() tests, per source, found once (both ends are static
+    // By element: the hulls linkMeetsBall() tests, per source (sorted), found once (both ends are static
     // real elements). Only the thread walking the element reads or grows its list.
     mutable std::vector<std::vector<std::pair<int, CachedHull>>> link_hulls;
     std::vector<Selection> selection;                      // base leaves
