@@ -49,7 +49,8 @@ double significanceClearance(double share, double omega, double item, double d, 
 // The (base leaf, link or light) pairs whose shaft meets the ball `query` and whose effect there
 // could reach a tenth of link_epsilon for an object anywhere inside it: the shaft index's
 // candidates (cones), links followed from their receivers down to the base leaves (pruned by a bound
-// on that effect), the hull of the two ends tested at the base leaves. `scan`: every shaft instead
+// on that effect). The hull of a pair's two ends is tested later, by candidates(), and only for
+// the pairs whose significance asks for it (cache_hull_in: a fifth of them). `scan`: every shaft instead
 // of the index (the from-scratch baseline). Directional lights and distant cells by a scan of the
 // base leaves.
 void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool scan, std::vector<std::pair<int, int>>& pairs) {
@@ -76,9 +77,7 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
             const int id = ids[j];
             if (id >= link_shafts) {
                 const auto [b, k] = light_shafts[static_cast<std::size_t>(id - link_shafts)];
-                if (hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) {
-                    out.emplace_back(b, -1 - k);
-                }
+                out.emplace_back(b, -1 - k);
                 continue;
             }
             const int link = shaft_link[static_cast<std::size_t>(id)];
@@ -108,7 +107,7 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
                 const double beta = std::min(1.0, ballSolidAngle(query.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
                 if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
                 if (leaf) {
-                    if (hullMeetsBall(es.polygon(), src.polygon(), query)) out.emplace_back(e, link);
+                    out.emplace_back(e, link);
                     continue;
                 }
                 for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);
@@ -190,6 +189,8 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         obj.cache_shafts.resize(obj.cache_pairs.size());
         obj.cache_idle.assign(obj.cache_pairs.size(), 0.0);
         obj.cache_meets.assign(obj.cache_pairs.size(), 0.0);
+        obj.cache_hull_in.assign(obj.cache_pairs.size(), 0);
+        obj.cache_query = scan ? ball : obj.cache_ball;
         std::size_t j = 0;
         for (std::size_t i = 0; i < obj.cache_pairs.size() && j < old_pairs.size(); ++i) {
             while (j < old_pairs.size() && old_pairs[j] < obj.cache_pairs[i]) ++j;
@@ -297,6 +298,17 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             if (!(sig >= item)) {
                 if (!node) obj.cache_idle[i] = travel + significanceClearance(parts[0], parts[1], item, (obj.ball.centre - centroid).norm(), obj.radius);
                 sleep();
+                continue;
+            }
+            // (A pair the hull of whose ends misses the ball it was collected with is not one of the
+            // cache's: never kept, nor looked at again.)
+            if (!obj.cache_shafts[i].far && obj.cache_hull_in[i] == 0) {
+                const std::span<const Eigen::Vector3d> other =
+                    what < 0 ? lightPolygon(-1 - what) : shape[static_cast<std::size_t>(links[static_cast<std::size_t>(what)].source)].polygon();
+                obj.cache_hull_in[i] = hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), other, obj.cache_query) ? 1 : 2;
+            }
+            if (obj.cache_hull_in[i] == 2) {
+                next[k] = 2;
                 continue;
             }
             // (The node's answer when the base leaf is the face's root, else the leaf's own shaft.)

@@ -256,6 +256,12 @@ struct ObjectState {
     // where the object is). Made again from cache_idle when the cache is made or `travel` restarts.
     std::vector<int> cache_awake;
     std::vector<std::pair<double, int>> cache_asleep;
+    // Per cache pair, whether the ball the pairs were collected with (`cache_query`: cache_ball,
+    // or the object's ball for a scan) meets the hull of its two ends: 0 not tested yet, 1 yes, 2
+    // no (then the pair is not one of the cache's: never kept). Tested at the first move that asks
+    // whether the object meets the pair's shaft, not for every pair collected.
+    Ball cache_query;
+    std::vector<std::uint8_t> cache_hull_in;
 };
 
 struct VirtualInfluence::Impl {
