@@ -160,12 +160,11 @@ bool VirtualInfluence::Impl::linkMeetsBall(int element, int source, const Ball& 
 }
 
 const CachedHull& VirtualInfluence::Impl::linkHull(int element, int source) const {
+    // (Sorted by source: found by bisection, tens of sources per element.)
     auto& list = link_hulls[static_cast<std::size_t>(element)];
-    for (const auto& [key, hull] : list) {
-        if (key == source) return hull;
-    }
-    list.emplace_back(source, CachedHull::of(shape[static_cast<std::size_t>(element)].polygon(), shape[static_cast<std::size_t>(source)].polygon()));
-    return list.back().second;
+    const auto it = std::lower_bound(list.begin(), list.end(), source, [](const auto& entry, int key) { return entry.first < key; });
+    if (it != list.end() && it->first == source) return it->second;
+    return list.emplace(it, source, CachedHull::of(shape[static_cast<std::size_t>(element)].polygon(), shape[static_cast<std::size_t>(source)].polygon()))->second;
 }
 
 bool VirtualInfluence::Impl::lightMeetsBall(int element, int light, const Ball& ball) const {

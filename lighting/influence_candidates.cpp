@@ -49,7 +49,8 @@ double significanceClearance(double share, double omega, double item, double d, 
 // The (base leaf, link or light) pairs whose shaft meets the ball `query` and whose effect there
 // could reach a tenth of link_epsilon for an object anywhere inside it: the shaft index's
 // candidates (cones), links followed from their receivers down to the base leaves (pruned by a bound
-// on that effect), the hull of the two ends tested at the base leaves. `scan`: every shaft instead
+// on that effect). The hull of a pair's two ends is tested later, by candidates(), and only for
+// the pairs whose significance asks for it (cache_hull_in: a fifth of them). `scan`: every shaft instead
 // of the index (the from-scratch baseline). Directional lights and distant cells by a scan of the
 // base leaves.
 void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool scan, std::vector<std::pair<int, int>>& pairs) {
@@ -76,9 +77,7 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
             const int id = ids[j];
             if (id >= link_shafts) {
                 const auto [b, k] = light_shafts[static_cast<std::size_t>(id - link_shafts)];
-                if (hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), lightPolygon(k), query)) {
-                    out.emplace_back(b, -1 - k);
-                }
+                out.emplace_back(b, -1 - k);
                 continue;
             }
             const int link = shaft_link[static_cast<std::size_t>(id)];
@@ -108,7 +107,7 @@ void VirtualInfluence::Impl::collectPairs(int object, const Ball& query, bool sc
                 const double beta = std::min(1.0, ballSolidAngle(query.radius, near) / std::max(source_area * 0.05 / (far * far), 1e-12));
                 if (rho_max[static_cast<std::size_t>(e)] / kPi * w * source * beta / den_min[static_cast<std::size_t>(e)] < item) continue;
                 if (leaf) {
-                    if (hullMeetsBall(es.polygon(), src.polygon(), query)) out.emplace_back(e, link);
+                    out.emplace_back(e, link);
                     continue;
                 }
                 for (int c = 0; c < el.child_count; ++c) stack.push_back(el.first_child + c);
@@ -190,6 +189,8 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         obj.cache_shafts.resize(obj.cache_pairs.size());
         obj.cache_idle.assign(obj.cache_pairs.size(), 0.0);
         obj.cache_meets.assign(obj.cache_pairs.size(), 0.0);
+        obj.cache_hull_in.assign(obj.cache_pairs.size(), 0);
+        obj.cache_query = scan ? ball : obj.cache_ball;
         std::size_t j = 0;
         for (std::size_t i = 0; i < obj.cache_pairs.size() && j < old_pairs.size(); ++i) {
             while (j < old_pairs.size() && old_pairs[j] < obj.cache_pairs[i]) ++j;
@@ -215,20 +216,51 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         obj.cache_meets.resize(obj.cache_pairs.size(), 0.0);
     }
     const double travel = obj.travel;
+    // The pairs this move looks at: those awake after the last move, and those whose idle travel
+    // the ball has now covered; all of them again where the cache was made or the travel restarted.
+    // (A pair's answer below is what it would be if every pair were looked at: a pair left out is
+    // one the loop would skip, by its share or by `travel < cache_idle`.)
+    std::vector<int>& awake = obj.cache_awake;
+    auto& asleep = obj.cache_asleep;
+    const auto later = [](const std::pair<double, int>& x, const std::pair<double, int>& y) { return x.first > y.first; };
+    if (refreshed || !track) {
+        awake.clear();
+        asleep.clear();
+        for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
+            const auto& parts = obj.cache_sig[i];
+            if (parts[1] >= 0.0 && std::max(parts[0], 0.0) < item) continue;
+            if (obj.cache_idle[i] > travel) {
+                asleep.emplace_back(obj.cache_idle[i], static_cast<int>(i));
+            } else {
+                awake.push_back(static_cast<int>(i));
+            }
+        }
+        std::make_heap(asleep.begin(), asleep.end(), later);
+    } else {
+        while (!asleep.empty() && !(travel < asleep.front().first)) {
+            awake.push_back(asleep.front().second);
+            std::pop_heap(asleep.begin(), asleep.end(), later);
+            asleep.pop_back();
+        }
+    }
     std::vector<std::pair<int, double>> sums;       // base leaf, significance
     std::vector<std::pair<int, int>> link_entries;  // base leaf, link
     // (The significance first: it is cheaper than the shaft tests.) In parallel over the pairs
-    // (thousands on the room), gathered in their order.
-    std::vector<double> kept(obj.cache_pairs.size(), -1.0);
+    // awake (a few thousand of the room's 29 000), gathered in their order (sorted below: any order
+    // gives the same sums). `next`: 0 awake at the next move, 1 asleep until `travel` reaches its
+    // cache_idle, 2 never significant.
+    std::vector<double> kept(awake.size(), -1.0);
+    std::vector<std::uint8_t> next(awake.size(), 0);
     std::atomic<long> pairs_tested{0};
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, obj.cache_pairs.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, awake.size(), 256), [&](const tbb::blocked_range<std::size_t>& r) {
         long tested = 0;
         struct Count {
             std::atomic<long>& total;
             long& n;
             ~Count() { total += n; }
         } count{pairs_tested, tested};
-        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+        for (std::size_t k = r.begin(); k < r.end(); ++k) {
+            const std::size_t i = static_cast<std::size_t>(awake[k]);
             const auto [b, what] = obj.cache_pairs[i];
             // (A face's transfer through a shared cluster link: its node found whether the object
             // meets the shaft of the face's root, which holds the base leaf's. A "no" there is read
@@ -246,16 +278,37 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                 obj.cache_shafts[i] = pairShaft(b, what);
             }
             // (objectBlocks() at b's centroid, the shaft's first end: no look-up of b's shape. It is
-            // at most 1, so a share below `item` is never significant: not computed.)
-            if (std::max(parts[0], 0.0) < item) continue;
+            // at most 1, so a share below `item` is never significant: not computed, nor looked at again.)
+            if (std::max(parts[0], 0.0) < item) {
+                next[k] = 2;
+                continue;
+            }
             // (Not kept at a move whose ball stays as far as it was: left alone. A shared
             // cluster link's answer may change with its node's: always tested.)
-            if (!node && travel < obj.cache_idle[i]) continue;
+            const auto sleep = [&] {
+                if (!node && travel < obj.cache_idle[i]) next[k] = 1;
+            };
+            if (!node && travel < obj.cache_idle[i]) {
+                next[k] = 1;
+                continue;
+            }
             ++tested;
             const Eigen::Vector3d& centroid = obj.cache_shafts[i].shaft.a;
             const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, centroid, parts[1]) : 0.0;
             if (!(sig >= item)) {
                 if (!node) obj.cache_idle[i] = travel + significanceClearance(parts[0], parts[1], item, (obj.ball.centre - centroid).norm(), obj.radius);
+                sleep();
+                continue;
+            }
+            // (A pair the hull of whose ends misses the ball it was collected with is not one of the
+            // cache's: never kept, nor looked at again.)
+            if (!obj.cache_shafts[i].far && obj.cache_hull_in[i] == 0) {
+                const std::span<const Eigen::Vector3d> other =
+                    what < 0 ? lightPolygon(-1 - what) : shape[static_cast<std::size_t>(links[static_cast<std::size_t>(what)].source)].polygon();
+                obj.cache_hull_in[i] = hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), other, obj.cache_query) ? 1 : 2;
+            }
+            if (obj.cache_hull_in[i] == 2) {
+                next[k] = 2;
                 continue;
             }
             // (The node's answer when the base leaf is the face's root, else the leaf's own shaft.)
@@ -271,18 +324,27 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                     obj.cache_meets[i] = travel + clear - kClearanceMargin;
                 } else {
                     obj.cache_idle[i] = travel + clear - kClearanceMargin;
+                    sleep();
                 }
             }
-            if (meets) kept[i] = sig;
+            if (meets) kept[k] = sig;
         }
     });
     if (!scan) self.stats_.pairs_tested += pairs_tested.load();
-    for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
-        if (!(kept[i] >= 0.0)) continue;
-        const auto [b, what] = obj.cache_pairs[i];
-        sums.emplace_back(b, kept[i]);
+    std::size_t stay = 0;
+    for (std::size_t k = 0; k < awake.size(); ++k) {
+        const int i = awake[k];
+        if (next[k] == 0) awake[stay++] = i;
+        if (next[k] == 1) {
+            asleep.emplace_back(obj.cache_idle[static_cast<std::size_t>(i)], i);
+            std::push_heap(asleep.begin(), asleep.end(), later);
+        }
+        if (!(kept[k] >= 0.0)) continue;
+        const auto [b, what] = obj.cache_pairs[static_cast<std::size_t>(i)];
+        sums.emplace_back(b, kept[k]);
         if (what >= 0) link_entries.emplace_back(b, what);
     }
+    awake.resize(stay);
     // Significant where the sum reaches link_epsilon.
     std::sort(sums.begin(), sums.end());
     std::sort(link_entries.begin(), link_entries.end());

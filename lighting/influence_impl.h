@@ -253,6 +253,19 @@ struct ObjectState {
     bool travel_known = false;
     Ball travel_ball;  // the ball at the last move (its radius: a change starts again)
     std::vector<double> cache_idle, cache_meets;
+    // Which cached pairs the next move looks at, so that a move costs the pairs it may change, not
+    // the whole cache: `cache_awake`, positions in cache_pairs; `cache_asleep`, a min-heap of
+    // (cache_idle, position) of the pairs left alone until `travel` reaches their cache_idle. A pair
+    // in neither is never significant (its share below the item threshold: it does not depend on
+    // where the object is). Made again from cache_idle when the cache is made or `travel` restarts.
+    std::vector<int> cache_awake;
+    std::vector<std::pair<double, int>> cache_asleep;
+    // Per cache pair, whether the ball the pairs were collected with (`cache_query`: cache_ball,
+    // or the object's ball for a scan) meets the hull of its two ends: 0 not tested yet, 1 yes, 2
+    // no (then the pair is not one of the cache's: never kept). Tested at the first move that asks
+    // whether the object meets the pair's shaft, not for every pair collected.
+    Ball cache_query;
+    std::vector<std::uint8_t> cache_hull_in;
 };
 
 struct VirtualInfluence::Impl {
@@ -274,7 +287,7 @@ struct VirtualInfluence::Impl {
     std::vector<Answers> answers;
     std::vector<char> has_terms;  // any element (active): direct or cluster (leaves), corrections (link level)
     std::vector<std::vector<RealMask>> masks;
-    // By element: the hulls linkMeetsBall() tests, per source, found once (both ends are static
+    // By element: the hulls linkMeetsBall() tests, per source (sorted), found once (both ends are static
     // real elements). Only the thread walking the element reads or grows its list.
     mutable std::vector<std::vector<std::pair<int, CachedHull>>> link_hulls;
     std::vector<Selection> selection;                      // base leaves
