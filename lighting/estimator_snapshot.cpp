@@ -2,6 +2,7 @@
 #include "lighting/estimator_impl.h"
 
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 #if defined(__SANITIZE_THREAD__)
 #include <tbb/global_control.h>
 #endif
@@ -291,8 +292,15 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     // A texel is kept while its leaves' values move by less than 1e-3 of their B~ (a thousandth of
     // the ratio; the solver's residual bound is 1e-4 of the largest radiance) and no move reached its
     // own direct light.
-    buildFaceModulations(rad, d.scene, inf.original(), inf.radiance(), inf.reflectance(), todo, d.face_builds, 1e-3, 256,
-                         texel_direct ? &*texel_direct : nullptr);
+    // The probes read what the textures read and write nothing the textures touch: both at once, so
+    // that the probes fill the textures' serial tails (a large face's set-up runs on one thread).
+    std::vector<VirtualIrradiance> probes;
+    tbb::parallel_invoke(
+        [&] {
+            buildFaceModulations(rad, d.scene, inf.original(), inf.radiance(), inf.reflectance(), todo, d.face_builds, 1e-3,
+                                 256, texel_direct ? &*texel_direct : nullptr);
+        },
+        [&] { probes = buildProbes(rad, d.scene, inf.radiance(), d.probe_lights); });
     stats_.texels_built = stats_.texels = 0;
     stats_.texels_traced = d.texels ? d.texels->traced() - traced_before : 0;
     for (int f : todo) {
@@ -305,7 +313,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     for (const FaceBuild& f : d.face_builds) {
         if (f.modulation) snapshot.faces.push_back(f.modulation);
     }
-    snapshot.virtual_objects = buildProbes(rad, d.scene, inf.radiance(), d.probe_lights);
+    snapshot.virtual_objects = std::move(probes);
     snapshot.solve = with_.summary;
     stats_.ms_observe = last_observe_ms_;
     stats_.leaves = with_.summary.elements;
