@@ -237,18 +237,24 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         }
         std::make_heap(asleep.begin(), asleep.end(), later);
     } else {
+        // (Kept in ascending position: the pairs woken now sorted and merged in, so that the pairs
+        // kept below come in cache_pairs' order, by base leaf then link, with no sort of their own.)
+        const std::size_t stayed = awake.size();
         while (!asleep.empty() && !(travel < asleep.front().first)) {
             awake.push_back(asleep.front().second);
             std::pop_heap(asleep.begin(), asleep.end(), later);
             asleep.pop_back();
         }
+        const auto middle = awake.begin() + static_cast<std::ptrdiff_t>(stayed);
+        std::sort(middle, awake.end());
+        std::inplace_merge(awake.begin(), middle, awake.end());
     }
-    std::vector<std::pair<int, double>> sums;       // base leaf, significance
-    std::vector<std::pair<int, int>> link_entries;  // base leaf, link
+    std::vector<std::pair<int, double>> sums;       // base leaf, significance (by base leaf)
+    std::vector<std::pair<int, int>> link_entries;  // base leaf, link (sorted)
     // (The significance first: it is cheaper than the shaft tests.) In parallel over the pairs
-    // awake (a few thousand of the room's 29 000), gathered in their order (sorted below: any order
-    // gives the same sums). `next`: 0 awake at the next move, 1 asleep until `travel` reaches its
-    // cache_idle, 2 never significant.
+    // awake (a few thousand of the room's 29 000), gathered in their order: cache_pairs' (each base
+    // leaf's significances summed below in ascending order, as a sort of them all would). `next`:
+    // 0 awake at the next move, 1 asleep until `travel` reaches its cache_idle, 2 never significant.
     std::vector<double> kept(awake.size(), -1.0);
     std::vector<std::uint8_t> next(awake.size(), 0);
     std::atomic<long> pairs_tested{0};
@@ -283,15 +289,15 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                 next[k] = 2;
                 continue;
             }
-            // (Not kept at a move whose ball stays as far as it was: left alone. A shared
-            // cluster link's answer may change with its node's: always tested.)
+            // (Not kept at a move whose ball stays as far as it was: left alone, asleep until
+            // `travel` reaches its cache_idle. A shared cluster link's answer may change with its
+            // node's: always tested.)
             const auto sleep = [&] {
-                if (!node && travel < obj.cache_idle[i]) next[k] = 1;
+                const bool idle = !node && travel < obj.cache_idle[i];
+                if (idle) next[k] = 1;
+                return idle;
             };
-            if (!node && travel < obj.cache_idle[i]) {
-                next[k] = 1;
-                continue;
-            }
+            if (sleep()) continue;
             ++tested;
             const Eigen::Vector3d& centroid = obj.cache_shafts[i].shaft.a;
             const double sig = parts[0] > 0.0 ? parts[0] * objectBlocksFrom(object, centroid, parts[1]) : 0.0;
@@ -346,13 +352,14 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     }
     awake.resize(stay);
     // Significant where the sum reaches link_epsilon.
-    std::sort(sums.begin(), sums.end());
-    std::sort(link_entries.begin(), link_entries.end());
     std::size_t j = 0;
     for (std::size_t i = 0; i < sums.size();) {
         const int b = sums[i].first;
+        std::size_t end = i;
+        while (end < sums.size() && sums[end].first == b) ++end;
+        std::sort(sums.begin() + static_cast<std::ptrdiff_t>(i), sums.begin() + static_cast<std::ptrdiff_t>(end));
         double total = 0.0;
-        for (; i < sums.size() && sums[i].first == b; ++i) total += sums[i].second;
+        for (; i < end; ++i) total += sums[i].second;
         while (j < link_entries.size() && link_entries[j].first < b) ++j;
         if (total < self.options_.link_epsilon) continue;
         touched.push_back(b);
