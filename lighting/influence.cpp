@@ -204,18 +204,18 @@ bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, co
         if (clearance) *clearance = std::max(0.0, -segmentClearance(ps.shaft.a, ps.shaft.b, ball));
         return true;
     }
-    if (!obj.cache_hull_known[i]) {
+    if (!obj.cache_hulls[i]) {
         const std::span<const Eigen::Vector3d> other =
             what < 0 ? lightPolygon(-1 - what) : shape[static_cast<std::size_t>(links[static_cast<std::size_t>(what)].source)].polygon();
-        obj.cache_hulls[i] = HullPlanes::of(shape[static_cast<std::size_t>(element)].polygon(), other);
-        obj.cache_hull_known[i] = 1;
+        obj.cache_hulls[i] = std::make_unique<HullPlanes>(HullPlanes::of(shape[static_cast<std::size_t>(element)].polygon(), other));
     }
-    if (obj.cache_hulls[i].meets(ball)) {
+    const HullPlanes& hull = *obj.cache_hulls[i];
+    if (hull.meets(ball)) {
         // (Met by the planes: while the centre stays inside both the cone's and the planes' reach.)
-        if (clearance) *clearance = std::max(0.0, std::min(-shaftClearance(ps.shaft, ball), obj.cache_hulls[i].depth(ball)));
+        if (clearance) *clearance = std::max(0.0, std::min(-shaftClearance(ps.shaft, ball), hull.depth(ball)));
         return true;
     }
-    if (clearance) *clearance = std::max(0.0, obj.cache_hulls[i].clearance(ball));
+    if (clearance) *clearance = std::max(0.0, hull.clearance(ball));
     return false;
 }
 

@@ -188,7 +188,8 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
     CL_TRY(d.index, ShaftIndex::build(std::move(shafts)));
     // Step 4: the virtual objects: their faces and local bounds; nothing placed yet.
     const std::size_t count = rays_.virtualCount();
-    d.objects.assign(count, ObjectState{});
+    d.objects.clear();
+    d.objects.resize(count);
     for (std::size_t f = radiosity_.realFaceCount(); f < h.faceCount(); ++f) {
         const int o = radiosity_.virtualObjectOfFace(static_cast<int>(f));
         if (o >= 0 && static_cast<std::size_t>(o) < count) d.objects[static_cast<std::size_t>(o)].faces.push_back(static_cast<int>(f));

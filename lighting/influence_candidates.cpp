@@ -137,12 +137,10 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     ObjectState& obj = objects[static_cast<std::size_t>(object)];
     bool refreshed = true;
     std::vector<std::pair<int, int>> old_pairs;
-    std::vector<HullPlanes> old_hulls;
-    std::vector<char> old_known;
+    std::vector<std::unique_ptr<HullPlanes>> old_hulls;
     if (!scan) {
         old_pairs.swap(obj.cache_pairs);
         old_hulls.swap(obj.cache_hulls);
-        old_known.swap(obj.cache_hull_known);
     }
     if (scan) {
         obj.cache_valid = false;
@@ -155,7 +153,6 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         refreshed = false;
         obj.cache_pairs.swap(old_pairs);
         obj.cache_hulls.swap(old_hulls);
-        obj.cache_hull_known.swap(old_known);
     }
     // How far the ball has moved since the last move (a pair's answers known up to a travel).
     // The rebuild's scan, or a ball of another size, starts again.
@@ -183,8 +180,8 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         // Sorted; the hull planes and the known answers of the pairs the last cache had, kept
         // (both lists sorted).
         std::sort(obj.cache_pairs.begin(), obj.cache_pairs.end());
+        obj.cache_hulls.clear();
         obj.cache_hulls.resize(obj.cache_pairs.size());
-        obj.cache_hull_known.assign(obj.cache_pairs.size(), 0);
         obj.cache_sig.assign(obj.cache_pairs.size(), {0.0, -1.0});
         obj.cache_shafts.resize(obj.cache_pairs.size());
         obj.cache_idle.assign(obj.cache_pairs.size(), 0.0);
@@ -199,10 +196,7 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                     obj.cache_sig[i] = old_sig[j];
                     obj.cache_shafts[i] = old_shafts[j];
                 }
-                if (old_known[j]) {
-                    obj.cache_hulls[i] = old_hulls[j];
-                    obj.cache_hull_known[i] = 1;
-                }
+                if (j < old_hulls.size() && old_hulls[j]) obj.cache_hulls[i] = std::move(old_hulls[j]);
                 if (j < old_idle.size()) {
                     obj.cache_idle[i] = old_idle[j];
                     obj.cache_meets[i] = old_meets[j];

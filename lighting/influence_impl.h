@@ -227,9 +227,10 @@ struct ObjectState {
     bool cache_valid = false;
     Ball cache_ball;
     std::vector<std::pair<int, int>> cache_pairs;
-    // Per cache pair, its hull's face planes once found (at the first move that needs them).
-    std::vector<HullPlanes> cache_hulls;
-    std::vector<char> cache_hull_known;
+    // Per cache pair, its hull's face planes once found (at the first move that needs them; null
+    // until then). Held apart: a pair in six or fewer ever needs them (a HullPlanes is 388 bytes,
+    // the room's ball caches 29 000 pairs).
+    std::vector<std::unique_ptr<HullPlanes>> cache_hulls;
     // Per cache pair, the parts of its significance that do not depend on where the object is
     // (share, solid angle; < 0: not found yet).
     std::vector<std::array<double, 2>> cache_sig;
