@@ -72,6 +72,19 @@ Eigen::Vector3d meanOf(std::span<const Eigen::Vector3d> points) {
     return sum / static_cast<double>(points.size());
 }
 
+// The vertices' spread along any unit normal is at most this: twice their largest distance from
+// their mean (and a relative margin for round-off).
+double vertexSpread(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (const Eigen::Vector3d& x : a) mean += x;
+    for (const Eigen::Vector3d& x : b) mean += x;
+    mean /= static_cast<double>(std::max<std::size_t>(1, a.size() + b.size()));
+    double far2 = 0.0;
+    for (const Eigen::Vector3d& x : a) far2 = std::max(far2, (x - mean).squaredNorm());
+    for (const Eigen::Vector3d& x : b) far2 = std::max(far2, (x - mean).squaredNorm());
+    return 2.0 * std::sqrt(far2) * (1.0 + 1e-9);
+}
+
 }  // namespace
 
 bool segmentMeetsBall(const Eigen::Vector3d& p, const Eigen::Vector3d& q, const Ball& ball) {
@@ -95,21 +108,9 @@ bool hullMeetsBall(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Ve
             if (segmentMeetsBall(ca, y, ball)) return true;
         }
     }
-    // The vertices' spread along any unit normal is at most `spread` (twice their largest distance
-    // from their mean): a vertex beyond 1e-9 max(1, spread) on the ball's side of a plane shows at
-    // once that the plane does not separate (the tolerance below is at most that).
-    double spread = 0.0;
-    {
-        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-        for (const Eigen::Vector3d& x : a) mean += x;
-        for (const Eigen::Vector3d& x : b) mean += x;
-        mean /= static_cast<double>(std::max<std::size_t>(1, a.size() + b.size()));
-        double far2 = 0.0;
-        for (const Eigen::Vector3d& x : a) far2 = std::max(far2, (x - mean).squaredNorm());
-        for (const Eigen::Vector3d& x : b) far2 = std::max(far2, (x - mean).squaredNorm());
-        spread = 2.0 * std::sqrt(far2) * (1.0 + 1e-9);
-    }
-    const double early = 1e-9 * std::max(1.0, spread);
+    // A vertex beyond 1e-9 max(1, spread) on the ball's side of a plane shows at once that the
+    // plane does not separate (the tolerance below is at most that).
+    const double early = 1e-9 * std::max(1.0, vertexSpread(a, b));
     const auto separates = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
         const double length2 = n.squaredNorm();
         if (!(length2 > 1e-30)) return false;
@@ -165,6 +166,9 @@ namespace {
 // `face(n, offset)` gets each with its outward unit normal n (n . x = offset on the plane).
 template <class Face>
 void forEachFacePlane(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b, Face&& face) {
+    // (A candidate with vertices beyond `early` on both sides is no face plane, whatever the
+    // vertices not yet looked at: the tolerance below never exceeds it. Most candidates end there.)
+    const double early = 1e-9 * std::max(1.0, vertexSpread(a, b));
     const auto consider = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
         const double length2 = n.squaredNorm();
         if (!(length2 > 1e-30)) return;
@@ -175,10 +179,12 @@ void forEachFacePlane(std::span<const Eigen::Vector3d> a, std::span<const Eigen:
             lo = std::min(lo, s);
             hi = std::max(hi, s);
         }
+        if (hi > early && lo < -early) return;
         for (const Eigen::Vector3d& x : b) {
             const double s = (x - origin).dot(n);
             lo = std::min(lo, s);
             hi = std::max(hi, s);
+            if (hi > early && lo < -early) return;
         }
         const double tol = 1e-9 * std::max(1.0, hi - lo);
         if (hi > tol && lo < -tol) return;  // not a face plane

@@ -5,6 +5,10 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
+#include <cmath>
+#include <span>
+#include <vector>
 #include <random>
 
 #include "lighting/hierarchy.h"
@@ -186,6 +190,70 @@ TEST(ShaftIndex, CachedHullAnswersAsTheHullTest) {
     }
     EXPECT_GT(meets, 5000);
     EXPECT_GT(misses, 5000);
+}
+
+// The face planes CachedHull keeps are exactly those a plain enumeration finds: every candidate
+// (each end's plane, every edge of one end with a vertex of the other), normalised, a face plane
+// when no vertex lies beyond the round-off tolerance on both sides, in the same order and bit for
+// bit. On random squares, squares that share an edge, coplanar squares and a square and a point:
+// ends that touch leave vertices within round-off of a plane, where a test that ends early must
+// still keep every face plane.
+std::vector<std::array<double, 4>> referenceFacePlanes(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b) {
+    std::vector<std::array<double, 4>> out;
+    const auto consider = [&](const Eigen::Vector3d& origin, Eigen::Vector3d n) {
+        const double length2 = n.squaredNorm();
+        if (!(length2 > 1e-30)) return;
+        n /= std::sqrt(length2);
+        double lo = 0.0, hi = 0.0;
+        for (const auto& end : {a, b}) {
+            for (const Eigen::Vector3d& x : end) {
+                const double s = (x - origin).dot(n);
+                lo = std::min(lo, s);
+                hi = std::max(hi, s);
+            }
+        }
+        const double tol = 1e-9 * std::max(1.0, hi - lo);
+        if (hi > tol && lo < -tol) return;
+        if (hi > tol) n = -n;
+        out.push_back({n.x(), n.y(), n.z(), n.dot(origin)});
+    };
+    for (int pass = 0; pass < 2; ++pass) {
+        const std::span<const Eigen::Vector3d> p = pass == 0 ? a : b, q = pass == 0 ? b : a;
+        const std::size_t n = p.size();
+        if (n >= 3) consider(p[0], (p[1] - p[0]).cross(p[2] - p[0]));
+        if (n < 2) continue;
+        for (std::size_t i = 0; i < (n == 2 ? 1 : n); ++i) {
+            for (const Eigen::Vector3d& r : q) consider(p[i], (p[(i + 1) % n] - p[i]).cross(r - p[i]));
+        }
+    }
+    return out;
+}
+
+TEST(ShaftIndex, CachedHullKeepsEveryFacePlane) {
+    std::mt19937 rng(59);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    int touching_planes = 0;
+    for (int trial = 0; trial < 300; ++trial) {
+        auto [pa, pb, apex] = randomSquarePair(rng, u);
+        if (trial % 3 == 1) {
+            // pb turned about pa's first edge: they share it (a fold between neighbouring faces).
+            const Eigen::Vector3d axis = (pa[1] - pa[0]).normalized();
+            const Eigen::AngleAxisd turn(0.3 + 2.5 * u(rng), axis);
+            pb = {pa[1], pa[0], pa[0] + turn * (pa[3] - pa[0]), pa[1] + turn * (pa[2] - pa[1])};
+        } else if (trial % 3 == 2) {
+            // pb in pa's plane, beside it (neighbouring elements of one face).
+            const Eigen::Vector3d step = (pa[1] - pa[0]) * (1.0 + u(rng));
+            pb = {pa[0] + step, pa[1] + step, pa[2] + step, pa[3] + step};
+        }
+        for (const auto& other : {pb, apex}) {
+            const CachedHull hull = CachedHull::of(pa, other);
+            const std::vector<std::array<double, 4>> expected = referenceFacePlanes(pa, other);
+            ASSERT_EQ(hull.planes.size(), expected.size()) << trial;
+            for (std::size_t i = 0; i < expected.size(); ++i) ASSERT_EQ(hull.planes[i], expected[i]) << trial << " " << i;
+            if (trial % 3 != 0) touching_planes += static_cast<int>(expected.size());
+        }
+    }
+    EXPECT_GT(touching_planes, 1000);
 }
 
 // The clearances by which an object's cached shafts are left alone while it moves
