@@ -111,7 +111,14 @@ struct CachedHull {
     static constexpr std::size_t kMaxEnds = 4;                  // polygons of at most 4 vertices
     std::array<Eigen::Vector3d, kMaxEnds> ends_a{}, ends_b{};  // the two polygons' vertices
     std::uint8_t count_a = 0, count_b = 0;
-    std::vector<std::array<double, 4>> planes;  // unit outward normal, offset
+    // The face planes (unit outward normal, offset) by component: every plane's n.x, then n.y,
+    // n.z and the offsets (the loop over them in meets() two planes to an instruction).
+    std::vector<double> planes;
+    std::size_t planeCount() const { return planes.size() / 4; }
+    std::array<double, 4> plane(std::size_t i) const {
+        const std::size_t n = planeCount();
+        return {planes[i], planes[n + i], planes[2 * n + i], planes[3 * n + i]};
+    }
     // (Both ends of at most kMaxEnds vertices.)
     static CachedHull of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b);
     bool meets(const Ball& ball) const;

@@ -248,8 +248,8 @@ TEST(ShaftIndex, CachedHullKeepsEveryFacePlane) {
         for (const auto& other : {pb, apex}) {
             const CachedHull hull = CachedHull::of(pa, other);
             const std::vector<std::array<double, 4>> expected = referenceFacePlanes(pa, other);
-            ASSERT_EQ(hull.planes.size(), expected.size()) << trial;
-            for (std::size_t i = 0; i < expected.size(); ++i) ASSERT_EQ(hull.planes[i], expected[i]) << trial << " " << i;
+            ASSERT_EQ(hull.planeCount(), expected.size()) << trial;
+            for (std::size_t i = 0; i < expected.size(); ++i) ASSERT_EQ(hull.plane(i), expected[i]) << trial << " " << i;
             if (trial % 3 != 0) touching_planes += static_cast<int>(expected.size());
         }
     }
