@@ -43,6 +43,8 @@ void expectRandomMovesEqualFresh(const Scene& scene, const EstimatorOptions& opt
         auto s = apply(*inc, config);
         ASSERT_TRUE(s) << s.error().message;
         EXPECT_FALSE(inc->stats().full) << "step " << step << ": moves alone update incrementally";
+        // The propagation leaves no unshot difference above its bound (every element past it shot).
+        EXPECT_LE(inc->stats().influence.residual, inc->influence().options().residual) << "step " << step;
         if (step % 4 == 3) expectEqualsFresh(*inc, *fresh, config, "step " + std::to_string(step));
     }
 }
