@@ -300,17 +300,6 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                 sleep();
                 continue;
             }
-            // (A pair the hull of whose ends misses the ball it was collected with is not one of the
-            // cache's: never kept, nor looked at again.)
-            if (!obj.cache_shafts[i].far && obj.cache_hull_in[i] == 0) {
-                const std::span<const Eigen::Vector3d> other =
-                    what < 0 ? lightPolygon(-1 - what) : shape[static_cast<std::size_t>(links[static_cast<std::size_t>(what)].source)].polygon();
-                obj.cache_hull_in[i] = hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), other, obj.cache_query) ? 1 : 2;
-            }
-            if (obj.cache_hull_in[i] == 2) {
-                next[k] = 2;
-                continue;
-            }
             // (The node's answer when the base leaf is the face's root, else the leaf's own shaft.)
             bool meets;
             if (node) {
@@ -327,7 +316,20 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                     sleep();
                 }
             }
-            if (meets) kept[k] = sig;
+            if (!meets) continue;
+            // (A pair the hull of whose ends misses the ball it was collected with is not one of the
+            // cache's: never kept, nor looked at again. Asked once the ball meets the pair's shaft:
+            // most significant pairs it does not, and a pair not met is not kept whatever this says.)
+            if (!obj.cache_shafts[i].far && obj.cache_hull_in[i] == 0) {
+                const std::span<const Eigen::Vector3d> other =
+                    what < 0 ? lightPolygon(-1 - what) : shape[static_cast<std::size_t>(links[static_cast<std::size_t>(what)].source)].polygon();
+                obj.cache_hull_in[i] = hullMeetsBall(shape[static_cast<std::size_t>(b)].polygon(), other, obj.cache_query) ? 1 : 2;
+            }
+            if (obj.cache_hull_in[i] == 2) {
+                next[k] = 2;
+                continue;
+            }
+            kept[k] = sig;
         }
     });
     if (!scan) self.stats_.pairs_tested += pairs_tested.load();
