@@ -22,12 +22,11 @@ constexpr double kPi = std::numbers::pi;
 }  // namespace
 
 RealMask& VirtualInfluence::Impl::mask(int element, int key) {
+    // (Sorted by key: found by bisection, tens of lights and sources per element.)
     auto& list = masks[static_cast<std::size_t>(element)];
-    for (RealMask& m : list) {
-        if (m.key == key) return m;
-    }
-    list.push_back(RealMask{key, 0, 0, 0, 0, 0, nullptr});
-    return list.back();
+    const auto it = std::lower_bound(list.begin(), list.end(), key, [](const RealMask& m, int k) { return m.key < k; });
+    if (it != list.end() && it->key == key) return *it;
+    return *list.insert(it, RealMask{key, 0, 0, 0, 0, 0, nullptr});
 }
 
 // Virtual transmission of the light between leaf c and light k: the kernel-weighted fraction of
@@ -194,11 +193,13 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         // order, the virtual rays alone traced again.
         const LinkPoints& lp = *m.points;
         const std::uint32_t near = objectsNear(rays, lp, mask_bits);
+        // (The near objects gathered once for all the pairs: RayScene::VirtualSet.)
+        const VirtualSet set = rays.virtualSet(near);
         double open_real = 0.0, open_all = 0.0;
         bool any_blocked = false, any_open = false;
         for (const LinkPoints::Pair& p : lp.pairs) {
             open_real += p.w;
-            if (near != 0u && rays.occludedVirtual(p.ray, near)) {
+            if (near != 0u && rays.occludedVirtual(p.ray, set)) {
                 any_blocked = true;
             } else {
                 any_open = true;
@@ -213,6 +214,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     const bool partial = rad.exposure(c) < 1.0;
     const bool known = (m.have & 1u) != 0;
     const bool keep_points = self.options_.cache_link_points;
+    const VirtualSet set = keep_points ? rays.virtualSet(mask_bits) : VirtualSet{};
     auto points = std::make_shared<LinkPoints>();
     std::uint64_t computed = 0;
     const int n = std::clamp(self.options_.direct_per_texel ? self.options_.texel_link_pairs : self.options_.link_pairs, 1, 64);
@@ -251,7 +253,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         bool blocked;
         if (keep_points) {
             points->pairs.push_back(LinkPoints::Pair{rays.prepareSegment(xr, gr.normal, xs, gs.normal), w});
-            blocked = rays.occludedVirtual(points->pairs.back().ray, mask_bits);
+            blocked = rays.occludedVirtual(points->pairs.back().ray, set);
         } else {
             blocked = rays.occludedVirtual(xr, gr.normal, xs, gs.normal, mask_bits);
         }

@@ -546,6 +546,58 @@ bool RayScene::occludedVirtual(const PreparedSegment& segment, std::uint32_t mas
     return impl_->occludedVirtual(segment.origin, segment.direction, segment.tfar, mask);
 }
 
+VirtualSet RayScene::virtualSet(std::uint32_t mask) const {
+    // The objects occludedVirtual(segment, mask) visits, in its order (Impl::occludedVirtual()).
+    VirtualSet set;
+    set.mask = mask;
+    if (mask == 0u || impl_->virtual_scenes.empty()) return set;
+    const Impl& d = *impl_;
+    for (std::size_t v = 0; v < d.sphere_bit.size(); ++v) {
+        if ((d.sphere_bit[v] & mask) == 0u) continue;
+        if (set.spheres == VirtualSet::kMax) {
+            set.general = true;
+            return set;
+        }
+        set.sphere_centre[static_cast<std::size_t>(set.spheres)] = d.sphere_centre[v];
+        set.sphere_radius[static_cast<std::size_t>(set.spheres)] = d.sphere_radius[v];
+        ++set.spheres;
+    }
+    set.mesh_bits = mask & d.mesh_bits;
+    if (set.mesh_bits == 0u) return set;
+    for (std::size_t v = 0; v < d.mesh_bit.size(); ++v) {
+        if ((d.mesh_bit[v] & set.mesh_bits) == 0u) continue;
+        if (set.meshes == VirtualSet::kMax) {
+            set.general = true;
+            return set;
+        }
+        const auto i = static_cast<std::size_t>(set.meshes);
+        set.mesh_centre[i] = d.mesh_centre[v];
+        set.mesh_radius[i] = d.mesh_radius[v];
+        set.mesh_bit[i] = d.mesh_bit[v];
+        ++set.meshes;
+    }
+    return set;
+}
+
+bool RayScene::occludedVirtual(const PreparedSegment& segment, const VirtualSet& set) const {
+    if (set.general) return occludedVirtual(segment, set.mask);
+    if (!(segment.tfar > 0.0)) return false;
+    for (int i = 0; i < set.spheres; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        if (Impl::segmentMeetsSphere(segment.origin, segment.direction, segment.tfar, set.sphere_centre[k], set.sphere_radius[k])) return true;
+    }
+    std::uint32_t rest = set.mesh_bits;
+    if (rest == 0u) return false;
+    for (int i = 0; i < set.meshes; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        if ((set.mesh_bit[k] & rest) != 0u &&
+            !Impl::segmentMeetsBall(segment.origin, segment.direction, segment.tfar, set.mesh_centre[k], set.mesh_radius[k])) {
+            rest &= ~set.mesh_bit[k];
+        }
+    }
+    return rest != 0u && impl_->occluded(impl_->virtual_top, segment.origin, segment.direction, segment.tfar, rest);
+}
+
 bool RayScene::occludedReal(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,
                             const Eigen::Vector3d& to_normal) const {
     return occludedSegment(false, from, from_normal, to, to_normal, 0xFFFFFFFFu);

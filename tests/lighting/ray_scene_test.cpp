@@ -2,7 +2,8 @@
 // (the same object traced through its instance by intersectVirtual()), with a mesh object beside
 // it (still traced by Embree), masks, a disabled object and a moved one; a mesh traced only where a
 // segment meets its bounding ball, with Embree's answer; intersectVirtualExcept()'s ball test; a prepared
-// segment's answer (prepareSegment()) against the plain one.
+// segment's answer (prepareSegment()) against the plain one, also with the objects gathered once
+// (virtualSet()), for few objects and for more than VirtualSet::kMax.
 #include "lighting/ray_scene.h"
 
 #include <gtest/gtest.h>
@@ -160,7 +161,8 @@ TEST(RayScene, IntersectVirtualExceptSeesOnlyTheOthers) {
 
 // A segment prepared once (prepareSegment(): lifted, without the balls' pre-test) gets the answer
 // of occludedVirtual() on its two ends, for segments through, past and ending on two spheres and a
-// rotated cube, with and without normals, short ones, every mask, an object disabled and moved.
+// rotated cube, with and without normals, short ones, every mask, an object disabled and moved;
+// the same with the mask's objects gathered once (virtualSet()).
 TEST(RayScene, PreparedSegmentKeepsTheAnswer) {
     VirtualShape sphere;
     sphere.sphere_radius = 0.3;
@@ -191,11 +193,53 @@ TEST(RayScene, PreparedSegmentKeepsTheAnswer) {
             const PreparedSegment s = rays.prepareSegment(a, na, b, nb);
             const bool expected = rays.occludedVirtual(a, na, b, nb, mask);
             ASSERT_EQ(rays.occludedVirtual(s, mask), expected) << "round " << round << " segment " << k;
+            ASSERT_EQ(rays.occludedVirtual(s, rays.virtualSet(mask)), expected) << "set, round " << round << " segment " << k;
             (expected ? blocked : open)++;
         }
     }
     EXPECT_GT(blocked, 1500);
     EXPECT_GT(open, 3000);
+}
+
+// More objects than a VirtualSet holds (spheres and cubes, two sharing a mask bit: objects v and
+// v + 32): virtualSet()'s answers are still occludedVirtual()'s for every mask tried.
+TEST(RayScene, VirtualSetKeepsTheAnswerWithManyObjects) {
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.15;
+    std::vector<VirtualShape> shapes;
+    for (int v = 0; v < 34; ++v) shapes.push_back(v % 2 == 0 ? sphere : cube());
+    auto built = RayScene::build(floorFace(), {}, shapes);
+    ASSERT_TRUE(built) << built.error().message;
+    RayScene& rays = **built;
+    std::mt19937 rng(41);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    std::vector<Eigen::Vector3d> at;
+    for (int v = 0; v < 34; ++v) {
+        at.emplace_back(1.5 * u(rng), 1.5 * u(rng), 0.5 * u(rng));
+        rays.setVirtualPose(v, Rigid3d(Eigen::Quaterniond::Identity(), at.back()));
+    }
+    rays.setVirtualEnabled(5, false);
+    ASSERT_TRUE(rays.commitVirtual());
+    int blocked = 0, open = 0, general = 0, gathered = 0;
+    for (int k = 0; k < 4000; ++k) {
+        const Eigen::Vector3d a = at[static_cast<std::size_t>(k % 34)] + 0.4 * Eigen::Vector3d(u(rng), u(rng), u(rng));
+        const Eigen::Vector3d b = at[static_cast<std::size_t>((k * 7 + 3) % 34)] + 0.4 * Eigen::Vector3d(u(rng), u(rng), u(rng));
+        const Eigen::Vector3d na = k % 2 == 0 ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : Eigen::Vector3d(Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized());
+        // Masks of one to many bits (bit 0 and bit 1: two objects each).
+        std::uint32_t mask = 0;
+        const int bits = 1 + k % 9;
+        for (int i = 0; i < bits; ++i) mask |= RayScene::virtualBit(static_cast<int>(rng() % 34));
+        const PreparedSegment s = rays.prepareSegment(a, na, b, Eigen::Vector3d::Zero());
+        const bool expected = rays.occludedVirtual(a, na, b, Eigen::Vector3d::Zero(), mask);
+        const VirtualSet set = rays.virtualSet(mask);
+        (set.general ? general : gathered)++;
+        ASSERT_EQ(rays.occludedVirtual(s, set), expected) << "segment " << k << " mask " << mask;
+        (expected ? blocked : open)++;
+    }
+    EXPECT_GT(blocked, 400);
+    EXPECT_GT(open, 400);
+    EXPECT_GT(general, 400);
+    EXPECT_GT(gathered, 400);
 }
 
 // intersectVirtualExcept() skips a ray that misses every other object's ball: its answer is the
