@@ -449,6 +449,7 @@ struct VirtualInfluence::Impl {
     // The same, the element's hidden pairs kept in `hidden` (its RealMask for object o,
     // clusterMaskKey(o): pilot_hidden for 4 pairs, full_hidden for 16): the points do not move.
     double clusterVisibility(int o, int element, int pairs, bool& mixed, std::uint32_t mask, RealMask* hidden) const;
+    double clusterVisibilityOneByOne(int o, int element, int pairs, bool& mixed, std::uint32_t mask) const;
     static int clusterMaskKey(int o) { return std::numeric_limits<int>::min() + o; }
 
     // --- influence_solve.cpp ---

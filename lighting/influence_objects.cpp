@@ -4,6 +4,7 @@
 // other (Hanrahan et al. 1991's oracle on the form factor's variation, here from the object's
 // largest radiance; Sillion 1995 and Smits et al. 1994 for clusters).
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 
@@ -167,8 +168,15 @@ double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, 
     std::uint64_t* hidden_bits = keep && flag ? (flag == 1 ? &keep->pilot_hidden : &keep->full_hidden) : nullptr;
     const bool known = hidden_bits && (keep->have & flag) != 0;
     std::uint64_t computed_hidden = 0;
+    // The valid pairs' segments first, their real rays as packets (RayScene::occludedRealMany()),
+    // then the virtual rays of those the real scene leaves open.
+    // (At most 16 pairs this way; more, one by one.)
+    constexpr int kMaxPairs = 16;
+    if (pairs > kMaxPairs) return clusterVisibilityOneByOne(o, element, pairs, mixed, mask);
+    std::array<PreparedSegment, kMaxPairs> segments;
+    std::array<Eigen::Vector3d, kMaxPairs> from, to;
     int valid = 0, open = 0;
-    for (int k = 0; k < pairs; ++k) {
+    for (int k = 0; k < pairs && k < kMaxPairs; ++k) {
         const SamplePair u = stratifiedPair(seed, k, pairs);
         const Eigen::Vector3d x = rad.surfacePoint(element, g, u.first.x(), u.first.y());
         if (partial) {
@@ -183,14 +191,49 @@ double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, 
         const Eigen::Vector3d y = s.ball.centre + r * std::cos(phi) * e1 + r * std::sin(phi) * e2;
         const Eigen::Vector3d dv = y - x;
         if (g.normal.dot(dv) <= 0.0) continue;
-        ++valid;
-        if (rays.occludedReal(x, g.normal, y)) continue;
-        if (rays.occludedVirtual(x, g.normal, y, Eigen::Vector3d::Zero(), mask)) continue;
+        const auto i = static_cast<std::size_t>(valid++);
+        from[i] = x;
+        to[i] = y;
+        segments[i] = rays.prepareSegment(x, g.normal, y, Eigen::Vector3d::Zero());
+    }
+    const std::uint64_t real_blocked = rays.occludedRealMany(segments.data(), valid);
+    for (int i = 0; i < valid; ++i) {
+        if ((real_blocked >> i) & 1u) continue;
+        const auto k = static_cast<std::size_t>(i);
+        if (rays.occludedVirtual(from[k], g.normal, to[k], Eigen::Vector3d::Zero(), mask)) continue;
         ++open;
     }
     if (hidden_bits && !known) {
         *hidden_bits = computed_hidden;
         keep->have = static_cast<std::uint8_t>(keep->have | flag);
+    }
+    mixed = open > 0 && open < valid;
+    return valid > 0 ? static_cast<double>(open) / valid : 0.0;
+}
+
+// clusterVisibility() ray by ray (more pairs than its packets hold; no kept hidden points).
+double VirtualInfluence::Impl::clusterVisibilityOneByOne(int o, int element, int pairs, bool& mixed, std::uint32_t mask) const {
+    const ObjectState& s = objects[static_cast<std::size_t>(o)];
+    const Radiosity& rad = self.radiosity_;
+    const RayScene& rays = self.rays_;
+    const ElementGeometry g = rad.geometry(element);
+    const bool partial = rad.exposure(element) < 1.0;
+    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0xc1u, rad.hierarchy().key(element)), static_cast<std::uint64_t>(o));
+    int valid = 0, open = 0;
+    for (int k = 0; k < pairs; ++k) {
+        const SamplePair u = stratifiedPair(seed, k, pairs);
+        const Eigen::Vector3d x = rad.surfacePoint(element, g, u.first.x(), u.first.y());
+        if (partial && rad.hidden(element, x)) continue;
+        const Eigen::Vector3d axis = (x - s.ball.centre).normalized();
+        const Eigen::Vector3d e1 = axis.unitOrthogonal(), e2 = axis.cross(e1);
+        const double r = 0.9 * s.radius * std::sqrt(u.second.x()), phi = 2.0 * kPi * u.second.y();
+        const Eigen::Vector3d y = s.ball.centre + r * std::cos(phi) * e1 + r * std::sin(phi) * e2;
+        const Eigen::Vector3d dv = y - x;
+        if (g.normal.dot(dv) <= 0.0) continue;
+        ++valid;
+        if (rays.occludedReal(x, g.normal, y)) continue;
+        if (rays.occludedVirtual(x, g.normal, y, Eigen::Vector3d::Zero(), mask)) continue;
+        ++open;
     }
     mixed = open > 0 && open < valid;
     return valid > 0 ? static_cast<double>(open) / valid : 0.0;

@@ -100,6 +100,9 @@ public:
     PreparedSegment prepareSegment(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
                                    const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const;
     bool occludedVirtual(const PreparedSegment& segment, std::uint32_t mask = ~0u) const;
+    // occludedReal() of many prepared segments (prepareSegment()) at once, traced as Embree ray
+    // packets: bit k of the result is segment k's answer (at most 64 segments).
+    std::uint64_t occludedRealMany(const PreparedSegment* segments, int count) const;
     // The objects of `mask` gathered for many segments (VirtualSet), and the answer with them.
     VirtualSet virtualSet(std::uint32_t mask) const;
     bool occludedVirtual(const PreparedSegment& segment, const VirtualSet& set) const;

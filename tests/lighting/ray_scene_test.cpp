@@ -242,6 +242,68 @@ TEST(RayScene, VirtualSetKeepsTheAnswerWithManyObjects) {
     EXPECT_GT(gathered, 400);
 }
 
+// Real rays as packets (occludedRealMany()) give occludedReal()'s answers: segments between the
+// faces of a closed box room with a lamp in its ceiling and a pillar, grazing ones along the walls,
+// ones ending on the lamp, short ones, in batches of 1 to 16.
+TEST(RayScene, RealPacketsKeepTheAnswer) {
+    std::vector<Face> faces;
+    const auto face = [&](Eigen::Vector3d o, Eigen::Vector3d es, Eigen::Vector3d et) {
+        Face f;
+        f.origin = o;
+        f.edge_s = es;
+        f.edge_t = et;
+        f.normal = es.cross(et).normalized();
+        f.area = es.cross(et).norm();
+        faces.push_back(f);
+    };
+    // A 3 x 2 x 2.5 m room (inward normals) and a 0.4 m pillar in it.
+    face({0, 0, 0}, {0, 2, 0}, {3, 0, 0});
+    face({0, 0, 2.5}, {3, 0, 0}, {0, 2, 0});
+    face({0, 0, 0}, {3, 0, 0}, {0, 0, 2.5});
+    face({0, 2, 0}, {0, 0, 2.5}, {3, 0, 0});
+    face({0, 0, 0}, {0, 0, 2.5}, {0, 2, 0});
+    face({3, 0, 0}, {0, 2, 0}, {0, 0, 2.5});
+    face({1.3, 0.8, 0}, {0.4, 0, 0}, {0, 0, 1.5});
+    face({1.3, 1.2, 0}, {0, 0, 1.5}, {0.4, 0, 0});
+    face({1.3, 0.8, 0}, {0, 0, 1.5}, {0, 0.4, 0});
+    face({1.7, 0.8, 0}, {0, 0.4, 0}, {0, 0, 1.5});
+    LightGeometry lamp;
+    lamp.polygon = {{1.2, 0.7, 2.5}, {1.8, 0.7, 2.5}, {1.8, 1.3, 2.5}, {1.2, 1.3, 2.5}};
+    auto built = RayScene::build(faces, {lamp}, {});
+    ASSERT_TRUE(built) << built.error().message;
+    const RayScene& rays = **built;
+    std::mt19937 rng(77);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    const auto onFace = [&](const Face& f) { return Eigen::Vector3d(f.origin + u(rng) * f.edge_s + u(rng) * f.edge_t); };
+    int blocked = 0, open = 0;
+    for (int batch = 0; batch < 600; ++batch) {
+        const int count = 1 + batch % 16;
+        std::vector<PreparedSegment> segments;
+        std::vector<bool> expected;
+        for (int k = 0; k < count; ++k) {
+            const Face& fa = faces[rng() % faces.size()];
+            const Eigen::Vector3d a = onFace(fa);
+            Eigen::Vector3d b, nb = Eigen::Vector3d::Zero();
+            switch ((batch + k) % 4) {
+                case 0: b = onFace(faces[rng() % faces.size()]); nb = faces[rng() % faces.size()].normal; break;
+                case 1: b = lamp.polygon[0] + u(rng) * (lamp.polygon[1] - lamp.polygon[0]) + u(rng) * (lamp.polygon[3] - lamp.polygon[0]); nb = {0, 0, -1}; break;
+                case 2: b = a + 2.0 * rays.epsilon() * Eigen::Vector3d(u(rng), u(rng), u(rng)); break;  // short
+                default: b = a + Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, 0.0); break;  // along the face's plane
+            }
+            segments.push_back(rays.prepareSegment(a, fa.normal, b, nb));
+            expected.push_back(rays.occludedReal(a, fa.normal, b, nb));
+        }
+        const std::uint64_t got = rays.occludedRealMany(segments.data(), count);
+        for (int k = 0; k < count; ++k) {
+            ASSERT_EQ(((got >> k) & 1u) != 0, expected[static_cast<std::size_t>(k)]) << "batch " << batch << " segment " << k;
+            (expected[static_cast<std::size_t>(k)] ? blocked : open)++;
+        }
+        EXPECT_EQ(got >> count, 0u);
+    }
+    EXPECT_GT(blocked, 300);
+    EXPECT_GT(open, 300);
+}
+
 // intersectVirtualExcept() skips a ray that misses every other object's ball: its answer is the
 // plain one (intersectVirtual(), stepping past the excluded object's hits) for rays grazing a
 // sphere and a cube's corners, from inside the excluded sphere too, with an object disabled.
