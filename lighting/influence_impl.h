@@ -98,10 +98,6 @@ struct LinkPoints {
     std::vector<Pair> pairs;
     Eigen::Vector3d centre = Eigen::Vector3d::Zero();  // the rays' ball
     double radius = 0.0;
-    // A capsule holding every ray: within `reach` of the segment from the mean of the rays'
-    // origins to the mean of their ends (each ray's ends are within it of those points).
-    Eigen::Vector3d from = Eigen::Vector3d::Zero(), to = Eigen::Vector3d::Zero();
-    double reach = 0.0;
 };
 
 struct RealMask {

@@ -162,38 +162,10 @@ void boundRays(LinkPoints& lp) {
         lp.radius = std::max({lp.radius, (p.ray.origin - lp.centre).norm(),
                               (p.ray.origin + p.ray.tfar * p.ray.direction - lp.centre).norm()});
     }
-    // The capsule: a point of a ray, (1 - l) o + l e, is within (1 - l) |o - from| + l |e - to| of
-    // the point (1 - l) from + l to.
-    int n = 0;
-    Eigen::Vector3d from = Eigen::Vector3d::Zero(), to = Eigen::Vector3d::Zero();
-    for (const LinkPoints::Pair& p : lp.pairs) {
-        if (!(p.ray.tfar > 0.0)) continue;
-        from += p.ray.origin;
-        to += p.ray.origin + p.ray.tfar * p.ray.direction;
-        ++n;
-    }
-    lp.from = n > 0 ? Eigen::Vector3d(from / n) : Eigen::Vector3d(Eigen::Vector3d::Zero());
-    lp.to = n > 0 ? Eigen::Vector3d(to / n) : Eigen::Vector3d(Eigen::Vector3d::Zero());
-    lp.reach = 0.0;
-    for (const LinkPoints::Pair& p : lp.pairs) {
-        if (!(p.ray.tfar > 0.0)) continue;
-        lp.reach = std::max({lp.reach, (p.ray.origin - lp.from).norm(), (p.ray.origin + p.ray.tfar * p.ray.direction - lp.to).norm()});
-    }
 }
 
-// Whether the ball (centre, radius) comes within `reach` of the segment a-b.
-bool capsuleMeetsBall(const Eigen::Vector3d& a, const Eigen::Vector3d& b, double reach, const Eigen::Vector3d& centre, double radius) {
-    const Eigen::Vector3d d = b - a;
-    const double dd = d.squaredNorm();
-    const Eigen::Vector3d ac = centre - a;
-    const double t = dd > 0.0 ? std::clamp(ac.dot(d) / dd, 0.0, 1.0) : 0.0;
-    const double r = radius + reach;
-    return (ac - t * d).squaredNorm() <= r * r;
-}
-
-// The objects in `mask` whose ball meets the ball and the capsule of a link's rays: the others
-// block none of them (an object's bit is kept if any object sharing it is near; a margin for the
-// rounding, the rays' own tests of the objects' balls being in double precision).
+// The objects in `mask` whose ball meets the ball of a link's rays: the others block none of them
+// (an object's bit is kept if any object sharing it is near; a margin for the rounding).
 std::uint32_t objectsNear(const RayScene& rays, const LinkPoints& lp, std::uint32_t mask) {
     std::uint32_t near = 0;
     const int n = static_cast<int>(rays.virtualCount());
@@ -203,11 +175,8 @@ std::uint32_t objectsNear(const RayScene& rays, const LinkPoints& lp, std::uint3
         Eigen::Vector3d centre;
         double radius = 0.0;
         if (!rays.virtualBall(v, centre, radius)) continue;  // disabled: blocks nothing
-        const double margin = 1e-7 * (1.0 + lp.centre.norm() + lp.radius + radius);
-        const double reach = lp.radius + radius + margin;
-        if ((centre - lp.centre).squaredNorm() > reach * reach) continue;
-        if (!capsuleMeetsBall(lp.from, lp.to, lp.reach + margin, centre, radius)) continue;
-        near |= bit;
+        const double reach = lp.radius + radius + 1e-7 * (1.0 + lp.centre.norm() + lp.radius + radius);
+        if ((centre - lp.centre).squaredNorm() <= reach * reach) near |= bit;
     }
     return near;
 }
