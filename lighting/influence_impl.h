@@ -108,15 +108,6 @@ struct RealMask {
     std::uint64_t full_hidden = 0;
     std::uint8_t have = 0;  // bit 0: pilot known, bit 1: full known, bit 2: `points` known
     std::shared_ptr<const LinkPoints> points;  // a base link's (key >= 0) open pairs, once traced
-    // The kept pairs' clearance from the one object near them (transmissionToSource()): at the
-    // last full pass, which pairs' rays met its ball (`clear_met`) and how much nearer the others
-    // could come before meeting it. While the object stays within that of `clear_centre`, the
-    // others stay open: only the pairs in clear_met are traced again.
-    std::uint32_t clear_near = 0;  // the object's bit (0: nothing kept)
-    std::uint64_t clear_met = 0;
-    Eigen::Vector3d clear_centre = Eigen::Vector3d::Zero();
-    double clear_radius = 0.0;
-    double clearance = 0.0;
 };
 
 // A base leaf's blockers worth computing (lighting/influence.h `link_epsilon`): lights and base

@@ -7,7 +7,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <numbers>
 
 #include "lighting/direct.h"
@@ -196,48 +195,16 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         const std::uint32_t near = objectsNear(rays, lp, mask_bits);
         // (The near objects gathered once for all the pairs: RayScene::VirtualSet.)
         const VirtualSet set = rays.virtualSet(near);
-        // One object near: the pairs whose rays missed its ball at the last full pass, by more than
-        // it has moved since, still miss it (open: RayScene::occludedVirtual() tests the ball
-        // first); the others are traced again. (A margin for the rounding of the balls' tests.)
-        const bool single = near != 0u && !set.general && set.spheres + set.meshes == 1 && lp.pairs.size() <= 64;
-        const Eigen::Vector3d centre = !single ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : set.spheres == 1 ? set.sphere_centre[0] : set.mesh_centre[0];
-        const double radius = !single ? 0.0 : set.spheres == 1 ? set.sphere_radius[0] : set.mesh_radius[0];
-        const double margin = 1e-9 * (1.0 + centre.norm() + radius);
-        const bool clear = single && m.clear_near == near && m.clear_radius == radius && (centre - m.clear_centre).norm() + margin < m.clearance;
-        std::uint64_t met = 0;
-        double clearance = std::numeric_limits<double>::infinity();
         double open_real = 0.0, open_all = 0.0;
         bool any_blocked = false, any_open = false;
-        for (std::size_t k = 0; k < lp.pairs.size(); ++k) {
-            const LinkPoints::Pair& p = lp.pairs[k];
+        for (const LinkPoints::Pair& p : lp.pairs) {
             open_real += p.w;
-            bool blocked = false;
-            if (near != 0u && (!clear || ((m.clear_met >> k) & 1u) != 0)) {
-                blocked = rays.occludedVirtual(p.ray, set);
-                if (single && !clear && p.ray.tfar > 0.0) {
-                    const Eigen::Vector3d oc = centre - p.ray.origin;
-                    const double t = std::clamp(p.ray.direction.dot(oc), 0.0, p.ray.tfar);
-                    const double d = (oc - t * p.ray.direction).norm();
-                    if (d > radius + margin) {
-                        clearance = std::min(clearance, d - radius);
-                    } else {
-                        met |= std::uint64_t{1} << k;
-                    }
-                }
-            }
-            if (blocked) {
+            if (near != 0u && rays.occludedVirtual(p.ray, set)) {
                 any_blocked = true;
             } else {
                 any_open = true;
                 open_all += p.w;
             }
-        }
-        if (single && !clear) {
-            m.clear_near = near;
-            m.clear_met = met;
-            m.clear_centre = centre;
-            m.clear_radius = radius;
-            m.clearance = clearance;
         }
         mixed = any_blocked && any_open;
         return open_real > 0.0 ? open_all / open_real : 1.0;

@@ -389,9 +389,7 @@ TEST(Influence, CachedPairsLeftAloneKeepTheCandidates) {
 // A blocked base link's open pairs kept from its first answer (InfluenceOptions::cache_link_points:
 // a re-answer traces their virtual rays alone) give what the pairs made again give: over 5 mm moves
 // of the ball along a curve, the cube moving beside it, a jump and the cube removed and brought
-// back, the same answers and exactly the same difference at every element. (The objects a re-answer
-// traces, with one object near, are only the pairs its ball met at the last full pass while it
-// stays within their clearance, RealMask::clearance: a clearance three times too large fails.)
+// back, the same answers and exactly the same difference at every element.
 TEST(Influence, CachedLinkPointsEqualFresh) {
     const Scene scene = parse(kScene);
     EstimatorOptions fresh_options = testOptions();
