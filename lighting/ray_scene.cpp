@@ -546,36 +546,60 @@ bool RayScene::occludedVirtual(const PreparedSegment& segment, std::uint32_t mas
     return impl_->occludedVirtual(segment.origin, segment.direction, segment.tfar, mask);
 }
 
+namespace {
+
+// One packet of N rays (RTCRay4/8) from segments[first..first+N) (those past `count` or never
+// blocked left out), traced by `trace`; the blocked ones' bits added to `out`.
+template <int N, typename Packet, typename Trace>
+void occludedPacket(const PreparedSegment* segments, int first, int count, Trace trace, std::uint64_t& out) {
+    Packet packet{};
+    alignas(32) int valid[N] = {};
+    bool any = false;
+    for (int j = 0; j < N; ++j) {
+        const int k = first + j;
+        if (k >= count || !(segments[k].tfar > 0.0)) continue;
+        const PreparedSegment& s = segments[k];
+        packet.org_x[j] = static_cast<float>(s.origin.x());
+        packet.org_y[j] = static_cast<float>(s.origin.y());
+        packet.org_z[j] = static_cast<float>(s.origin.z());
+        packet.dir_x[j] = static_cast<float>(s.direction.x());
+        packet.dir_y[j] = static_cast<float>(s.direction.y());
+        packet.dir_z[j] = static_cast<float>(s.direction.z());
+        packet.tnear[j] = 0.0f;
+        packet.tfar[j] = static_cast<float>(std::min(s.tfar, 1e30));
+        packet.mask[j] = 0xFFFFFFFFu;
+        valid[j] = -1;
+        any = true;
+    }
+    if (!any) return;
+    trace(valid, &packet);
+    for (int j = 0; j < N; ++j) {
+        if (valid[j] != 0 && packet.tfar[j] < 0.0f) out |= std::uint64_t{1} << (first + j);
+    }
+}
+
+}  // namespace
+
 std::uint64_t RayScene::occludedRealMany(const PreparedSegment* segments, int count) const {
-    // Packets of 4 (occludedReal(): the same rays, as Impl::occluded() makes them; a segment
-    // with tfar <= 0 is never blocked and not traced).
+    // Packets of 8, the last of 4 when 4 or fewer are left (occludedReal(): the same rays, as
+    // Impl::occluded() makes them; a segment with tfar <= 0 is never blocked and not traced).
     std::uint64_t out = 0;
-    for (int first = 0; first < count && first < 64; first += 4) {
-        RTCRay4 packet{};
-        alignas(16) int valid[4] = {0, 0, 0, 0};
-        bool any = false;
-        for (int j = 0; j < 4; ++j) {
-            const int k = first + j;
-            if (k >= count || !(segments[k].tfar > 0.0)) continue;
-            const PreparedSegment& s = segments[k];
-            packet.org_x[j] = static_cast<float>(s.origin.x());
-            packet.org_y[j] = static_cast<float>(s.origin.y());
-            packet.org_z[j] = static_cast<float>(s.origin.z());
-            packet.dir_x[j] = static_cast<float>(s.direction.x());
-            packet.dir_y[j] = static_cast<float>(s.direction.y());
-            packet.dir_z[j] = static_cast<float>(s.direction.z());
-            packet.tnear[j] = 0.0f;
-            packet.tfar[j] = static_cast<float>(std::min(s.tfar, 1e30));
-            packet.mask[j] = 0xFFFFFFFFu;
-            valid[j] = -1;
-            any = true;
-        }
-        if (!any) continue;
-        RTCIntersectContext context;
-        rtcInitIntersectContext(&context);
-        rtcOccluded4(valid, impl_->real_top, &context, &packet);
-        for (int j = 0; j < 4; ++j) {
-            if (valid[j] != 0 && packet.tfar[j] < 0.0f) out |= std::uint64_t{1} << (first + j);
+    RTCScene scene = impl_->real_top;
+    RTCIntersectContext context;
+    const int n = std::min(count, 64);
+    for (int first = 0; first < n;) {
+        if (n - first > 4) {
+            occludedPacket<8, RTCRay8>(segments, first, n, [&](int* valid, RTCRay8* p) {
+                rtcInitIntersectContext(&context);
+                rtcOccluded8(valid, scene, &context, p);
+            }, out);
+            first += 8;
+        } else {
+            occludedPacket<4, RTCRay4>(segments, first, n, [&](int* valid, RTCRay4* p) {
+                rtcInitIntersectContext(&context);
+                rtcOccluded4(valid, scene, &context, p);
+            }, out);
+            first += 4;
         }
     }
     return out;
