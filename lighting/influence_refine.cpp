@@ -6,6 +6,7 @@
 #include <Eigen/Geometry>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 
@@ -22,12 +23,11 @@ constexpr double kPi = std::numbers::pi;
 }  // namespace
 
 RealMask& VirtualInfluence::Impl::mask(int element, int key) {
+    // (Sorted by key: found by bisection, tens of lights and sources per element.)
     auto& list = masks[static_cast<std::size_t>(element)];
-    for (RealMask& m : list) {
-        if (m.key == key) return m;
-    }
-    list.push_back(RealMask{key, 0, 0, 0, 0, 0, nullptr});
-    return list.back();
+    const auto it = std::lower_bound(list.begin(), list.end(), key, [](const RealMask& m, int k) { return m.key < k; });
+    if (it != list.end() && it->key == key) return *it;
+    return *list.insert(it, RealMask{key, 0, 0, 0, 0, 0, nullptr});
 }
 
 // Virtual transmission of the light between leaf c and light k: the kernel-weighted fraction of
@@ -194,11 +194,13 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         // order, the virtual rays alone traced again.
         const LinkPoints& lp = *m.points;
         const std::uint32_t near = objectsNear(rays, lp, mask_bits);
+        // (The near objects gathered once for all the pairs: RayScene::VirtualSet.)
+        const VirtualSet set = rays.virtualSet(near);
         double open_real = 0.0, open_all = 0.0;
         bool any_blocked = false, any_open = false;
         for (const LinkPoints::Pair& p : lp.pairs) {
             open_real += p.w;
-            if (near != 0u && rays.occludedVirtual(p.ray, near)) {
+            if (near != 0u && rays.occludedVirtual(p.ray, set)) {
                 any_blocked = true;
             } else {
                 any_open = true;
@@ -213,6 +215,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     const bool partial = rad.exposure(c) < 1.0;
     const bool known = (m.have & 1u) != 0;
     const bool keep_points = self.options_.cache_link_points;
+    const VirtualSet set = keep_points ? rays.virtualSet(mask_bits) : VirtualSet{};
     auto points = std::make_shared<LinkPoints>();
     std::uint64_t computed = 0;
     const int n = std::clamp(self.options_.direct_per_texel ? self.options_.texel_link_pairs : self.options_.link_pairs, 1, 64);
@@ -223,6 +226,16 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     // Known, a pair the real scene blocks or that starts on the hidden part is skipped before its
     // points are made (it adds nothing either way: the same sums).
     const std::uint64_t skip = known ? m.pilot | m.pilot_hidden : 0;
+    // Step 1: the pairs' points, weights and segments (the real and the virtual rays trace the
+    // same segment: RayScene::prepareSegment()).
+    struct Candidate {
+        int k = 0;
+        double w = 0.0;
+        Eigen::Vector3d xr, xs;
+    };
+    std::array<Candidate, 64> cand;
+    std::array<PreparedSegment, 64> segments;
+    int count = 0;
     for (int k = 0; k < n; ++k) {
         if ((skip >> k) & 1u) continue;
         const SamplePair pair = stratifiedPair(seed, k, n);
@@ -239,21 +252,32 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         const double d2 = std::max(dv.squaredNorm(), floor2);
         const double w = std::max(0.0, gr.normal.dot(dv)) * std::max(0.0, -gs.normal.dot(dv)) / (d2 * d2);
         if (!(w > 0.0)) continue;
+        const auto i = static_cast<std::size_t>(count++);
+        cand[i] = Candidate{k, w, xr, xs};
+        segments[i] = rays.prepareSegment(xr, gr.normal, xs, gs.normal);
+    }
+    // Step 2: their real rays (unless known) as packets, occludedReal()'s answers.
+    const std::uint64_t real = known ? 0 : rays.occludedRealMany(segments.data(), count);
+    // Step 3: in the pairs' order, the sums and the virtual rays of the pairs left open.
+    for (int i = 0; i < count; ++i) {
+        const Candidate& p = cand[static_cast<std::size_t>(i)];
+        const int k = p.k;
+        const double w = p.w;
         bool real_blocked;
         if (known) {
             real_blocked = (m.pilot >> k) & 1u;
         } else {
-            real_blocked = rays.occludedReal(xr, gr.normal, xs, gs.normal);
+            real_blocked = (real >> i) & 1u;
             if (real_blocked) computed |= std::uint64_t{1} << k;
         }
         if (real_blocked) continue;
         open_real += w;
         bool blocked;
         if (keep_points) {
-            points->pairs.push_back(LinkPoints::Pair{rays.prepareSegment(xr, gr.normal, xs, gs.normal), w});
-            blocked = rays.occludedVirtual(points->pairs.back().ray, mask_bits);
+            points->pairs.push_back(LinkPoints::Pair{segments[static_cast<std::size_t>(i)], w});
+            blocked = rays.occludedVirtual(points->pairs.back().ray, set);
         } else {
-            blocked = rays.occludedVirtual(xr, gr.normal, xs, gs.normal, mask_bits);
+            blocked = rays.occludedVirtual(p.xr, gr.normal, p.xs, gs.normal, mask_bits);
         }
         if (blocked) {
             any_blocked = true;

@@ -546,6 +546,117 @@ bool RayScene::occludedVirtual(const PreparedSegment& segment, std::uint32_t mas
     return impl_->occludedVirtual(segment.origin, segment.direction, segment.tfar, mask);
 }
 
+namespace {
+
+// One packet of N rays (RTCRay4/8) from segments[first..first+N) (those past `count` or never
+// blocked left out), traced by `trace`; the blocked ones' bits added to `out`.
+template <int N, typename Packet, typename Trace>
+void occludedPacket(const PreparedSegment* segments, int first, int count, Trace trace, std::uint64_t& out) {
+    Packet packet{};
+    alignas(32) int valid[N] = {};
+    bool any = false;
+    for (int j = 0; j < N; ++j) {
+        const int k = first + j;
+        if (k >= count || !(segments[k].tfar > 0.0)) continue;
+        const PreparedSegment& s = segments[k];
+        packet.org_x[j] = static_cast<float>(s.origin.x());
+        packet.org_y[j] = static_cast<float>(s.origin.y());
+        packet.org_z[j] = static_cast<float>(s.origin.z());
+        packet.dir_x[j] = static_cast<float>(s.direction.x());
+        packet.dir_y[j] = static_cast<float>(s.direction.y());
+        packet.dir_z[j] = static_cast<float>(s.direction.z());
+        packet.tnear[j] = 0.0f;
+        packet.tfar[j] = static_cast<float>(std::min(s.tfar, 1e30));
+        packet.mask[j] = 0xFFFFFFFFu;
+        valid[j] = -1;
+        any = true;
+    }
+    if (!any) return;
+    trace(valid, &packet);
+    for (int j = 0; j < N; ++j) {
+        if (valid[j] != 0 && packet.tfar[j] < 0.0f) out |= std::uint64_t{1} << (first + j);
+    }
+}
+
+}  // namespace
+
+std::uint64_t RayScene::occludedRealMany(const PreparedSegment* segments, int count) const {
+    // Packets of 8, the last of 4 when 4 or fewer are left (occludedReal(): the same rays, as
+    // Impl::occluded() makes them; a segment with tfar <= 0 is never blocked and not traced).
+    std::uint64_t out = 0;
+    RTCScene scene = impl_->real_top;
+    RTCIntersectContext context;
+    const int n = std::min(count, 64);
+    for (int first = 0; first < n;) {
+        if (n - first > 4) {
+            occludedPacket<8, RTCRay8>(segments, first, n, [&](int* valid, RTCRay8* p) {
+                rtcInitIntersectContext(&context);
+                rtcOccluded8(valid, scene, &context, p);
+            }, out);
+            first += 8;
+        } else {
+            occludedPacket<4, RTCRay4>(segments, first, n, [&](int* valid, RTCRay4* p) {
+                rtcInitIntersectContext(&context);
+                rtcOccluded4(valid, scene, &context, p);
+            }, out);
+            first += 4;
+        }
+    }
+    return out;
+}
+
+VirtualSet RayScene::virtualSet(std::uint32_t mask) const {
+    // The objects occludedVirtual(segment, mask) visits, in its order (Impl::occludedVirtual()).
+    VirtualSet set;
+    set.mask = mask;
+    if (mask == 0u || impl_->virtual_scenes.empty()) return set;
+    const Impl& d = *impl_;
+    for (std::size_t v = 0; v < d.sphere_bit.size(); ++v) {
+        if ((d.sphere_bit[v] & mask) == 0u) continue;
+        if (set.spheres == VirtualSet::kMax) {
+            set.general = true;
+            return set;
+        }
+        set.sphere_centre[static_cast<std::size_t>(set.spheres)] = d.sphere_centre[v];
+        set.sphere_radius[static_cast<std::size_t>(set.spheres)] = d.sphere_radius[v];
+        ++set.spheres;
+    }
+    set.mesh_bits = mask & d.mesh_bits;
+    if (set.mesh_bits == 0u) return set;
+    for (std::size_t v = 0; v < d.mesh_bit.size(); ++v) {
+        if ((d.mesh_bit[v] & set.mesh_bits) == 0u) continue;
+        if (set.meshes == VirtualSet::kMax) {
+            set.general = true;
+            return set;
+        }
+        const auto i = static_cast<std::size_t>(set.meshes);
+        set.mesh_centre[i] = d.mesh_centre[v];
+        set.mesh_radius[i] = d.mesh_radius[v];
+        set.mesh_bit[i] = d.mesh_bit[v];
+        ++set.meshes;
+    }
+    return set;
+}
+
+bool RayScene::occludedVirtual(const PreparedSegment& segment, const VirtualSet& set) const {
+    if (set.general) return occludedVirtual(segment, set.mask);
+    if (!(segment.tfar > 0.0)) return false;
+    for (int i = 0; i < set.spheres; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        if (Impl::segmentMeetsSphere(segment.origin, segment.direction, segment.tfar, set.sphere_centre[k], set.sphere_radius[k])) return true;
+    }
+    std::uint32_t rest = set.mesh_bits;
+    if (rest == 0u) return false;
+    for (int i = 0; i < set.meshes; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        if ((set.mesh_bit[k] & rest) != 0u &&
+            !Impl::segmentMeetsBall(segment.origin, segment.direction, segment.tfar, set.mesh_centre[k], set.mesh_radius[k])) {
+            rest &= ~set.mesh_bit[k];
+        }
+    }
+    return rest != 0u && impl_->occluded(impl_->virtual_top, segment.origin, segment.direction, segment.tfar, rest);
+}
+
 bool RayScene::occludedReal(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal, const Eigen::Vector3d& to,
                             const Eigen::Vector3d& to_normal) const {
     return occludedSegment(false, from, from_normal, to, to_normal, 0xFFFFFFFFu);

@@ -12,6 +12,7 @@
 // A segment is blocked "with the virtual objects" when either the real or the virtual scene blocks it.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -37,6 +38,23 @@ struct PreparedSegment {
     Eigen::Vector3d origin = Eigen::Vector3d::Zero();
     Eigen::Vector3d direction = Eigen::Vector3d::Zero();  // unit
     double tfar = 0.0;  // <= 0: never blocked (the ends touch)
+};
+
+// The virtual objects of a mask as committed, gathered once for many prepared segments
+// (RayScene::virtualSet()): the per-segment loop then visits these alone, without the scene's
+// per-object lists and bit tests. occludedVirtual(segment, virtualSet(mask)) ==
+// occludedVirtual(segment, mask) (the same tests in the same order).
+struct VirtualSet {
+    static constexpr int kMax = 4;  // more objects in the mask: `general` (the plain path)
+    std::uint32_t mask = 0;
+    bool general = false;
+    int spheres = 0, meshes = 0;
+    std::array<Eigen::Vector3d, kMax> sphere_centre{};
+    std::array<double, kMax> sphere_radius{};
+    std::array<Eigen::Vector3d, kMax> mesh_centre{};  // the meshes' bounding balls (world)
+    std::array<double, kMax> mesh_radius{};
+    std::array<std::uint32_t, kMax> mesh_bit{};
+    std::uint32_t mesh_bits = 0;  // mask & the enabled meshes' bits
 };
 
 enum class HitKind : std::uint8_t { kNone, kRealFace, kLight, kVirtual };
@@ -82,6 +100,12 @@ public:
     PreparedSegment prepareSegment(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
                                    const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const;
     bool occludedVirtual(const PreparedSegment& segment, std::uint32_t mask = ~0u) const;
+    // occludedReal() of many prepared segments (prepareSegment()) at once, traced as Embree ray
+    // packets: bit k of the result is segment k's answer (at most 64 segments).
+    std::uint64_t occludedRealMany(const PreparedSegment* segments, int count) const;
+    // The objects of `mask` gathered for many segments (VirtualSet), and the answer with them.
+    VirtualSet virtualSet(std::uint32_t mask) const;
+    bool occludedVirtual(const PreparedSegment& segment, const VirtualSet& set) const;
     static std::uint32_t virtualBit(int index) { return std::uint32_t{1} << (static_cast<unsigned>(index) % 32u); }
     // Same for a ray towards infinity along `direction` (unit): distant lights.
     bool occludedRealRay(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,

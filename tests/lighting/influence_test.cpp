@@ -418,5 +418,42 @@ TEST(Influence, CachedLinkPointsEqualFresh) {
     }
 }
 
+// A glowing ball rolling along the floor beside the table's foot: the floor leaves partly under the
+// table get its light through the pairs of their open part (the hidden points of each leaf are kept
+// from its first answer, clusterVisibility()). At every other step the incremental state equals a
+// rebuild from nothing (no kept points), and the ball's light is there.
+TEST(Influence, KeptHiddenPointsOfTheObjectsLightEqualFresh) {
+    const Scene scene = parse(R"(
+real:
+  - {name: floor, plane: {size: [2, 2]}, albedo: [0.5, 0.5, 0.5]}
+  - {name: table, box: {size: [0.8, 0.6, 0.5]}, world_from_object: {t: [0, 0, 0.25]}, albedo: [0.6, 0.5, 0.4]}
+lights:
+  - {name: panel, area: {size: [0.4, 0.4]}, world_from_object: {t: [0.5, 0, 1.6], rpy_deg: [180, 0, 0]}, radiance: [20, 20, 20]}
+virtual:
+  - {name: glow, sphere: {radius: 0.04}, material: {albedo: [0.5, 0.5, 0.5]}, world_from_object: {t: [0.46, 0, 0.05]}}
+lighting: {max_elements: 3000}
+)");
+    auto inc = make(scene);
+    auto fresh = make(scene);
+    Config config = sceneConfig(scene);
+    config.emission[0] = Eigen::Vector3d::Constant(200.0);
+    for (int step = 0; step < 10; ++step) {
+        config.poses[0].translation = Eigen::Vector3d(0.46 + 0.003 * (step % 3), -0.1 + 0.02 * step, 0.05);
+        ASSERT_TRUE(apply(*inc, config));
+        if (step % 2 == 1) expectEqualsFresh(*inc, *fresh, config, "step " + std::to_string(step));
+    }
+    // The ball's light on the floor under the table's edge, past the objects' cluster links.
+    const Radiosity& rad = inc->radiosity();
+    int lit = 0;
+    for (int e : rad.leaves(Mode::kReal)) {
+        const ElementGeometry g = rad.geometry(e);
+        if (rad.exposure(e) < 1.0 && rad.exposure(e) > 0.0 && std::abs(g.centroid.z()) < 1e-6 &&
+            inc->influence().difference()[static_cast<std::size_t>(e)].y() > 1e-3 * scaleOf(*inc)) {
+            ++lit;
+        }
+    }
+    EXPECT_GT(lit, 0) << "partly hidden floor leaves lit by the ball";
+}
+
 }  // namespace
 }  // namespace commonlight::lighting

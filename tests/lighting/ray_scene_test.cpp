@@ -2,7 +2,8 @@
 // (the same object traced through its instance by intersectVirtual()), with a mesh object beside
 // it (still traced by Embree), masks, a disabled object and a moved one; a mesh traced only where a
 // segment meets its bounding ball, with Embree's answer; intersectVirtualExcept()'s ball test; a prepared
-// segment's answer (prepareSegment()) against the plain one.
+// segment's answer (prepareSegment()) against the plain one, also with the objects gathered once
+// (virtualSet()), for few objects and for more than VirtualSet::kMax.
 #include "lighting/ray_scene.h"
 
 #include <gtest/gtest.h>
@@ -160,7 +161,8 @@ TEST(RayScene, IntersectVirtualExceptSeesOnlyTheOthers) {
 
 // A segment prepared once (prepareSegment(): lifted, without the balls' pre-test) gets the answer
 // of occludedVirtual() on its two ends, for segments through, past and ending on two spheres and a
-// rotated cube, with and without normals, short ones, every mask, an object disabled and moved.
+// rotated cube, with and without normals, short ones, every mask, an object disabled and moved;
+// the same with the mask's objects gathered once (virtualSet()).
 TEST(RayScene, PreparedSegmentKeepsTheAnswer) {
     VirtualShape sphere;
     sphere.sphere_radius = 0.3;
@@ -191,11 +193,115 @@ TEST(RayScene, PreparedSegmentKeepsTheAnswer) {
             const PreparedSegment s = rays.prepareSegment(a, na, b, nb);
             const bool expected = rays.occludedVirtual(a, na, b, nb, mask);
             ASSERT_EQ(rays.occludedVirtual(s, mask), expected) << "round " << round << " segment " << k;
+            ASSERT_EQ(rays.occludedVirtual(s, rays.virtualSet(mask)), expected) << "set, round " << round << " segment " << k;
             (expected ? blocked : open)++;
         }
     }
     EXPECT_GT(blocked, 1500);
     EXPECT_GT(open, 3000);
+}
+
+// More objects than a VirtualSet holds (spheres and cubes, two sharing a mask bit: objects v and
+// v + 32): virtualSet()'s answers are still occludedVirtual()'s for every mask tried.
+TEST(RayScene, VirtualSetKeepsTheAnswerWithManyObjects) {
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.15;
+    std::vector<VirtualShape> shapes;
+    for (int v = 0; v < 34; ++v) shapes.push_back(v % 2 == 0 ? sphere : cube());
+    auto built = RayScene::build(floorFace(), {}, shapes);
+    ASSERT_TRUE(built) << built.error().message;
+    RayScene& rays = **built;
+    std::mt19937 rng(41);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    std::vector<Eigen::Vector3d> at;
+    for (int v = 0; v < 34; ++v) {
+        at.emplace_back(1.5 * u(rng), 1.5 * u(rng), 0.5 * u(rng));
+        rays.setVirtualPose(v, Rigid3d(Eigen::Quaterniond::Identity(), at.back()));
+    }
+    rays.setVirtualEnabled(5, false);
+    ASSERT_TRUE(rays.commitVirtual());
+    int blocked = 0, open = 0, general = 0, gathered = 0;
+    for (int k = 0; k < 4000; ++k) {
+        const Eigen::Vector3d a = at[static_cast<std::size_t>(k % 34)] + 0.4 * Eigen::Vector3d(u(rng), u(rng), u(rng));
+        const Eigen::Vector3d b = at[static_cast<std::size_t>((k * 7 + 3) % 34)] + 0.4 * Eigen::Vector3d(u(rng), u(rng), u(rng));
+        const Eigen::Vector3d na = k % 2 == 0 ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : Eigen::Vector3d(Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized());
+        // Masks of one to many bits (bit 0 and bit 1: two objects each).
+        std::uint32_t mask = 0;
+        const int bits = 1 + k % 9;
+        for (int i = 0; i < bits; ++i) mask |= RayScene::virtualBit(static_cast<int>(rng() % 34));
+        const PreparedSegment s = rays.prepareSegment(a, na, b, Eigen::Vector3d::Zero());
+        const bool expected = rays.occludedVirtual(a, na, b, Eigen::Vector3d::Zero(), mask);
+        const VirtualSet set = rays.virtualSet(mask);
+        (set.general ? general : gathered)++;
+        ASSERT_EQ(rays.occludedVirtual(s, set), expected) << "segment " << k << " mask " << mask;
+        (expected ? blocked : open)++;
+    }
+    EXPECT_GT(blocked, 400);
+    EXPECT_GT(open, 400);
+    EXPECT_GT(general, 400);
+    EXPECT_GT(gathered, 400);
+}
+
+// Real rays as packets (occludedRealMany()) give occludedReal()'s answers: segments between the
+// faces of a closed box room with a lamp in its ceiling and a pillar, grazing ones along the walls,
+// ones ending on the lamp, short ones, in batches of 1 to 16.
+TEST(RayScene, RealPacketsKeepTheAnswer) {
+    std::vector<Face> faces;
+    const auto face = [&](Eigen::Vector3d o, Eigen::Vector3d es, Eigen::Vector3d et) {
+        Face f;
+        f.origin = o;
+        f.edge_s = es;
+        f.edge_t = et;
+        f.normal = es.cross(et).normalized();
+        f.area = es.cross(et).norm();
+        faces.push_back(f);
+    };
+    // A 3 x 2 x 2.5 m room (inward normals) and a 0.4 m pillar in it.
+    face({0, 0, 0}, {0, 2, 0}, {3, 0, 0});
+    face({0, 0, 2.5}, {3, 0, 0}, {0, 2, 0});
+    face({0, 0, 0}, {3, 0, 0}, {0, 0, 2.5});
+    face({0, 2, 0}, {0, 0, 2.5}, {3, 0, 0});
+    face({0, 0, 0}, {0, 0, 2.5}, {0, 2, 0});
+    face({3, 0, 0}, {0, 2, 0}, {0, 0, 2.5});
+    face({1.3, 0.8, 0}, {0.4, 0, 0}, {0, 0, 1.5});
+    face({1.3, 1.2, 0}, {0, 0, 1.5}, {0.4, 0, 0});
+    face({1.3, 0.8, 0}, {0, 0, 1.5}, {0, 0.4, 0});
+    face({1.7, 0.8, 0}, {0, 0.4, 0}, {0, 0, 1.5});
+    LightGeometry lamp;
+    lamp.polygon = {{1.2, 0.7, 2.5}, {1.8, 0.7, 2.5}, {1.8, 1.3, 2.5}, {1.2, 1.3, 2.5}};
+    auto built = RayScene::build(faces, {lamp}, {});
+    ASSERT_TRUE(built) << built.error().message;
+    const RayScene& rays = **built;
+    std::mt19937 rng(77);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    const auto onFace = [&](const Face& f) { return Eigen::Vector3d(f.origin + u(rng) * f.edge_s + u(rng) * f.edge_t); };
+    int blocked = 0, open = 0;
+    for (int batch = 0; batch < 600; ++batch) {
+        const int count = 1 + batch % 16;
+        std::vector<PreparedSegment> segments;
+        std::vector<bool> expected;
+        for (int k = 0; k < count; ++k) {
+            const Face& fa = faces[rng() % faces.size()];
+            const Eigen::Vector3d a = onFace(fa);
+            Eigen::Vector3d b, nb = Eigen::Vector3d::Zero();
+            switch ((batch + k) % 4) {
+                case 0: b = onFace(faces[rng() % faces.size()]); nb = faces[rng() % faces.size()].normal; break;
+                case 1: b = lamp.polygon[0] + u(rng) * (lamp.polygon[1] - lamp.polygon[0]) + u(rng) * (lamp.polygon[3] - lamp.polygon[0]); nb = {0, 0, -1}; break;
+                case 2: b = a + 2.0 * rays.epsilon() * Eigen::Vector3d(u(rng), u(rng), u(rng)); break;  // short
+                default: b = a + Eigen::Vector3d(u(rng) - 0.5, u(rng) - 0.5, 0.0); break;  // along the face's plane
+            }
+            segments.push_back(rays.prepareSegment(a, fa.normal, b, nb));
+            expected.push_back(rays.occludedReal(a, fa.normal, b, nb));
+        }
+        const std::uint64_t got = rays.occludedRealMany(segments.data(), count);
+        for (int k = 0; k < count; ++k) {
+            ASSERT_EQ(((got >> k) & 1u) != 0, expected[static_cast<std::size_t>(k)]) << "batch " << batch << " segment " << k;
+            (expected[static_cast<std::size_t>(k)] ? blocked : open)++;
+        }
+        EXPECT_EQ(got >> count, 0u);
+    }
+    EXPECT_GT(blocked, 300);
+    EXPECT_GT(open, 300);
 }
 
 // intersectVirtualExcept() skips a ray that misses every other object's ball: its answer is the
