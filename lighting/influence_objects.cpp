@@ -18,6 +18,20 @@ namespace {
 
 constexpr double kPi = std::numbers::pi;
 
+// The seed of an element's cluster visibility pairs towards object o.
+std::uint64_t clusterPairSeed(std::uint64_t seed, std::uint64_t element_key, int o) {
+    return hashCombine(hashCombine(seed ^ 0xc1u, element_key), static_cast<std::uint64_t>(o));
+}
+
+// The object's end of a cluster visibility pair: a point on the disc through the object's centre
+// (radius 0.9 of its ball) that faces the element point x, at the sample u.
+Eigen::Vector3d discPointFacing(const Ball& ball, double radius, const Eigen::Vector3d& x, const Eigen::Vector2d& u) {
+    const Eigen::Vector3d axis = (x - ball.centre).normalized();
+    const Eigen::Vector3d e1 = axis.unitOrthogonal(), e2 = axis.cross(e1);
+    const double r = 0.9 * radius * std::sqrt(u.x()), phi = 2.0 * kPi * u.y();
+    return ball.centre + r * std::cos(phi) * e1 + r * std::sin(phi) * e2;
+}
+
 }  // namespace
 
 void VirtualInfluence::Impl::placeObject(int o, const InfluenceObject& in) {
@@ -161,7 +175,7 @@ double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, 
     const RayScene& rays = self.rays_;
     const ElementGeometry g = rad.geometry(element);
     const bool partial = rad.exposure(element) < 1.0;
-    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0xc1u, rad.hierarchy().key(element)), static_cast<std::uint64_t>(o));
+    const std::uint64_t seed = clusterPairSeed(self.options_.seed, rad.hierarchy().key(element), o);
     // The element's points do not move with the object: which of them are hidden is kept (`keep`,
     // for 4 and 16 pairs).
     const std::uint8_t flag = pairs == 4 ? 1 : pairs == 16 ? 2 : 0;
@@ -185,10 +199,7 @@ double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, 
                 continue;
             }
         }
-        const Eigen::Vector3d axis = (x - s.ball.centre).normalized();
-        const Eigen::Vector3d e1 = axis.unitOrthogonal(), e2 = axis.cross(e1);
-        const double r = 0.9 * s.radius * std::sqrt(u.second.x()), phi = 2.0 * kPi * u.second.y();
-        const Eigen::Vector3d y = s.ball.centre + r * std::cos(phi) * e1 + r * std::sin(phi) * e2;
+        const Eigen::Vector3d y = discPointFacing(s.ball, s.radius, x, u.second);
         const Eigen::Vector3d dv = y - x;
         if (g.normal.dot(dv) <= 0.0) continue;
         const auto i = static_cast<std::size_t>(valid++);
@@ -218,16 +229,13 @@ double VirtualInfluence::Impl::clusterVisibilityOneByOne(int o, int element, int
     const RayScene& rays = self.rays_;
     const ElementGeometry g = rad.geometry(element);
     const bool partial = rad.exposure(element) < 1.0;
-    const std::uint64_t seed = hashCombine(hashCombine(self.options_.seed ^ 0xc1u, rad.hierarchy().key(element)), static_cast<std::uint64_t>(o));
+    const std::uint64_t seed = clusterPairSeed(self.options_.seed, rad.hierarchy().key(element), o);
     int valid = 0, open = 0;
     for (int k = 0; k < pairs; ++k) {
         const SamplePair u = stratifiedPair(seed, k, pairs);
         const Eigen::Vector3d x = rad.surfacePoint(element, g, u.first.x(), u.first.y());
         if (partial && rad.hidden(element, x)) continue;
-        const Eigen::Vector3d axis = (x - s.ball.centre).normalized();
-        const Eigen::Vector3d e1 = axis.unitOrthogonal(), e2 = axis.cross(e1);
-        const double r = 0.9 * s.radius * std::sqrt(u.second.x()), phi = 2.0 * kPi * u.second.y();
-        const Eigen::Vector3d y = s.ball.centre + r * std::cos(phi) * e1 + r * std::sin(phi) * e2;
+        const Eigen::Vector3d y = discPointFacing(s.ball, s.radius, x, u.second);
         const Eigen::Vector3d dv = y - x;
         if (g.normal.dot(dv) <= 0.0) continue;
         ++valid;
