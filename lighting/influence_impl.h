@@ -442,11 +442,9 @@ struct VirtualInfluence::Impl {
     void removeClusterLinks(int o);
     Eigen::Vector3d clusterAt(int o, int element, double* variation, std::uint32_t mask);  // irradiance; variation of rho F L / B~
     double pointFormFactor(int o, const Eigen::Vector3d& x, const Eigen::Vector3d& n, Eigen::Vector3d* radiance) const;
-    double clusterVisibility(int o, int element, int pairs, bool& mixed, std::uint32_t mask) const;
-    // The same, the element's hidden pairs kept in `hidden` (its RealMask for object o,
-    // clusterMaskKey(o): pilot_hidden for 4 pairs, full_hidden for 16): the points do not move.
+    // Fraction of pairs left open; the element's hidden pairs kept in `hidden` (may be null; its
+    // RealMask for object o, clusterMaskKey(o): pilot_hidden for 4 pairs, full_hidden for 16).
     double clusterVisibility(int o, int element, int pairs, bool& mixed, std::uint32_t mask, RealMask* hidden) const;
-    double clusterVisibilityOneByOne(int o, int element, int pairs, bool& mixed, std::uint32_t mask) const;
     static int clusterMaskKey(int o) { return std::numeric_limits<int>::min() + o; }
 
     // --- influence_solve.cpp ---

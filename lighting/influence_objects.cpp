@@ -165,10 +165,9 @@ double VirtualInfluence::Impl::pointFormFactor(int o, const Eigen::Vector3d& x, 
 
 // Fraction of (element point, object point) pairs that the real scene and the other virtual
 // objects leave open; object points on the disc through its centre facing the element point.
-double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, bool& mixed, std::uint32_t mask) const {
-    return clusterVisibility(o, element, pairs, mixed, mask, nullptr);
-}
-
+// `keep` (may be null): the element's RealMask for object o (clusterMaskKey(o)), where which of the
+// element's points are hidden is kept for 4 and 16 pairs (pilot_hidden, full_hidden): they do not
+// move with the object.
 double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, bool& mixed, std::uint32_t mask, RealMask* keep) const {
     const ObjectState& s = objects[static_cast<std::size_t>(o)];
     const Radiosity& rad = self.radiosity_;
@@ -176,72 +175,46 @@ double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, 
     const ElementGeometry g = rad.geometry(element);
     const bool partial = rad.exposure(element) < 1.0;
     const std::uint64_t seed = clusterPairSeed(self.options_.seed, rad.hierarchy().key(element), o);
-    // The element's points do not move with the object: which of them are hidden is kept (`keep`,
-    // for 4 and 16 pairs).
     const std::uint8_t flag = pairs == 4 ? 1 : pairs == 16 ? 2 : 0;
     std::uint64_t* hidden_bits = keep && flag ? (flag == 1 ? &keep->pilot_hidden : &keep->full_hidden) : nullptr;
     const bool known = hidden_bits && (keep->have & flag) != 0;
     std::uint64_t computed_hidden = 0;
-    // The valid pairs' segments first, their real rays as packets (RayScene::occludedRealMany()),
-    // then the virtual rays of those the real scene leaves open.
-    // (At most 16 pairs this way; more, one by one.)
-    constexpr int kMaxPairs = 16;
-    if (pairs > kMaxPairs) return clusterVisibilityOneByOne(o, element, pairs, mixed, mask);
-    std::array<PreparedSegment, kMaxPairs> segments;
-    std::array<Eigen::Vector3d, kMaxPairs> from, to;
+    // Batch by batch: the valid pairs' segments first, their real rays as packets
+    // (RayScene::occludedRealMany()), then the virtual rays of those the real scene leaves open.
+    constexpr int kBatch = 16;
+    std::array<PreparedSegment, kBatch> segments;
+    std::array<Eigen::Vector3d, kBatch> from, to;
     int valid = 0, open = 0;
-    for (int k = 0; k < pairs && k < kMaxPairs; ++k) {
-        const SamplePair u = stratifiedPair(seed, k, pairs);
-        const Eigen::Vector3d x = rad.surfacePoint(element, g, u.first.x(), u.first.y());
-        if (partial) {
-            if (known ? ((*hidden_bits >> k) & 1u) != 0 : rad.hidden(element, x)) {
-                if (!known) computed_hidden |= std::uint64_t{1} << k;
-                continue;
+    for (int k0 = 0; k0 < pairs; k0 += kBatch) {
+        int batch = 0;
+        for (int k = k0; k < std::min(pairs, k0 + kBatch); ++k) {
+            const SamplePair u = stratifiedPair(seed, k, pairs);
+            const Eigen::Vector3d x = rad.surfacePoint(element, g, u.first.x(), u.first.y());
+            if (partial) {
+                if (known ? ((*hidden_bits >> k) & 1u) != 0 : rad.hidden(element, x)) {
+                    if (hidden_bits && !known) computed_hidden |= std::uint64_t{1} << k;
+                    continue;
+                }
             }
+            const Eigen::Vector3d y = discPointFacing(s.ball, s.radius, x, u.second);
+            if (g.normal.dot(y - x) <= 0.0) continue;
+            const auto i = static_cast<std::size_t>(batch++);
+            from[i] = x;
+            to[i] = y;
+            segments[i] = rays.prepareSegment(x, g.normal, y, Eigen::Vector3d::Zero());
         }
-        const Eigen::Vector3d y = discPointFacing(s.ball, s.radius, x, u.second);
-        const Eigen::Vector3d dv = y - x;
-        if (g.normal.dot(dv) <= 0.0) continue;
-        const auto i = static_cast<std::size_t>(valid++);
-        from[i] = x;
-        to[i] = y;
-        segments[i] = rays.prepareSegment(x, g.normal, y, Eigen::Vector3d::Zero());
-    }
-    const std::uint64_t real_blocked = rays.occludedRealMany(segments.data(), valid);
-    for (int i = 0; i < valid; ++i) {
-        if ((real_blocked >> i) & 1u) continue;
-        const auto k = static_cast<std::size_t>(i);
-        if (rays.occludedVirtual(from[k], g.normal, to[k], Eigen::Vector3d::Zero(), mask)) continue;
-        ++open;
+        valid += batch;
+        const std::uint64_t real_blocked = rays.occludedRealMany(segments.data(), batch);
+        for (int i = 0; i < batch; ++i) {
+            if ((real_blocked >> i) & 1u) continue;
+            const auto k = static_cast<std::size_t>(i);
+            if (rays.occludedVirtual(from[k], g.normal, to[k], Eigen::Vector3d::Zero(), mask)) continue;
+            ++open;
+        }
     }
     if (hidden_bits && !known) {
         *hidden_bits = computed_hidden;
         keep->have = static_cast<std::uint8_t>(keep->have | flag);
-    }
-    mixed = open > 0 && open < valid;
-    return valid > 0 ? static_cast<double>(open) / valid : 0.0;
-}
-
-// clusterVisibility() ray by ray (more pairs than its packets hold; no kept hidden points).
-double VirtualInfluence::Impl::clusterVisibilityOneByOne(int o, int element, int pairs, bool& mixed, std::uint32_t mask) const {
-    const ObjectState& s = objects[static_cast<std::size_t>(o)];
-    const Radiosity& rad = self.radiosity_;
-    const RayScene& rays = self.rays_;
-    const ElementGeometry g = rad.geometry(element);
-    const bool partial = rad.exposure(element) < 1.0;
-    const std::uint64_t seed = clusterPairSeed(self.options_.seed, rad.hierarchy().key(element), o);
-    int valid = 0, open = 0;
-    for (int k = 0; k < pairs; ++k) {
-        const SamplePair u = stratifiedPair(seed, k, pairs);
-        const Eigen::Vector3d x = rad.surfacePoint(element, g, u.first.x(), u.first.y());
-        if (partial && rad.hidden(element, x)) continue;
-        const Eigen::Vector3d y = discPointFacing(s.ball, s.radius, x, u.second);
-        const Eigen::Vector3d dv = y - x;
-        if (g.normal.dot(dv) <= 0.0) continue;
-        ++valid;
-        if (rays.occludedReal(x, g.normal, y)) continue;
-        if (rays.occludedVirtual(x, g.normal, y, Eigen::Vector3d::Zero(), mask)) continue;
-        ++open;
     }
     mixed = open > 0 && open < valid;
     return valid > 0 ? static_cast<double>(open) / valid : 0.0;
