@@ -408,25 +408,34 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
     };
     // The tiles to visit: every one in a new layout; else those within reach of a leaf that
     // changed or went, of the region whose box filters were found again, and of a texel whose own
-    // direct light went (TexelDirect::forgotten).
+    // direct light went (TexelDirect::forgotten). Of a tile, only the box (i0, j0, i1, j1) of the
+    // rectangles and texels that marked it: a texel outside every one of them has no changed or
+    // gone leaf in its box filter and its own direct light stands.
     constexpr int kTile = FaceBuild::kTile;
     const int tiles_w = (width + kTile - 1) / kTile, tiles_h = (height + kTile - 1) / kTile;
     std::vector<int> visit;
+    std::vector<Eigen::Vector4i> boxes;  // by place in `visit` (empty: whole tiles)
     if (all) {
         visit.resize(static_cast<std::size_t>(tiles_w) * static_cast<std::size_t>(tiles_h));
         std::iota(visit.begin(), visit.end(), 0);
         std::vector<std::uint32_t> went;  // (every texel is built: the list is only emptied)
         if (direct_on && texel_direct->forgotten) texel_direct->forgotten(f, went);
     } else {
-        std::vector<char> mark(static_cast<std::size_t>(tiles_w) * static_cast<std::size_t>(tiles_h), 0);
+        // By tile: the box of what marked it (empty: i0 > i1).
+        std::vector<Eigen::Vector4i> mark(static_cast<std::size_t>(tiles_w) * static_cast<std::size_t>(tiles_h),
+                                          Eigen::Vector4i(width, height, -1, -1));
         const auto markRect = [&](const Eigen::Vector4i& r) {
             for (int tj = r[1] / kTile; tj <= r[3] / kTile; ++tj) {
-                for (int ti = r[0] / kTile; ti <= r[2] / kTile; ++ti) mark[static_cast<std::size_t>(tj * tiles_w + ti)] = 1;
+                for (int ti = r[0] / kTile; ti <= r[2] / kTile; ++ti) {
+                    Eigen::Vector4i& b = mark[static_cast<std::size_t>(tj * tiles_w + ti)];
+                    b[0] = std::min(b[0], std::max(r[0], ti * kTile)), b[1] = std::min(b[1], std::max(r[1], tj * kTile));
+                    b[2] = std::max(b[2], std::min(r[2], ti * kTile + kTile - 1)), b[3] = std::max(b[3], std::min(r[3], tj * kTile + kTile - 1));
+                }
             }
         };
         const auto markTexel = [&](std::size_t k) {
             const int i = static_cast<int>(k % static_cast<std::size_t>(width)), j = static_cast<int>(k / static_cast<std::size_t>(width));
-            mark[static_cast<std::size_t>((j / kTile) * tiles_w + i / kTile)] = 1;
+            markRect({i, j, i, j});
         };
         if (i0 <= i1) markRect({i0, j0, i1, j1});
         for (const Eigen::Vector4i& r : gone_rects) markRect(r);
@@ -446,14 +455,20 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
             }
         }
         for (std::size_t t = 0; t < mark.size(); ++t) {
-            if (mark[t]) visit.push_back(static_cast<int>(t));
+            if (mark[t][0] > mark[t][2]) continue;
+            visit.push_back(static_cast<int>(t));
+            boxes.push_back(mark[t]);
         }
     }
-    std::atomic<long> built{0};
+    // By place in `visit`: texels the tile rebuilt (the next build brings over only those tiles).
+    std::vector<long> rebuilt(visit.size(), 0);
     tbb::parallel_for(std::size_t{0}, visit.size(), [&](std::size_t v) {
         long count = 0;
         const int ti = visit[v] % tiles_w, tj = visit[v] / tiles_w;
-        for (int j = tj * kTile; j < std::min(height, (tj + 1) * kTile); ++j) for (int i = ti * kTile; i < std::min(width, (ti + 1) * kTile); ++i) {
+        const Eigen::Vector4i box = boxes.empty() ? Eigen::Vector4i(ti * kTile, tj * kTile, std::min(width, (ti + 1) * kTile) - 1,
+                                                                    std::min(height, (tj + 1) * kTile) - 1)
+                                                  : boxes[v];
+        for (int j = box[1]; j <= box[3]; ++j) for (int i = box[0]; i <= box[2]; ++i) {
             const std::size_t k = m.texel(i, j);
             FaceBuild::Stencil& st = keep.stencils[k];
             bool dirty = all || (i >= i0 && i <= i1 && j >= j0 && j <= j1);
@@ -497,16 +512,19 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
             m.original[k] = toRgb(b0);
             m.reflectance[k] = toRgb(r.cwiseMax(0.0).cwiseMin(1.0));
         }
-        built += count;
+        rebuilt[v] = count;
     });
-    keep.texels_built = built.load();
+    keep.texels_built = std::accumulate(rebuilt.begin(), rebuilt.end(), 0L);
     if (revised || keep.texels_built > 0) {
         static std::atomic<std::uint64_t> revisions{0};
         m.revision = ++revisions;
     }
     // Published: the last one becomes the spare (its deleter below marks it free once no snapshot
     // holds it), this one the face's textures.
-    keep.written = std::move(visit);
+    keep.written.clear();
+    for (std::size_t v = 0; v < visit.size(); ++v) {
+        if (rebuilt[v] > 0) keep.written.push_back(visit[v]);
+    }
     keep.written_all = all;
     keep.spare = std::move(keep.current);
     keep.current = out;
