@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <numbers>
 
@@ -112,6 +113,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
         balls[ball_count++] = b;
     }
     const bool all_balls = rays_.virtualCount() <= balls.size();
+    const VirtualSet set = rays_.virtualSet(~0u);  // (occludedVirtual()'s objects, gathered once)
     if (!same_point) without.setZero();
     with.setZero();
     for (std::size_t k = 0; k < nl; ++k) {
@@ -130,16 +132,48 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             if (part.all > 0.0) with += kPi * part.form * (part.open / part.all) * lights_[k].emission;
             continue;
         }
-        double open_real = 0.0, open_both = 0.0;
-        for (int j = 0; j < pairs; ++j) {
-            const std::uint64_t bit = std::uint64_t{1} << j;
-            if (same_point && (part.blocked & bit) != 0) continue;
+        // The segments of the pairs to trace, prepared once (the virtual objects' rays of a
+        // pair skip the lifting: occludedVirtual(prepareSegment(...), set) is occludedVirtual()'s
+        // answer). A new point traces the real scene for every pair with weight, in packets
+        // (occludedRealMany(): occludedReal()'s rays); a kept point only its open pairs.
+        std::array<PreparedSegment, 64> segments;
+        std::array<double, 64> weight{};
+        const std::uint64_t every = pairs == 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << pairs) - 1;
+        const std::uint64_t todo = same_point ? every & ~part.blocked : every;
+        std::uint64_t weighed = 0;  // pairs with weight > 0, of `todo`
+        for (std::uint64_t rest = todo; rest != 0; rest &= rest - 1) {
+            const int j = std::countr_zero(rest);
             const Eigen::Vector3d q = sampleLight(light, stratified2d(seed, j, pairs));
             const Eigen::Vector3d dv = q - x;
             const double d2 = dv.squaredNorm();
             const double w = d2 > 0.0 ? std::max(0.0, normal.dot(dv)) * std::max(0.0, -light.normal.dot(dv)) / (d2 * d2) : 0.0;
+            weight[static_cast<std::size_t>(j)] = w;
+            if (!(w > 0.0)) continue;
+            weighed |= std::uint64_t{1} << j;
+            if (!same_point || !clear) segments[static_cast<std::size_t>(j)] = rays_.prepareSegment(x, normal, q, light.normal);
+        }
+        std::uint64_t blocked_real = 0;  // of `weighed` (a new point)
+        if (!same_point && weighed != 0) {
+            std::array<PreparedSegment, 64> packed;
+            std::array<int, 64> index{};
+            int n = 0;
+            for (std::uint64_t rest = weighed; rest != 0; rest &= rest - 1) {
+                const int j = std::countr_zero(rest);
+                index[static_cast<std::size_t>(n)] = j;
+                packed[static_cast<std::size_t>(n++)] = segments[static_cast<std::size_t>(j)];
+            }
+            const std::uint64_t hit = rays_.occludedRealMany(packed.data(), n);
+            for (int i = 0; i < n; ++i) {
+                if ((hit >> i) & 1u) blocked_real |= std::uint64_t{1} << index[static_cast<std::size_t>(i)];
+            }
+        }
+        double open_real = 0.0, open_both = 0.0;
+        for (std::uint64_t rest = todo; rest != 0; rest &= rest - 1) {
+            const int j = std::countr_zero(rest);
+            const std::uint64_t bit = std::uint64_t{1} << j;
+            const double w = weight[static_cast<std::size_t>(j)];
             if (!same_point) {
-                if (!(w > 0.0) || rays_.occludedReal(x, normal, q, light.normal)) {
+                if ((weighed & bit) == 0 || (blocked_real & bit) != 0) {
                     part.blocked |= bit;
                     part.all += w > 0.0 ? w : 0.0;
                     continue;
@@ -147,7 +181,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
                 part.all += w;
             }
             open_real += w;
-            if (clear || !rays_.occludedVirtual(x, normal, q, light.normal)) open_both += w;
+            if (clear || (weighed & bit) == 0 || !rays_.occludedVirtual(segments[static_cast<std::size_t>(j)], set)) open_both += w;
         }
         if (!same_point) part.open = open_real;
         if (!(part.all > 0.0)) continue;
