@@ -12,12 +12,14 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <numbers>
 #include <optional>
 #include <random>
 #include <vector>
 
 #include "core/scene_io.h"
 #include "lighting/estimator.h"
+#include "lighting/form_factor.h"
 #include "lighting/sampling.h"
 
 namespace commonlight::lighting {
@@ -436,6 +438,104 @@ TEST(TexelDirect, TexelsWhoseConeMissesEveryObjectSkipItsRays) {
     place(at);
     cache.forget({Ball{away, 0.05}, Ball{at, 0.05}});
     check("back", true);
+}
+
+// at() traces a new point's real rays in packets and its virtual rays from segments prepared once,
+// and a kept point only its open pairs: its answers are, to the bit, those of the plain per-pair
+// sum (every pair of every light, occludedReal() then occludedVirtual() one ray at a time, in
+// order). A floor partly under a real plank (some pairs blocked by the real scene), two lamps, and
+// a ball moved over it: the answers of fresh points and of kept ones after each move.
+TEST(TexelDirect, AnswersEqualThePlainPerPairSum) {
+    const Face floor = squareFloor(0.3);
+    Face plank;  // facing down, at z = 0.25 over x in [-0.3, 0.0]
+    plank.origin = {-0.3, -0.3, 0.25};
+    plank.edge_s = {0, 0.6, 0};
+    plank.edge_t = {0.3, 0, 0};
+    plank.normal = {0, 0, -1};
+    plank.area = 0.18;
+    Face curb;  // facing -x at the floor's edge x = 0.3, 3 cm high: it hides the low lamp's foot
+    curb.origin = {0.3, -0.3, 0.0};
+    curb.edge_s = {0, 0, 0.03};
+    curb.edge_t = {0, 0.6, 0};
+    curb.normal = {-1, 0, 0};
+    curb.area = 0.018;
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.05;
+    auto rays = RayScene::build({floor, plank, curb}, {}, {sphere});
+    ASSERT_TRUE(rays) << rays.error().message;
+    RayScene& scene = **rays;
+    std::vector<LightGeometry> lamps{squareLamp({0.05, 0.0, 0.6}, 0.2), squareLamp({-0.2, 0.1, 0.5}, 0.1), squareLamp({0.35, 0.0, 0.02}, 0.1)};
+    {
+        // The third stands on the floor's edge facing -x, partly below its plane: the pairs to
+        // its points there have no weight (not traced).
+        LightGeometry& low = lamps[2];
+        low.world_from_object = Rigid3d::fromRpyDeg(low.centre, Eigen::Vector3d(0, -90, 0));
+        low.normal = low.world_from_object.rotation * Eigen::Vector3d::UnitZ();
+        low.polygon.clear();
+        for (const auto& [x, y] : {std::pair{-0.05, -0.05}, {0.05, -0.05}, {0.05, 0.05}, {-0.05, 0.05}}) low.polygon.push_back(low.world_from_object * Eigen::Vector3d(x, y, 0));
+    }
+    const std::vector<Eigen::Vector3d> emission{Eigen::Vector3d(50.0, 40.0, 30.0), Eigen::Vector3d(20.0, 20.0, 25.0), Eigen::Vector3d(30.0, 30.0, 30.0)};
+    constexpr int kSide = 24, kPairs = 16;
+    std::vector<Eigen::Vector3d> points;
+    for (int j = 0; j < kSide; ++j) {
+        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
+    }
+    int weightless = 0, low_blocked = 0;  // pairs with no weight (below the floor's horizon); to the low lamp, blocked
+    const auto plain = [&](std::size_t texel, Eigen::Vector3d& without, Eigen::Vector3d& with, int& real_blocked) {
+        const Eigen::Vector3d& x = points[texel];
+        without.setZero();
+        with.setZero();
+        real_blocked = 0;
+        for (std::size_t k = 0; k < lamps.size(); ++k) {
+            const LightGeometry& light = lamps[k];
+            const std::uint64_t seed = hashCombine(hashCombine(0x7e8e1ull, 0), hashCombine(texel, k));
+            const double form = pointToPolygon(x, floor.normal, light.polygon, light.normal);
+            if (!(form > 0.0)) continue;
+            double all = 0.0, open_real = 0.0, open_both = 0.0;
+            for (int j = 0; j < kPairs; ++j) {
+                const Eigen::Vector3d q = sampleLight(light, stratified2d(seed, j, kPairs));
+                const Eigen::Vector3d dv = q - x;
+                const double d2 = dv.squaredNorm();
+                const double w = d2 > 0.0 ? std::max(0.0, floor.normal.dot(dv)) * std::max(0.0, -light.normal.dot(dv)) / (d2 * d2) : 0.0;
+                if (!(w > 0.0) || scene.occludedReal(x, floor.normal, q, light.normal)) {
+                    all += w > 0.0 ? w : 0.0;
+                    real_blocked += w > 0.0 ? 1 : 0;
+                    weightless += w > 0.0 ? 0 : 1;
+                    low_blocked += w > 0.0 && k == 2 ? 1 : 0;
+                    continue;
+                }
+                all += w;
+                open_real += w;
+                if (!scene.occludedVirtual(x, floor.normal, q, light.normal)) open_both += w;
+            }
+            if (!(all > 0.0)) continue;
+            without += std::numbers::pi * form * (open_real / all) * emission[k];
+            with += std::numbers::pi * form * (open_both / all) * emission[k];
+        }
+    };
+    TexelDirectCache cache(scene, kPairs);
+    cache.reset({{&lamps[0], emission[0]}, {&lamps[1], emission[1]}, {&lamps[2], emission[2]}}, {floor});
+    const std::vector<Eigen::Vector3d> centres{{0.02, -0.01, 0.15}, {0.08, 0.02, 0.15}, {-0.1, 0.05, 0.1}};
+    int partly_real = 0, shaded = 0;
+    for (std::size_t step = 0; step < centres.size(); ++step) {
+        scene.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), centres[step]));
+        ASSERT_TRUE(scene.commitVirtual());
+        if (step > 0) cache.forget({Ball{centres[step - 1], 0.05}, Ball{centres[step], 0.05}});
+        for (std::size_t k = 0; k < points.size(); ++k) {
+            Eigen::Vector3d d0, d1, e0, e1;
+            int real_blocked = 0;
+            cache.at(0, k, kSide, kSide, points[k], floor.normal, d0, d1);
+            plain(k, e0, e1, real_blocked);
+            ASSERT_EQ(d0, e0) << "step " << step << " texel " << k;
+            ASSERT_EQ(d1, e1) << "step " << step << " texel " << k;
+            partly_real += real_blocked > 0 && real_blocked < 3 * kPairs ? 1 : 0;
+            shaded += d1 != d0 ? 1 : 0;
+        }
+    }
+    EXPECT_GT(partly_real, 100) << "the plank blocks some of the pairs";
+    EXPECT_GT(shaded, 50) << "the ball shades the floor";
+    EXPECT_GT(weightless, 1000) << "the low lamp's pairs below the horizon";
+    EXPECT_GT(low_blocked, 1000) << "the curb hides some of the low lamp's pairs with weight";
 }
 
 }  // namespace
