@@ -12,6 +12,7 @@
 #include <optional>
 
 #include "lighting/sampling.h"
+#include "lighting/tile_marks.h"
 
 namespace commonlight::lighting {
 
@@ -421,18 +422,9 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
         std::vector<std::uint32_t> went;  // (every texel is built: the list is only emptied)
         if (direct_on && texel_direct->forgotten) texel_direct->forgotten(f, went);
     } else {
-        // By tile: the box of what marked it (empty: i0 > i1).
-        std::vector<Eigen::Vector4i> mark(static_cast<std::size_t>(tiles_w) * static_cast<std::size_t>(tiles_h),
-                                          Eigen::Vector4i(width, height, -1, -1));
-        const auto markRect = [&](const Eigen::Vector4i& r) {
-            for (int tj = r[1] / kTile; tj <= r[3] / kTile; ++tj) {
-                for (int ti = r[0] / kTile; ti <= r[2] / kTile; ++ti) {
-                    Eigen::Vector4i& b = mark[static_cast<std::size_t>(tj * tiles_w + ti)];
-                    b[0] = std::min(b[0], std::max(r[0], ti * kTile)), b[1] = std::min(b[1], std::max(r[1], tj * kTile));
-                    b[2] = std::max(b[2], std::min(r[2], ti * kTile + kTile - 1)), b[3] = std::max(b[3], std::min(r[3], tj * kTile + kTile - 1));
-                }
-            }
-        };
+        // By tile: the box of what marked it.
+        TileMarks mark(width, height, kTile);
+        const auto markRect = [&](const Eigen::Vector4i& r) { mark.mark(r); };
         const auto markTexel = [&](std::size_t k) {
             const int i = static_cast<int>(k % static_cast<std::size_t>(width)), j = static_cast<int>(k / static_cast<std::size_t>(width));
             markRect({i, j, i, j});
@@ -454,10 +446,10 @@ void buildFaceModulation(const Radiosity& radiosity, const Scene& scene, int f, 
                 }
             }
         }
-        for (std::size_t t = 0; t < mark.size(); ++t) {
-            if (mark[t][0] > mark[t][2]) continue;
+        for (std::size_t t = 0; t < mark.tiles(); ++t) {
+            if (!mark.marked(t)) continue;
             visit.push_back(static_cast<int>(t));
-            boxes.push_back(mark[t]);
+            boxes.push_back(mark.box(t));
         }
     }
     // By place in `visit`: texels the tile rebuilt (the next build brings over only those tiles).

@@ -21,6 +21,7 @@
 #include "lighting/estimator.h"
 #include "lighting/form_factor.h"
 #include "lighting/sampling.h"
+#include "lighting/tile_marks.h"
 
 namespace commonlight::lighting {
 namespace {
@@ -536,6 +537,45 @@ TEST(TexelDirect, AnswersEqualThePlainPerPairSum) {
     EXPECT_GT(shaded, 50) << "the ball shades the floor";
     EXPECT_GT(weightless, 1000) << "the low lamp's pairs below the horizon";
     EXPECT_GT(low_blocked, 1000) << "the curb hides some of the low lamp's pairs with weight";
+}
+
+// A texture build visits only the boxes of the texels that marked each tile (TileMarks): each box
+// is exactly the bounding box of the marked texels in its tile, against a brute-force count over
+// every texel of a layout with partial tiles, for random rectangles and single texels.
+TEST(TexelDirect, TileMarksBoxExactlyTheMarkedTexelsOfEachTile) {
+    constexpr int kWidth = 50, kHeight = 37, kTile = 16;
+    std::mt19937 rng(11);
+    for (int trial = 0; trial < 20; ++trial) {
+        TileMarks marks(kWidth, kHeight, kTile);
+        std::vector<char> covered(static_cast<std::size_t>(kWidth * kHeight), 0);
+        std::uniform_int_distribution<int> count(1, 4), iu(0, kWidth - 1), ju(0, kHeight - 1), size(0, 12);
+        const int n = count(rng);
+        for (int r = 0; r < n; ++r) {
+            const int i0 = iu(rng), j0 = ju(rng);
+            const Eigen::Vector4i rect(i0, j0, std::min(kWidth - 1, i0 + size(rng)), std::min(kHeight - 1, j0 + size(rng)));
+            marks.mark(rect);
+            for (int j = rect[1]; j <= rect[3]; ++j) {
+                for (int i = rect[0]; i <= rect[2]; ++i) covered[static_cast<std::size_t>(j * kWidth + i)] = 1;
+            }
+        }
+        ASSERT_EQ(marks.tiles(), 4u * 3u);
+        int marked = 0;
+        for (std::size_t t = 0; t < marks.tiles(); ++t) {
+            const int ti = static_cast<int>(t) % 4, tj = static_cast<int>(t) / 4;
+            Eigen::Vector4i expected(kWidth, kHeight, -1, -1);
+            for (int j = tj * kTile; j < std::min(kHeight, (tj + 1) * kTile); ++j) {
+                for (int i = ti * kTile; i < std::min(kWidth, (ti + 1) * kTile); ++i) {
+                    if (!covered[static_cast<std::size_t>(j * kWidth + i)]) continue;
+                    expected = Eigen::Vector4i(std::min(expected[0], i), std::min(expected[1], j), std::max(expected[2], i), std::max(expected[3], j));
+                }
+            }
+            ASSERT_EQ(marks.marked(t), expected[0] <= expected[2]) << "trial " << trial << " tile " << t;
+            if (!marks.marked(t)) continue;
+            ++marked;
+            ASSERT_EQ(marks.box(t), expected) << "trial " << trial << " tile " << t;
+        }
+        EXPECT_GT(marked, 0);
+    }
 }
 
 }  // namespace
