@@ -5,6 +5,7 @@
 #include <bit>
 #include <cmath>
 #include <numbers>
+#include <optional>
 
 #include "lighting/form_factor.h"
 #include "lighting/sampling.h"
@@ -113,7 +114,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
         balls[ball_count++] = b;
     }
     const bool all_balls = rays_.virtualCount() <= balls.size();
-    const VirtualSet set = rays_.virtualSet(~0u);  // (occludedVirtual()'s objects, gathered once)
+    std::optional<VirtualSet> set;  // occludedVirtual()'s objects, gathered at the first virtual ray
     if (!same_point) without.setZero();
     with.setZero();
     for (std::size_t k = 0; k < nl; ++k) {
@@ -181,7 +182,12 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
                 part.all += w;
             }
             open_real += w;
-            if (clear || (weighed & bit) == 0 || !rays_.occludedVirtual(segments[static_cast<std::size_t>(j)], set)) open_both += w;
+            if (clear || (weighed & bit) == 0) {
+                open_both += w;
+                continue;
+            }
+            if (!set) set = rays_.virtualSet(~0u);
+            if (!rays_.occludedVirtual(segments[static_cast<std::size_t>(j)], *set)) open_both += w;
         }
         if (!same_point) part.open = open_real;
         if (!(part.all > 0.0)) continue;

@@ -15,8 +15,8 @@ class TileMarks {
 public:
     // A width x height layout in tiles of `tile` texels a side (the last row and column partial).
     TileMarks(int width, int height, int tile)
-        : tile_(tile), tiles_w_((width + tile - 1) / tile), tiles_h_((height + tile - 1) / tile),
-          box_(static_cast<std::size_t>(tiles_w_) * static_cast<std::size_t>(tiles_h_), Eigen::Vector4i(width, height, -1, -1)) {}
+        : tile_(tile), tiles_w_((width + tile - 1) / tile),
+          box_(static_cast<std::size_t>(tiles_w_) * static_cast<std::size_t>((height + tile - 1) / tile), Eigen::Vector4i(width, height, -1, -1)) {}
 
     // Marks texels r = (i0, j0, i1, j1), inclusive, within the layout: every tile they meet, its
     // box grown to hold them.
@@ -31,14 +31,13 @@ public:
             }
         }
     }
-    int tilesWide() const noexcept { return tiles_w_; }
     std::size_t tiles() const noexcept { return box_.size(); }
     bool marked(std::size_t tile) const { return box_[tile][0] <= box_[tile][2]; }
     // The box (i0, j0, i1, j1) of the texels marked in tile `tile` (row-major); empty: i0 > i1.
     const Eigen::Vector4i& box(std::size_t tile) const { return box_[tile]; }
 
 private:
-    int tile_, tiles_w_, tiles_h_;
+    int tile_, tiles_w_;
     std::vector<Eigen::Vector4i> box_;
 };
 
