@@ -120,6 +120,10 @@ public:
                             double max_distance = 1e30) const;
     RayHit intersectAll(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
                         double max_distance = 1e30) const;
+    // intersectReal(origin, directions[k], max_distance) for k < count, written to out[k], traced
+    // as Embree packets of 8 rays (the rays of a probe: one origin, many directions).
+    void intersectRealMany(const Eigen::Vector3d& origin, const Eigen::Vector3d* directions, int count, RayHit* out,
+                           double max_distance = 1e30) const;
     // Same as intersectVirtual but ignoring one virtual object (rays leaving it, for its probes).
     RayHit intersectVirtualExcept(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, int excluded,
                                   double max_distance = 1e30) const;

@@ -556,8 +556,12 @@ ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3
     for (auto& c : dir) c.setZero();
     // Step 1: radiance from every direction (surfaces and the environment's residual).
     const double d_omega = 4.0 * kPi / static_cast<double>(dirs.size());
-    for (const Eigen::Vector3d& w : dirs) {
-        const RayHit real = rays.intersectReal(p, w);
+    // The real hits first, in packets (the same hits as one ray at a time).
+    std::vector<RayHit> real_hits(dirs.size());
+    rays.intersectRealMany(p, dirs.data(), static_cast<int>(dirs.size()), real_hits.data());
+    for (std::size_t di = 0; di < dirs.size(); ++di) {
+        const Eigen::Vector3d& w = dirs[di];
+        const RayHit& real = real_hits[di];
         const RayHit other = other_objects ? rays.intersectVirtualExcept(p, w, object) : RayHit{};
         Eigen::Vector3d l = Eigen::Vector3d::Zero();
         if (other.kind == HitKind::kVirtual && (real.kind == HitKind::kNone || other.distance < real.distance)) {

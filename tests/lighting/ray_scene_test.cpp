@@ -245,8 +245,8 @@ TEST(RayScene, VirtualSetKeepsTheAnswerWithManyObjects) {
 // Real rays as packets (occludedRealMany()) give occludedReal()'s answers: segments between the
 // faces of a closed box room with a lamp in its ceiling and a pillar, grazing ones along the walls,
 // ones ending on the lamp, short ones, in batches of 1 to 16.
-TEST(RayScene, RealPacketsKeepTheAnswer) {
-    std::vector<Face> faces;
+// A 3 x 2 x 2.5 m room (inward normals), a 0.4 m pillar in it and a ceiling lamp.
+void pillarRoom(std::vector<Face>& faces, LightGeometry& lamp) {
     const auto face = [&](Eigen::Vector3d o, Eigen::Vector3d es, Eigen::Vector3d et) {
         Face f;
         f.origin = o;
@@ -256,7 +256,6 @@ TEST(RayScene, RealPacketsKeepTheAnswer) {
         f.area = es.cross(et).norm();
         faces.push_back(f);
     };
-    // A 3 x 2 x 2.5 m room (inward normals) and a 0.4 m pillar in it.
     face({0, 0, 0}, {0, 2, 0}, {3, 0, 0});
     face({0, 0, 2.5}, {3, 0, 0}, {0, 2, 0});
     face({0, 0, 0}, {3, 0, 0}, {0, 0, 2.5});
@@ -267,8 +266,13 @@ TEST(RayScene, RealPacketsKeepTheAnswer) {
     face({1.3, 1.2, 0}, {0, 0, 1.5}, {0.4, 0, 0});
     face({1.3, 0.8, 0}, {0, 0, 1.5}, {0, 0.4, 0});
     face({1.7, 0.8, 0}, {0, 0.4, 0}, {0, 0, 1.5});
-    LightGeometry lamp;
     lamp.polygon = {{1.2, 0.7, 2.5}, {1.8, 0.7, 2.5}, {1.8, 1.3, 2.5}, {1.2, 1.3, 2.5}};
+}
+
+TEST(RayScene, RealPacketsKeepTheAnswer) {
+    std::vector<Face> faces;
+    LightGeometry lamp;
+    pillarRoom(faces, lamp);
     auto built = RayScene::build(faces, {lamp}, {});
     ASSERT_TRUE(built) << built.error().message;
     const RayScene& rays = **built;
@@ -302,6 +306,48 @@ TEST(RayScene, RealPacketsKeepTheAnswer) {
     }
     EXPECT_GT(blocked, 300);
     EXPECT_GT(open, 300);
+}
+
+// intersectRealMany() (packets of 8, the probes' rays) gives each ray the hit intersectReal() gives
+// it: the same face or lamp and distance, for 1-20 rays from one point (a partial last packet),
+// from points in the room and on the pillar's side, some with a finite reach (misses).
+TEST(RayScene, RealHitsInPacketsEqualOneRayAtATime) {
+    std::vector<Face> faces;
+    LightGeometry lamp;
+    pillarRoom(faces, lamp);
+    auto built = RayScene::build(faces, {lamp}, {});
+    ASSERT_TRUE(built) << built.error().message;
+    const RayScene& rays = **built;
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::normal_distribution<double> g(0.0, 1.0);
+    int faces_hit = 0, lamp_hit = 0, missed = 0, pillar_hit = 0;
+    for (int probe = 0; probe < 400; ++probe) {
+        const int count = 1 + probe % 20;
+        const Eigen::Vector3d origin = probe % 5 == 0 ? Eigen::Vector3d(1.3 - 0.01 * u(rng), 0.8 + 0.4 * u(rng), 1.5 * u(rng))
+                                                      : Eigen::Vector3d(0.1 + 2.8 * u(rng), 0.1 + 1.8 * u(rng), 0.1 + 2.3 * u(rng));
+        const double reach = probe % 3 == 0 ? 0.5 + u(rng) : 1e30;
+        std::vector<Eigen::Vector3d> dirs;
+        for (int k = 0; k < count; ++k) dirs.push_back(Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized());
+        std::vector<RayHit> got(static_cast<std::size_t>(count));
+        rays.intersectRealMany(origin, dirs.data(), count, got.data(), reach);
+        for (int k = 0; k < count; ++k) {
+            const RayHit one = rays.intersectReal(origin, dirs[static_cast<std::size_t>(k)], reach);
+            const RayHit& many = got[static_cast<std::size_t>(k)];
+            ASSERT_EQ(many.kind, one.kind) << "probe " << probe << " ray " << k;
+            ASSERT_EQ(many.index, one.index) << "probe " << probe << " ray " << k;
+            ASSERT_EQ(many.primitive, one.primitive) << "probe " << probe << " ray " << k;
+            ASSERT_NEAR(many.distance, one.distance, 1e-6) << "probe " << probe << " ray " << k;
+            if (one.kind == HitKind::kRealFace) ++faces_hit;
+            if (one.kind == HitKind::kRealFace && one.index >= 6) ++pillar_hit;
+            if (one.kind == HitKind::kLight) ++lamp_hit;
+            if (one.kind == HitKind::kNone) ++missed;
+        }
+    }
+    EXPECT_GT(faces_hit, 1000);
+    EXPECT_GT(pillar_hit, 100);
+    EXPECT_GT(lamp_hit, 5);
+    EXPECT_GT(missed, 300);
 }
 
 // intersectVirtualExcept() skips a ray that misses every other object's ball: its answer is the
