@@ -3,6 +3,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <map>
 #include <numbers>
@@ -175,6 +176,45 @@ void Radiosity::measureExposure(int e) {
     const double lift = 4.0 * rays_->epsilon();
     const ElementGeometry g = geometry(e);
     const Face& f = faces_[static_cast<std::size_t>(el.face)];
+    // The grid's points below are convex combinations of the element's corners lifted like them.
+    // Where every other box has a plane with every lifted corner outside it, and every contact
+    // face it could touch has them all above it or all beyond its reach, no point is inside:
+    // fully exposed, as the grid would find, without it (most new leaves of a move lie far from
+    // any box). A corner within `margin` of a plane (rounding) leaves the answer to the grid.
+    const Eigen::Vector3d up = lift * g.normal;
+    const std::array<Eigen::Vector3d, 4> corners = {g.corner + up, g.corner + g.edge_s + up, g.corner + g.edge_t + up,
+                                                    g.corner + g.edge_s + g.edge_t + up};
+    const std::size_t corner_count = g.triangle ? 3 : 4;
+    constexpr double margin = 1e-9;
+    const auto clear = [&] {
+        for (const BoxPlanes& b : boxes_) {
+            if (b.object == f.object_index) continue;
+            bool separated = false;
+            for (std::size_t i = 0; i < 6 && !separated; ++i) {
+                separated = true;
+                for (std::size_t k = 0; k < corner_count && separated; ++k) {
+                    separated = (corners[k] - b.origin[i]).dot(b.normal[i]) >= margin;
+                }
+            }
+            if (!separated) return false;
+        }
+        const double contact = 8.0 * rays_->epsilon();
+        for (const ContactFace& c : contact_faces_) {
+            if (c.object == f.object_index || g.normal.dot(c.normal) > -0.9) continue;
+            bool above = true, beyond = true;
+            for (std::size_t k = 0; k < corner_count; ++k) {
+                const double height = (corners[k] - c.origin).dot(c.normal);
+                above = above && height > margin;
+                beyond = beyond && height < -contact - margin;
+            }
+            if (!above && !beyond) return false;
+        }
+        return true;
+    };
+    if (clear()) {
+        hierarchy_.setExposed(e, 1.0f);
+        return;
+    }
     // An 8 x 8 grid of probes: a small box resting inside the element (books on a desk) is
     // caught, not only one across its corners. A leaf partly inside is not split along the
     // box's outline: its light is that of its exposed part (hidden(), exposedRule()), which

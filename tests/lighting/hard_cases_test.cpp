@@ -126,6 +126,70 @@ lights:
     EXPECT_NEAR(top, floor_direct, 0.02 * floor_direct);
 }
 
+// Every real leaf's exposure is the share of its 8 x 8 grid of points (lifted 4 epsilon off it)
+// outside the other boxes (or pressed against the floor), counted here from the boxes' sizes: a
+// box on a table, a book sunk
+// into the table's corner and hanging over its edges (partly exposed top and sides), and leaves
+// far from any box (the exposure's shortcut for them must agree with the grid).
+TEST(HardCases, ExposureIsTheGridsShareOutsideTheOtherBoxes) {
+    const Scene scene = parse(R"(
+real:
+  - {name: table, box: {size: [1.2, 0.8, 0.75]}, world_from_object: {t: [0, 0, 0.375]}, albedo: [0.5, 0.4, 0.3]}
+  - {name: box, box: {size: [0.2, 0.2, 0.2]}, world_from_object: {t: [0, 0, 0.85]}, albedo: [0.7, 0.3, 0.2]}
+  - {name: book, box: {size: [0.3, 0.2, 0.1]}, world_from_object: {t: [0.55, 0.35, 0.76]}, albedo: [0.2, 0.3, 0.6]}
+  - {name: floor, plane: {size: [4, 4]}, albedo: [0.5, 0.5, 0.5]}
+lights:
+  - {name: panel, area: {size: [0.4, 0.4]}, world_from_object: {t: [0, 0, 2.2], rpy_deg: [180, 0, 0]}, radiance: [20, 20, 20]}
+)");
+    EstimatorOptions options;
+    options.refine_unobserved = true;
+    auto est = Estimator::create(scene, camera(64, 48), {}, options);
+    ASSERT_TRUE(est);
+    ASSERT_TRUE((*est)->solveWith(emissionsOf(scene), albedosOf(scene), {}));
+    const Radiosity& rad = (*est)->radiosity();
+    struct Box {
+        int object;
+        Eigen::Vector3d centre, half;
+    };
+    const std::vector<Box> boxes = {{0, {0, 0, 0.375}, {0.6, 0.4, 0.375}},
+                                    {1, {0, 0, 0.85}, {0.1, 0.1, 0.1}},
+                                    {2, {0.55, 0.35, 0.76}, {0.15, 0.1, 0.05}}};
+    const double lift = 4.0 * rad.rays().epsilon();
+    int partly = 0, whole = 0, none = 0;
+    for (std::size_t k = 0; k < rad.hierarchy().elements().size(); ++k) {
+        const int e = static_cast<int>(k);
+        if (!rad.hierarchy()[e].leaf() || rad.hierarchy()[e].face >= static_cast<int>(rad.realFaceCount())) continue;
+        const ElementGeometry g = rad.geometry(e);
+        const int object = rad.face(rad.hierarchy()[e].face).object_index;
+        int inside = 0, points = 0;
+        for (int j = 0; j < 8; ++j) {
+            for (int i = 0; i < 8; ++i) {
+                const double a = (i + 0.5) / 8.0, b = (j + 0.5) / 8.0;
+                if (g.triangle && a + b > 1.0) continue;
+                const Eigen::Vector3d x = g.corner + a * g.edge_s + b * g.edge_t + lift * g.normal;
+                ++points;
+                // Pressed against the floor (the table's bottom): just behind the floor's plane.
+                if (object != 3 && g.normal.z() < -0.9 && x.z() <= 0.0 && x.z() >= -2.0 * lift) {
+                    ++inside;
+                    continue;
+                }
+                for (const Box& box : boxes) {
+                    if (box.object != object && ((x - box.centre).cwiseAbs() - box.half).maxCoeff() < 0.0) {
+                        ++inside;
+                        break;
+                    }
+                }
+            }
+        }
+        const double expected = static_cast<double>(points - inside) / points;
+        EXPECT_NEAR(rad.exposure(e), expected, 1e-6) << "leaf " << e << " at " << g.centroid.transpose();
+        (inside == 0 ? whole : (inside == points ? none : partly))++;
+    }
+    EXPECT_GT(partly, 10);
+    EXPECT_GT(none, 5);
+    EXPECT_GT(whole, 100);
+}
+
 // A box resting on a table (touching, coplanar faces): the box's bottom and the table under it
 // are buried (no light leaks in), and the table right beside the box is lit as if the box's
 // ray offsets were not there (no self-shadowing: visible fraction 1 towards a light above).
