@@ -3,6 +3,7 @@
 
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
+#include <tbb/parallel_reduce.h>
 #if defined(__SANITIZE_THREAD__)
 #include <tbb/global_control.h>
 #endif
@@ -217,7 +218,8 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     with_.summary.iterations = stats_.influence.rounds;
     with_.summary.residual = stats_.influence.residual;
     with_.summary.converged = stats_.influence.residual <= options_.influence.residual;
-    with_.summary.elements = static_cast<int>(rad.leaves(Mode::kAll).size());
+    with_.summary.elements = static_cast<int>(std::count_if(rad.hierarchy().elements().begin(), rad.hierarchy().elements().end(),
+                                                            [](const Element& el) { return el.leaf() && !el.buried; }));
     with_.summary.links = rad.linkCount(Mode::kReal) + stats_.influence.corrections + stats_.influence.cluster_links;
     ScopedMs snapshot_timer(stats_.ms_snapshot);
     LightingSnapshot snapshot = d.last;
@@ -252,18 +254,27 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
         } else {
             d.texels->forget(inf.movedBalls());
         }
+        // Per element, in parallel (each element its own sums; the largest is a maximum, the same
+        // in any order).
         const std::size_t n = rad.hierarchy().elements().size();
-        area_without.assign(n, Eigen::Vector3d::Zero());
-        area_with.assign(n, Eigen::Vector3d::Zero());
-        double largest = 0.0;
-        for (std::size_t e = 0; e < n; ++e) {
-            for (std::size_t k = 0; k < d.sources.size(); ++k) {
-                const auto& col = d.sources[k].column.real;
-                if (e < col.size()) area_without[e] += static_cast<double>(col[e]) * d.probe_lights[k].emission;
-            }
-            area_with[e] = area_without[e] + inf.leafInfo(static_cast<int>(e)).direct;
-            largest = std::max(largest, area_without[e].maxCoeff());
-        }
+        area_without.resize(n);
+        area_with.resize(n);
+        const double largest = tbb::parallel_reduce(
+            tbb::blocked_range<std::size_t>(0, n, 1024), 0.0,
+            [&](const tbb::blocked_range<std::size_t>& r, double top) {
+                for (std::size_t e = r.begin(); e < r.end(); ++e) {
+                    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+                    for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                        const auto& col = d.sources[k].column.real;
+                        if (e < col.size()) sum += static_cast<double>(col[e]) * d.probe_lights[k].emission;
+                    }
+                    area_without[e] = sum;
+                    area_with[e] = sum + inf.leafDirect(static_cast<int>(e));
+                    top = std::max(top, sum.maxCoeff());
+                }
+                return top;
+            },
+            [](double a, double b) { return std::max(a, b); });
         TexelDirect td;
         td.without = &area_without;
         td.with = &area_with;

@@ -56,6 +56,12 @@ VirtualInfluence::LeafInfo VirtualInfluence::leafInfo(int leaf) const {
     return out;
 }
 
+Eigen::Vector3d VirtualInfluence::leafDirect(int leaf) const {
+    const auto i = static_cast<std::size_t>(leaf);
+    if (i >= impl_->has_terms.size() || !impl_->has_terms[i]) return Eigen::Vector3d::Zero();
+    return impl_->terms[i].direct;
+}
+
 std::vector<Ball> VirtualInfluence::objectBalls() const {
     std::vector<Ball> out;
     for (const ObjectState& o : impl_->objects) {

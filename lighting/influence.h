@@ -220,6 +220,8 @@ public:
         double correction_sum = 0.0;
     };
     LeafInfo leafInfo(int leaf) const;
+    // leafInfo(leaf).direct alone (the textures ask it of every element at every update).
+    Eigen::Vector3d leafDirect(int leaf) const;
     // Each present virtual object's bounding ball, world.
     std::vector<Ball> objectBalls() const;
     // The last update's moves: the old and new bounds of the objects whose pose or presence changed.

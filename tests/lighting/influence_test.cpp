@@ -45,6 +45,14 @@ void expectRandomMovesEqualFresh(const Scene& scene, const EstimatorOptions& opt
         EXPECT_FALSE(inc->stats().full) << "step " << step << ": moves alone update incrementally";
         // The propagation leaves no unshot difference above its bound (every element past it shot).
         EXPECT_LE(inc->stats().influence.residual, inc->influence().options().residual) << "step " << step;
+        // The textures' accessor of the direct light: leafInfo()'s, for every element.
+        int lit = 0;
+        for (std::size_t e = 0; e < inc->radiosity().hierarchy().elements().size(); ++e) {
+            const Eigen::Vector3d direct = inc->influence().leafInfo(static_cast<int>(e)).direct;
+            ASSERT_EQ(inc->influence().leafDirect(static_cast<int>(e)), direct) << "step " << step << " element " << e;
+            lit += direct.isZero() ? 0 : 1;
+        }
+        EXPECT_GT(lit, 0) << "step " << step;
         if (step % 4 == 3) expectEqualsFresh(*inc, *fresh, config, "step " + std::to_string(step));
     }
 }
