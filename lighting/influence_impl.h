@@ -98,6 +98,18 @@ struct LinkPoints {
     std::vector<Pair> pairs;
     Eigen::Vector3d centre = Eigen::Vector3d::Zero();  // the rays' ball
     double radius = 0.0;
+    // The pairs the objects `kept_objects` (virtual bits: objects near the rays that did not move
+    // at the latest commit) block, bit i for pairs[i], kept at RayScene::virtualStamp() `kept_at`:
+    // while none of those objects changes, a re-answer traces the other objects' rays alone
+    // (transmissionToSource(); this element's thread only, as its RealMask).
+    mutable std::uint64_t kept_blocked = 0;
+    mutable std::uint64_t kept_at = 0;
+    mutable std::uint32_t kept_objects = 0;
+    // Whether the kept answers hold for the near objects `still`: kept for those very objects, and
+    // none of them changed since (a change the link was not re-answered at counts too).
+    bool keptHold(std::uint32_t still, const RayScene& rays) const {
+        return kept_objects == still && (still == 0u || (rays.virtualChangedSince(kept_at) & still) == 0u);
+    }
 };
 
 struct RealMask {

@@ -194,18 +194,42 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         // order, the virtual rays alone traced again.
         const LinkPoints& lp = *m.points;
         const std::uint32_t near = objectsNear(rays, lp, mask_bits);
-        // (The near objects gathered once for all the pairs: RayScene::VirtualSet.)
-        const VirtualSet set = rays.virtualSet(near);
+        // A pair is blocked when one of the near objects blocks it (each object's answer its own).
+        // The answers of the near objects that did not move at the latest commit (`still`) are
+        // kept (LinkPoints::kept_blocked) and used while none of them changes: then only the
+        // other objects' rays are traced, and none for a pair the kept ones block. Kept for other
+        // objects (one moved since, or left or joined the still ones): made again.
+        const std::uint32_t still = near & ~rays.virtualChangedLast();
+        const bool reuse = lp.keptHold(still, rays);
+        const std::uint32_t traced = near & ~still;
+        // (The objects gathered once for all the pairs: RayScene::VirtualSet.)
+        const VirtualSet set = rays.virtualSet(traced);
+        const VirtualSet still_set = reuse ? VirtualSet{} : rays.virtualSet(still);
+        std::uint64_t kept_blocked = reuse ? lp.kept_blocked : 0;
         double open_real = 0.0, open_all = 0.0;
         bool any_blocked = false, any_open = false;
-        for (const LinkPoints::Pair& p : lp.pairs) {
+        for (std::size_t i = 0; i < lp.pairs.size(); ++i) {
+            const LinkPoints::Pair& p = lp.pairs[i];
             open_real += p.w;
-            if (near != 0u && rays.occludedVirtual(p.ray, set)) {
+            bool blocked;
+            if (reuse) {
+                blocked = ((kept_blocked >> i) & 1u) != 0;
+            } else {
+                blocked = still != 0u && rays.occludedVirtual(p.ray, still_set);
+                if (blocked) kept_blocked |= std::uint64_t{1} << i;
+            }
+            if (!blocked) blocked = traced != 0u && rays.occludedVirtual(p.ray, set);
+            if (blocked) {
                 any_blocked = true;
             } else {
                 any_open = true;
                 open_all += p.w;
             }
+        }
+        if (!reuse) {
+            lp.kept_blocked = kept_blocked;
+            lp.kept_objects = still;
+            lp.kept_at = rays.virtualStamp();
         }
         mixed = any_blocked && any_open;
         return open_real > 0.0 ? open_all / open_real : 1.0;

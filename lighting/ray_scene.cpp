@@ -3,6 +3,7 @@
 #include <embree3/rtcore.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <mutex>
 #include <string>
@@ -30,6 +31,12 @@ struct EmbreeErrors {
         return fail(ErrorCode::kInternal, std::string(step) + ": " + first);
     }
 };
+
+// Stamps of the virtual objects' changes: one process-wide counter, so that no two commits of any
+// two scenes share a stamp (an answer kept against one scene is never taken for another's).
+std::atomic<std::uint64_t> g_virtual_stamp{0};
+
+std::uint64_t nextVirtualStamp() { return g_virtual_stamp.fetch_add(1, std::memory_order_relaxed) + 1; }
 
 constexpr unsigned kFacesGeometry = 0;  // geometry ids inside the real scene
 constexpr unsigned kLightsGeometry = 1;
@@ -118,6 +125,12 @@ struct RayScene::Impl {
     std::vector<Eigen::Vector3d> pending_mesh_centre; // world, at the next commit
     std::vector<Eigen::Vector3d> mesh_centre;         // committed (world)
     std::vector<std::uint32_t> mesh_bit;              // committed: virtualBit(v) of an enabled mesh, else 0
+    // Change stamps (virtualStamp()): the latest commit that changed an object, each object's last
+    // change (pose or presence; the build counts as one) and the bits of the objects that latest
+    // commit changed.
+    std::uint64_t stamp = 0;
+    std::vector<std::uint64_t> changed_at;  // by virtual index
+    std::uint32_t changed_last = 0;
 
     void updateCommitted() {
         mesh_bits = 0;
@@ -423,6 +436,10 @@ Result<std::unique_ptr<RayScene>> RayScene::build(const std::vector<Face>& real_
     impl->mesh_centre_object.resize(virtual_shapes.size(), Eigen::Vector3d::Zero());
     impl->mesh_radius.resize(virtual_shapes.size(), 0.0);
     impl->pending_mesh_centre = impl->mesh_centre_object;
+    impl->stamp = nextVirtualStamp();
+    impl->changed_at.assign(virtual_shapes.size(), impl->stamp);
+    impl->changed_last = 0;
+    for (std::size_t v = 0; v < virtual_shapes.size(); ++v) impl->changed_last |= virtualBit(static_cast<int>(v));
     impl->mesh_centre = impl->mesh_centre_object;
     impl->mesh_bit.assign(virtual_shapes.size(), 0u);
     impl->updateCommitted();
@@ -471,8 +488,10 @@ void RayScene::setVirtualEnabled(int index, bool enabled) {
 
 Result<void> RayScene::commitVirtual() {
     bool any = false;
+    std::vector<bool> changed(impl_->enabled.size(), false);
     for (std::size_t i = 0; i < impl_->enabled.size(); ++i) {
         if (!impl_->enabled_dirty[i]) continue;
+        changed[i] = true;
         for (RTCGeometry inst : {impl_->virtual_instances[i], impl_->all_virtual_instances[i]}) {
             if (impl_->enabled[i]) {
                 rtcEnableGeometry(inst);
@@ -485,6 +504,7 @@ Result<void> RayScene::commitVirtual() {
     }
     for (std::size_t i = 0; i < impl_->pending_poses.size(); ++i) {
         if (!impl_->pose_dirty[i]) continue;
+        changed[i] = true;
         for (RTCGeometry inst : {impl_->virtual_instances[i], impl_->all_virtual_instances[i]}) {
             rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT4X4_COLUMN_MAJOR, impl_->pending_poses[i].data());
             rtcCommitGeometry(inst);
@@ -498,9 +518,28 @@ Result<void> RayScene::commitVirtual() {
     if (any) {
         rtcCommitScene(impl_->virtual_top);
         rtcCommitScene(impl_->all_top);
+        impl_->stamp = nextVirtualStamp();
+        impl_->changed_last = 0;
+        for (std::size_t i = 0; i < changed.size(); ++i) {
+            if (!changed[i]) continue;
+            impl_->changed_at[i] = impl_->stamp;
+            impl_->changed_last |= virtualBit(static_cast<int>(i));
+        }
     }
     return impl_->errors.check("lighting: moving the virtual objects");
 }
+
+std::uint64_t RayScene::virtualStamp() const noexcept { return impl_->stamp; }
+
+std::uint32_t RayScene::virtualChangedSince(std::uint64_t stamp) const {
+    std::uint32_t bits = 0;
+    for (std::size_t v = 0; v < impl_->changed_at.size(); ++v) {
+        if (impl_->changed_at[v] > stamp) bits |= virtualBit(static_cast<int>(v));
+    }
+    return bits;
+}
+
+std::uint32_t RayScene::virtualChangedLast() const noexcept { return impl_->changed_last; }
 
 namespace {
 

@@ -128,6 +128,18 @@ public:
     RayHit intersectVirtualExcept(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, int excluded,
                                   double max_distance = 1e30) const;
 
+    // Change stamps, for answers kept while the virtual objects move: virtualStamp() is the stamp
+    // of the latest commitVirtual() that changed an object's pose or presence (or of build());
+    // stamps only grow (one process-wide counter: no two commits share one). virtualChangedSince(t):
+    // the bits of this scene's objects changed at a later commit than stamp t (every object for
+    // t = 0 or a t from before this scene's build). virtualChangedLast(): the bits of the objects
+    // the latest such commit changed (every object right after build()). An object's answers
+    // against a segment kept at this scene's stamp t hold while its bit is not in
+    // virtualChangedSince(t).
+    std::uint64_t virtualStamp() const noexcept;
+    std::uint32_t virtualChangedSince(std::uint64_t stamp) const;
+    std::uint32_t virtualChangedLast() const noexcept;
+
     // Lift of ray origins and shortening of segments, metres: 1e-5 x the real scene's extent, at
     // least 10 um.
     double epsilon() const noexcept { return epsilon_; }

@@ -3,7 +3,8 @@
 // it (still traced by Embree), masks, a disabled object and a moved one; a mesh traced only where a
 // segment meets its bounding ball, with Embree's answer; intersectVirtualExcept()'s ball test; a prepared
 // segment's answer (prepareSegment()) against the plain one, also with the objects gathered once
-// (virtualSet()), for few objects and for more than VirtualSet::kMax.
+// (virtualSet()), for few objects and for more than VirtualSet::kMax; the change stamps of the
+// objects (virtualChangedSince()).
 #include "lighting/ray_scene.h"
 
 #include <gtest/gtest.h>
@@ -453,6 +454,59 @@ TEST(RayScene, MeshBoundingBallKeepsEmbreesAnswer) {
         const Eigen::Vector3d away = q * Eigen::Vector3d::UnitZ();
         EXPECT_FALSE(rays.occludedVirtual(centre + away - side, Eigen::Vector3d::Zero(), centre + away + side, Eigen::Vector3d::Zero(), bit));
     }
+}
+
+
+// The change stamps (virtualStamp(), virtualChangedSince(), virtualChangedLast()): answers kept
+// against an object hold until its pose or presence changes. After build() every object counts
+// as changed; a commit marks the moved, removed and brought-back objects alone; a commit with
+// nothing pending keeps the stamp; a second scene's stamps are all later.
+TEST(RayScene, ChangeStampsMarkTheChangedObjectsAlone) {
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.3;
+    auto built = RayScene::build(floorFace(), {}, {sphere, cube(), cube()});
+    ASSERT_TRUE(built) << built.error().message;
+    RayScene& rays = **built;
+    const std::uint32_t b0 = RayScene::virtualBit(0), b1 = RayScene::virtualBit(1), b2 = RayScene::virtualBit(2);
+    EXPECT_EQ(rays.virtualChangedLast(), b0 | b1 | b2);
+    EXPECT_EQ(rays.virtualChangedSince(0), b0 | b1 | b2);
+    const std::uint64_t s0 = rays.virtualStamp();
+    EXPECT_EQ(rays.virtualChangedSince(s0), 0u);
+    const auto move = [&](int v, double x) { rays.setVirtualPose(v, Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, 0, 0))); };
+    // The sphere moves: it alone.
+    move(0, 1.0);
+    ASSERT_TRUE(rays.commitVirtual());
+    const std::uint64_t s1 = rays.virtualStamp();
+    EXPECT_GT(s1, s0);
+    EXPECT_EQ(rays.virtualChangedLast(), b0);
+    EXPECT_EQ(rays.virtualChangedSince(s0), b0);
+    EXPECT_EQ(rays.virtualChangedSince(s1), 0u);
+    // Nothing pending: the same stamp and the same last change.
+    ASSERT_TRUE(rays.commitVirtual());
+    EXPECT_EQ(rays.virtualStamp(), s1);
+    EXPECT_EQ(rays.virtualChangedLast(), b0);
+    // A cube removed (presence), then brought back, then the other cube moved.
+    rays.setVirtualEnabled(1, false);
+    ASSERT_TRUE(rays.commitVirtual());
+    const std::uint64_t s2 = rays.virtualStamp();
+    EXPECT_GT(s2, s1);
+    EXPECT_EQ(rays.virtualChangedLast(), b1);
+    EXPECT_EQ(rays.virtualChangedSince(s1), b1);
+    EXPECT_EQ(rays.virtualChangedSince(s0), b0 | b1);
+    rays.setVirtualEnabled(1, true);
+    ASSERT_TRUE(rays.commitVirtual());
+    EXPECT_EQ(rays.virtualChangedLast(), b1);
+    EXPECT_EQ(rays.virtualChangedSince(s2), b1);
+    move(2, -1.0);
+    ASSERT_TRUE(rays.commitVirtual());
+    EXPECT_EQ(rays.virtualChangedLast(), b2);
+    EXPECT_EQ(rays.virtualChangedSince(s2), b1 | b2);
+    EXPECT_EQ(rays.virtualChangedSince(s1), b1 | b2);
+    // Another scene: stamps later than all of this one's.
+    auto other = RayScene::build(floorFace(), {}, {sphere});
+    ASSERT_TRUE(other) << other.error().message;
+    EXPECT_GT((*other)->virtualStamp(), rays.virtualStamp());
+    EXPECT_EQ((*other)->virtualChangedSince(rays.virtualStamp()), b0);
 }
 
 }  // namespace
