@@ -6,6 +6,7 @@
 #include <cmath>
 #include <numbers>
 #include <optional>
+#include <utility>
 
 #include "lighting/form_factor.h"
 #include "lighting/sampling.h"
@@ -30,32 +31,54 @@ void TexelDirectCache::reset(std::vector<Light> lights, std::vector<Face> faces)
 
 void TexelDirectCache::forget(const std::vector<Ball>& moved) {
     if (moved.empty()) return;
-    // The cone from a ball around `x` of radius `r` to a ball holding light k's polygon (it holds
-    // every shaft from a point of the first ball to the light).
-    const auto reached = [&](const Eigen::Vector3d& x, double r) {
-        for (std::size_t k = 0; k < lights_.size(); ++k) {
+    // The (light, moved ball) pairs whose cone from a ball around `x` of radius `r` to a ball
+    // holding light k's polygon (it holds every shaft from a point of the first ball to the
+    // light) meets the moved ball, of the pairs `from`, into `to`. A smaller ball inside the first
+    // has a cone inside its cone: a face's pairs are tested for its tiles, a tile's for its
+    // texels (only those: most of a face is far from a move, and most pairs miss a tile).
+    using Pairs = std::vector<std::pair<std::uint32_t, std::uint32_t>>;
+    const auto reached = [&](const Eigen::Vector3d& x, double r, const Pairs& from, Pairs& to) {
+        to.clear();
+        for (const auto& [k, b] : from) {
             const Shaft shaft{x, lights_[k].polygon->centre, r, light_radius_[k]};
-            if (std::any_of(moved.begin(), moved.end(), [&](const Ball& b) { return shaftMeetsBall(shaft, b); })) return true;
+            if (shaftMeetsBall(shaft, moved[b])) to.emplace_back(k, b);
         }
-        return false;
+        return !to.empty();
+    };
+    const auto any = [&](const Eigen::Vector3d& x, const Pairs& from) {
+        return std::any_of(from.begin(), from.end(), [&](const auto& kb) {
+            return shaftMeetsBall(Shaft{x, lights_[kb.first].polygon->centre, 0.0, light_radius_[kb.first]}, moved[kb.second]);
+        });
+    };
+    Pairs every, of_face, of_tile;
+    for (std::uint32_t k = 0; k < lights_.size(); ++k) {
+        for (std::uint32_t b = 0; b < moved.size(); ++b) every.emplace_back(k, b);
+    }
+    // The ball around the part [s0, s1] x [t0, t1] of face g (it holds its texels' points).
+    const auto ballOf = [](const lighting::Face& g, double s0, double s1, double t0, double t1, double& radius) {
+        const Eigen::Vector3d ds = (s1 - s0) * g.edge_s, dt = (t1 - t0) * g.edge_t;
+        radius = 0.5 * std::max((ds + dt).norm(), (ds - dt).norm()) * (1.0 + 1e-9) + 1e-12;
+        return g.point(0.5 * (s0 + s1), 0.5 * (t0 + t1));
     };
     constexpr int kTile = 16;
     for (FaceState& f : faces_) {
         if (f.entries.empty()) continue;
         const lighting::Face& g = f.geometry;
+        double face_radius = 0.0;
+        const Eigen::Vector3d face_centre = ballOf(g, 0.0, 1.0, 0.0, 1.0, face_radius);
+        if (!reached(face_centre, face_radius, every, of_face)) continue;
         for (int tj = 0; tj < f.height; tj += kTile) {
             for (int ti = 0; ti < f.width; ti += kTile) {
-                // The ball around the tile's part of the face (it holds its texels' points) first.
                 const double s0 = static_cast<double>(ti) / f.width, s1 = static_cast<double>(std::min(f.width, ti + kTile)) / f.width;
                 const double t0 = static_cast<double>(tj) / f.height, t1 = static_cast<double>(std::min(f.height, tj + kTile)) / f.height;
-                const Eigen::Vector3d ds = (s1 - s0) * g.edge_s, dt = (t1 - t0) * g.edge_t;
-                const double radius = 0.5 * std::max((ds + dt).norm(), (ds - dt).norm()) * (1.0 + 1e-9) + 1e-12;
-                if (!reached(g.point(0.5 * (s0 + s1), 0.5 * (t0 + t1)), radius)) continue;
+                double radius = 0.0;
+                const Eigen::Vector3d centre = ballOf(g, s0, s1, t0, t1, radius);
+                if (!reached(centre, radius, of_face, of_tile)) continue;
                 for (int j = tj; j < std::min(f.height, tj + kTile); ++j) {
                     for (int i = ti; i < std::min(f.width, ti + kTile); ++i) {
                         const std::size_t k = static_cast<std::size_t>(j) * static_cast<std::size_t>(f.width) + static_cast<std::size_t>(i);
                         Entry& e = f.entries[k];
-                        if (!e.valid || !reached(e.x, 0.0)) continue;
+                        if (!e.valid || !any(e.x, of_tile)) continue;
                         e.valid = false;
                         if (!f.all_gone) f.gone.push_back(static_cast<std::uint32_t>(k));
                     }

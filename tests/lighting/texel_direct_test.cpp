@@ -327,9 +327,10 @@ TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
     auto rays = RayScene::build({floor}, {}, {});
     ASSERT_TRUE(rays) << rays.error().message;
     const LightGeometry lamp = squareLamp({0.05, 0.0, 0.8}, 0.12);
+    const LightGeometry lamp2 = squareLamp({-0.4, 0.3, 0.9}, 0.2);  // (forget() keeps the pairs of light and ball that reach a tile)
     constexpr int kSide = 50;  // (not a multiple of the tiles' 16: partial tiles at two edges)
     TexelDirectCache cache(**rays, 4);
-    cache.reset({{&lamp, Eigen::Vector3d::Constant(100.0)}}, {floor});
+    cache.reset({{&lamp, Eigen::Vector3d::Constant(100.0)}, {&lamp2, Eigen::Vector3d::Constant(50.0)}}, {floor});
     std::vector<Eigen::Vector3d> points;
     const auto traceAll = [&] {
         for (int k = 0; k < kSide * kSide; ++k) {
@@ -343,20 +344,28 @@ TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
     traceAll();
     std::vector<std::uint32_t> list;
     EXPECT_FALSE(cache.takeForgotten(0, list)) << "after reset(): any";
-    double radius = 0.0;
+    double radius = 0.0, radius2 = 0.0;
     for (const Eigen::Vector3d& c : lamp.polygon) radius = std::max(radius, (c - lamp.centre).norm());
+    for (const Eigen::Vector3d& c : lamp2.polygon) radius2 = std::max(radius2, (c - lamp2.centre).norm());
     std::mt19937 rng(3);
     std::uniform_real_distribution<double> u(-0.7, 0.7), h(0.02, 0.7), r(0.005, 0.1);
     long listed_total = 0;
     for (int move = 0; move < 40; ++move) {
         const Ball ball{{u(rng), u(rng), h(rng)}, r(rng)};
-        cache.forget({ball});
+        // Every other move a second ball, far off the floor's side or anywhere (the moved balls
+        // reaching a face, and of those each tile, are not all of them).
+        const std::vector<Ball> balls = move % 2 == 0 ? std::vector<Ball>{ball} : std::vector<Ball>{Ball{{u(rng) + (move % 4 == 1 ? 5.0 : 0.0), u(rng), h(rng)}, r(rng)}, ball};
+        cache.forget(balls);
         list.clear();
         ASSERT_TRUE(cache.takeForgotten(0, list));
         std::sort(list.begin(), list.end());
         std::vector<std::uint32_t> expected;
         for (std::size_t k = 0; k < points.size(); ++k) {
-            if (shaftMeetsBall(Shaft{points[k], lamp.centre, 0.0, radius}, ball)) expected.push_back(static_cast<std::uint32_t>(k));
+            bool met = false;
+            for (const Ball& b : balls) {
+                met = met || shaftMeetsBall(Shaft{points[k], lamp.centre, 0.0, radius}, b) || shaftMeetsBall(Shaft{points[k], lamp2.centre, 0.0, radius2}, b);
+            }
+            if (met) expected.push_back(static_cast<std::uint32_t>(k));
             EXPECT_EQ(cache.kept(0, k), !std::binary_search(list.begin(), list.end(), static_cast<std::uint32_t>(k))) << "texel " << k;
         }
         ASSERT_EQ(list, expected) << "move " << move;
