@@ -6,9 +6,8 @@ namespace commonlight::tracking {
 
 namespace {
 
-// The Jacobian at a point in front of the camera whose pixel is known.
-inline ProjectionWithJacobian withJacobian(const CameraModel& camera, const Eigen::Vector3d& p,
-                                           const Eigen::Vector2d& pixel) {
+// d(pixel)/d(p) at a point in front of the camera.
+inline Eigen::Matrix<double, 2, 3> pointJacobian(const CameraModel& camera, const Eigen::Vector3d& p) {
     const double inv_z = 1.0 / p.z();
     const Eigen::Vector2d xy(p.x() * inv_z, p.y() * inv_z);
     // d(xy)/d(p): the pinhole.
@@ -31,6 +30,12 @@ inline ProjectionWithJacobian withJacobian(const CameraModel& camera, const Eige
             cross, radial + 2.0 * y * y * dradial_dr2 + 6.0 * d.p1 * y + 2.0 * d.p2 * x;
     }
     const Eigen::Matrix2d d_pix_d_dist = Eigen::Vector2d(camera.fx, camera.fy).asDiagonal();
+    return d_pix_d_dist * d_dist * d_xy_d_p;
+}
+
+// The Jacobian at a point in front of the camera whose pixel is known.
+inline ProjectionWithJacobian withJacobian(const CameraModel& camera, const Eigen::Vector3d& p,
+                                           const Eigen::Vector2d& pixel) {
     // d(p)/d(xi) = [ -[p]x | I ].
     Eigen::Matrix<double, 3, 6> d_p_d_xi;
     d_p_d_xi << 0, p.z(), -p.y(), 1, 0, 0,  //
@@ -38,7 +43,7 @@ inline ProjectionWithJacobian withJacobian(const CameraModel& camera, const Eige
         p.y(), -p.x(), 0, 0, 0, 1;
     ProjectionWithJacobian out;
     out.pixel = pixel;
-    out.d_pixel_d_p = d_pix_d_dist * d_dist * d_xy_d_p;
+    out.d_pixel_d_p = pointJacobian(camera, p);
     out.d_pixel_d_xi = out.d_pixel_d_p * d_p_d_xi;
     return out;
 }
@@ -50,6 +55,11 @@ std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& cam
     const auto pixel = camera.project(p);
     if (!pixel) return std::nullopt;
     return withJacobian(camera, p, *pixel);
+}
+
+std::optional<Eigen::Matrix<double, 2, 3>> pixelJacobianOfPoint(const CameraModel& camera, const Eigen::Vector3d& p) {
+    if (!(p.z() > 1e-9) || !p.allFinite()) return std::nullopt;
+    return pointJacobian(camera, p);
 }
 
 std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p,

@@ -25,5 +25,9 @@ std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& cam
 // the projection is not repeated.
 std::optional<ProjectionWithJacobian> projectWithJacobian(const CameraModel& camera, const Eigen::Vector3d& p_in_cam,
                                                           const Eigen::Vector2d& pixel);
+// d_pixel_d_p alone, bit for bit projectWithJacobian's, without the projection itself (so without
+// its lens-model radius check): nullopt when the point is behind the camera or not finite. For a
+// test on the image's scale that may make the projection unnecessary (tag_align.cpp).
+std::optional<Eigen::Matrix<double, 2, 3>> pixelJacobianOfPoint(const CameraModel& camera, const Eigen::Vector3d& p_in_cam);
 
 }  // namespace commonlight::tracking

@@ -219,15 +219,19 @@ TagAlignResult alignTagPose(const ImageView& gray8, const CameraModel& camera, c
                 const Eigen::Vector2d q = e.a + t * (e.b - e.a);
                 const Eigen::Vector3d p_tag = Eigen::Vector3d(size * q.x(), size * q.y(), 0.0) + shift;
                 const Eigen::Vector3d p_cam = pose * p_tag;
+                // The clearance is tested before the projection: it needs only the boundary's
+                // length in the image, d_pixel_d_p (the projection's, bit for bit) times
+                // along_cam, and the points it drops (19 % on `wide`) skip the projection.
+                if (clear_corners && ((t < 0.5 && e.corner_a) || (t > 0.5 && e.corner_b))) {
+                    const auto d_pixel_d_p = pixelJacobianOfPoint(camera, p_cam);
+                    if (!d_pixel_d_p) continue;
+                    if (std::min(t, 1.0 - t) * (*d_pixel_d_p * along_cam).norm() < options.corner_clearance_px) continue;
+                }
                 const auto proj = projectWithJacobian(camera, p_cam);
                 if (!proj) continue;
                 // Image directions of the boundary and of its dark-to-bright normal: the tag's
                 // directions through the projection's Jacobian (one cell of the bright direction).
                 const Eigen::Vector2d along_px = proj->d_pixel_d_p * along_cam;
-                if (clear_corners && ((t < 0.5 && e.corner_a) || (t > 0.5 && e.corner_b)) &&
-                    std::min(t, 1.0 - t) * along_px.norm() < options.corner_clearance_px) {
-                    continue;
-                }
                 const Eigen::Vector2d along = along_px.normalized();
                 const Eigen::Vector2d bright_px = proj->d_pixel_d_p * bright_cam;
                 Eigen::Vector2d n(-along.y(), along.x());

@@ -20,3 +20,6 @@ commonlight_test(tracking tiny_tags_sequence SOURCES ${CMAKE_CURRENT_SOURCE_DIR}
 # The decimated detector on a window finds what it finds on the whole frame, at any window origin.
 commonlight_test(tracking detector_windows SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/detector_windows_test.cpp
                  DEPS commonlight::tracking commonlight_test_synthetic_tags)
+# The alignment's corner clearance, tested before the projection (tracking/tag_align.cpp).
+commonlight_test(tracking tag_align_clearance SOURCES ${CMAKE_CURRENT_SOURCE_DIR}/tag_align_clearance_test.cpp
+                 DEPS commonlight::tracking commonlight_test_synthetic_tags)
