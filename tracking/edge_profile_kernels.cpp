@@ -95,8 +95,9 @@ __attribute__((target("avx2"))) inline __m256d lutOf4(const double* lut, const s
 
 // The four lanes' pixels (r[0], r[1]) and (r[stride], r[stride + 1]) by two 32-bit gathers at
 // r and r + stride (each reads r[0..3]: the caller makes sure the two bytes beyond are inside
-// the image's buffer), then their lut values by four gathers: 14 instructions where the loads
-// one by one take about 40 (issue 13, track35), the same values.
+// the image's buffer), then their lut values by four gathers: six gathers and six integer
+// operations where the loads one by one take about 40 instructions (issue 13, track35), the same
+// values.
 struct Corners4 {
     __m256d v00, v01, v10, v11;
 };
@@ -107,7 +108,8 @@ __attribute__((target("avx2"))) inline Corners4 gatherCorners(const std::uint8_t
     // undefined one and warns): every lane loaded.
     const __m128i byte = _mm_set1_epi32(0xff), all = _mm_set1_epi32(-1);
     const __m256d all_pd = _mm256_castsi256_pd(_mm256_set1_epi64x(-1)), zero = _mm256_setzero_pd();
-    const __m128i top = _mm_mask_i32gather_epi32(_mm_setzero_si128(), reinterpret_cast<const int*>(data), index, all, 1);
+    const __m128i top =
+        _mm_mask_i32gather_epi32(_mm_setzero_si128(), reinterpret_cast<const int*>(data), index, all, 1);
     const __m128i bottom =
         _mm_mask_i32gather_epi32(_mm_setzero_si128(), reinterpret_cast<const int*>(data + stride), index, all, 1);
     return {_mm256_mask_i32gather_pd(zero, lut, _mm_and_si128(top, byte), all_pd, 8),
@@ -147,16 +149,19 @@ __attribute__((target("avx2"))) void sampleProfileAvx2Impl(const ImageView& img,
             if constexpr (kGather) {
                 v = gatherCorners(img.data, lut, stride, index);
             } else {
-                const std::uint8_t* const rows[4] = {img.data + static_cast<std::uint32_t>(_mm_cvtsi128_si32(index)),
-                                                     img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 1)),
-                                                     img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 2)),
-                                                     img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 3))};
-                v = {lutOf4(lut, rows, 0), lutOf4(lut, rows, 1), lutOf4(lut, rows, stride), lutOf4(lut, rows, stride + 1)};
+                const std::uint8_t* const rows[4] = {
+                    img.data + static_cast<std::uint32_t>(_mm_cvtsi128_si32(index)),
+                    img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 1)),
+                    img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 2)),
+                    img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 3))};
+                v = {lutOf4(lut, rows, 0), lutOf4(lut, rows, 1), lutOf4(lut, rows, stride),
+                     lutOf4(lut, rows, stride + 1)};
             }
             const __m256d gx = _mm256_sub_pd(one, fx);
             const __m256d top = _mm256_add_pd(_mm256_mul_pd(gx, v.v00), _mm256_mul_pd(fx, v.v01));
             const __m256d bottom = _mm256_add_pd(_mm256_mul_pd(gx, v.v10), _mm256_mul_pd(fx, v.v11));
-            sum = _mm256_add_pd(sum, _mm256_add_pd(_mm256_mul_pd(_mm256_sub_pd(one, fy), top), _mm256_mul_pd(fy, bottom)));
+            sum = _mm256_add_pd(sum,
+                                _mm256_add_pd(_mm256_mul_pd(_mm256_sub_pd(one, fy), top), _mm256_mul_pd(fy, bottom)));
         }
         double four[4];
         _mm256_storeu_pd(four, _mm256_div_pd(sum, _mm256_set1_pd(3.0)));
