@@ -93,12 +93,36 @@ __attribute__((target("avx2"))) inline __m256d lutOf4(const double* lut, const s
     return _mm256_insertf128_pd(_mm256_castpd128_pd256(lo), hi, 1);
 }
 
-}  // namespace
+// The four lanes' pixels (r[0], r[1]) and (r[stride], r[stride + 1]) by two 32-bit gathers at
+// r and r + stride (each reads r[0..3]: the caller makes sure the two bytes beyond are inside
+// the image's buffer), then their lut values by four gathers: six gathers and six integer
+// operations where the loads one by one take about 40 instructions (issue 13, track35), the same
+// values.
+struct Corners4 {
+    __m256d v00, v01, v10, v11;
+};
+
+__attribute__((target("avx2"))) inline Corners4 gatherCorners(const std::uint8_t* data, const double* lut,
+                                                              std::size_t stride, __m128i index) {
+    // The masked forms with a defined source (GCC 12's unmasked _mm256_i32gather_pd passes an
+    // undefined one and warns): every lane loaded.
+    const __m128i byte = _mm_set1_epi32(0xff), all = _mm_set1_epi32(-1);
+    const __m256d all_pd = _mm256_castsi256_pd(_mm256_set1_epi64x(-1)), zero = _mm256_setzero_pd();
+    const __m128i top =
+        _mm_mask_i32gather_epi32(_mm_setzero_si128(), reinterpret_cast<const int*>(data), index, all, 1);
+    const __m128i bottom =
+        _mm_mask_i32gather_epi32(_mm_setzero_si128(), reinterpret_cast<const int*>(data + stride), index, all, 1);
+    return {_mm256_mask_i32gather_pd(zero, lut, _mm_and_si128(top, byte), all_pd, 8),
+            _mm256_mask_i32gather_pd(zero, lut, _mm_and_si128(_mm_srli_epi32(top, 8), byte), all_pd, 8),
+            _mm256_mask_i32gather_pd(zero, lut, _mm_and_si128(bottom, byte), all_pd, 8),
+            _mm256_mask_i32gather_pd(zero, lut, _mm_and_si128(_mm_srli_epi32(bottom, 8), byte), all_pd, 8)};
+}
 
 // Not "fma": a fused multiply-add would round once where the plain loop rounds twice.
-__attribute__((target("avx2"))) void sampleProfileAvx2(const ImageView& img, const double* lut, const Eigen::Vector2d& p,
-                                                       const Eigen::Vector2d& n, const Eigen::Vector2d& along, int steps,
-                                                       double* values) {
+template <bool kGather>
+__attribute__((target("avx2"))) void sampleProfileAvx2Impl(const ImageView& img, const double* lut,
+                                                           const Eigen::Vector2d& p, const Eigen::Vector2d& n,
+                                                           const Eigen::Vector2d& along, int steps, double* values) {
     // Four steps at once (k .. k + 3; past the last step, the last again), each lane the plain
     // loop's operations in its order. The pixel's index, row * stride + column, in 32-bit lanes
     // (the caller checks that the image's bytes fit).
@@ -121,16 +145,23 @@ __attribute__((target("avx2"))) void sampleProfileAvx2(const ImageView& img, con
             const __m256d fx = _mm256_sub_pd(qx, _mm256_cvtepi32_pd(ix));
             const __m256d fy = _mm256_sub_pd(qy, _mm256_cvtepi32_pd(iy));
             const __m128i index = _mm_add_epi32(_mm_mullo_epi32(iy, stride4), ix);
-            const std::uint8_t* const rows[4] = {img.data + static_cast<std::uint32_t>(_mm_cvtsi128_si32(index)),
-                                                 img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 1)),
-                                                 img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 2)),
-                                                 img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 3))};
-            const __m256d v00 = lutOf4(lut, rows, 0), v01 = lutOf4(lut, rows, 1);
-            const __m256d v10 = lutOf4(lut, rows, stride), v11 = lutOf4(lut, rows, stride + 1);
+            Corners4 v;
+            if constexpr (kGather) {
+                v = gatherCorners(img.data, lut, stride, index);
+            } else {
+                const std::uint8_t* const rows[4] = {
+                    img.data + static_cast<std::uint32_t>(_mm_cvtsi128_si32(index)),
+                    img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 1)),
+                    img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 2)),
+                    img.data + static_cast<std::uint32_t>(_mm_extract_epi32(index, 3))};
+                v = {lutOf4(lut, rows, 0), lutOf4(lut, rows, 1), lutOf4(lut, rows, stride),
+                     lutOf4(lut, rows, stride + 1)};
+            }
             const __m256d gx = _mm256_sub_pd(one, fx);
-            const __m256d top = _mm256_add_pd(_mm256_mul_pd(gx, v00), _mm256_mul_pd(fx, v01));
-            const __m256d bottom = _mm256_add_pd(_mm256_mul_pd(gx, v10), _mm256_mul_pd(fx, v11));
-            sum = _mm256_add_pd(sum, _mm256_add_pd(_mm256_mul_pd(_mm256_sub_pd(one, fy), top), _mm256_mul_pd(fy, bottom)));
+            const __m256d top = _mm256_add_pd(_mm256_mul_pd(gx, v.v00), _mm256_mul_pd(fx, v.v01));
+            const __m256d bottom = _mm256_add_pd(_mm256_mul_pd(gx, v.v10), _mm256_mul_pd(fx, v.v11));
+            sum = _mm256_add_pd(sum,
+                                _mm256_add_pd(_mm256_mul_pd(_mm256_sub_pd(one, fy), top), _mm256_mul_pd(fy, bottom)));
         }
         double four[4];
         _mm256_storeu_pd(four, _mm256_div_pd(sum, _mm256_set1_pd(3.0)));
@@ -139,6 +170,25 @@ __attribute__((target("avx2"))) void sampleProfileAvx2(const ImageView& img, con
         if (k1 > k) out[1] = four[1];
         if (k2 > k1) out[2] = four[2];
         if (k3 > k2) out[3] = four[3];
+    }
+}
+
+}  // namespace
+
+void sampleProfileAvx2(const ImageView& img, const double* lut, const Eigen::Vector2d& p, const Eigen::Vector2d& n,
+                       const Eigen::Vector2d& along, int steps, double* values) {
+    // The gathers read two bytes beyond each sample's right-hand pixel: inside the buffer unless
+    // the sample's lower row is the image's last (its end is the buffer's). The samples are affine
+    // in (k, a): the lowest is one of the four extreme ones. Clear of the last two rows (a margin
+    // for the rounding of the kernel's own sums) they all are.
+    double lowest = 0.0;
+    for (const double k : {-steps - 1.0, steps + 1.0}) {
+        for (const double a : {-0.5, 0.5}) lowest = std::max(lowest, p.y() + (k * kStep) * n.y() + a * along.y());
+    }
+    if (lowest < img.height - 3.0) {
+        sampleProfileAvx2Impl<true>(img, lut, p, n, along, steps, values);
+    } else {
+        sampleProfileAvx2Impl<false>(img, lut, p, n, along, steps, values);
     }
 }
 #else

@@ -17,7 +17,9 @@ void sampleProfilePlain(const ImageView& img, const double* lut, const Eigen::Ve
 // Two steps per SSE2 vector (x86-64); elsewhere the plain loop.
 void sampleProfileSse2(const ImageView& img, const double* lut, const Eigen::Vector2d& p, const Eigen::Vector2d& n,
                        const Eigen::Vector2d& along, int steps, double* values);
-// Four steps per AVX2 vector: only where avx2Available() and the image's bytes fit an int.
+// Four steps per AVX2 vector: only where avx2Available() and the image's bytes fit an int. The
+// pixels and their `lut` values are read by gathers, except on profiles that reach the image's
+// last rows (a pixel's 4-byte read there could leave the buffer).
 bool avx2Available();
 void sampleProfileAvx2(const ImageView& img, const double* lut, const Eigen::Vector2d& p, const Eigen::Vector2d& n,
                        const Eigen::Vector2d& along, int steps, double* values);

@@ -12,6 +12,11 @@
 
 #include <gtest/gtest.h>
 
+#if defined(__linux__)
+#include <sys/mman.h>
+#include <unistd.h>
+#endif
+
 #include "tracking/edge_profile.h"
 #include "tracking/edge_profile_kernels.h"
 
@@ -164,6 +169,58 @@ TEST(EdgeProfile, EveryKernelGivesThePlainLoopsValues) {
     }
     EXPECT_GT(compared, 50000);
 }
+
+#if defined(__linux__)
+// The AVX2 kernel reads each sample's two pixels per row by a 4-byte gather, two bytes beyond
+// them: it must not do so where that leaves the buffer. An image whose last byte is the last one
+// before an unreadable page, profiles reaching its bottom-right pixels: the kernel gives the
+// plain loop's values and reads nothing beyond (a read there ends the test with SIGSEGV).
+TEST(EdgeProfile, AvxKernelReadsNothingBeyondTheImage) {
+    if (!detail::avx2Available()) GTEST_SKIP() << "no AVX2 on this CPU";
+    const auto page = static_cast<std::size_t>(sysconf(_SC_PAGESIZE));
+    constexpr int kW = 64, kH = 48;  // stride = width: the last row ends the buffer
+    const std::size_t bytes = static_cast<std::size_t>(kW * kH), pages = (bytes + page - 1) / page + 1;
+    void* const map = mmap(nullptr, pages * page, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    ASSERT_NE(map, MAP_FAILED);
+    auto* const guard = static_cast<std::uint8_t*>(map) + (pages - 1) * page;
+    ASSERT_EQ(mprotect(guard, page, PROT_NONE), 0);
+    std::uint8_t* const pixels = guard - bytes;
+    std::mt19937 rng(41);
+    for (std::size_t i = 0; i < bytes; ++i) pixels[i] = static_cast<std::uint8_t>(rng() & 0xff);
+    const ImageView img{PixelFormat::kGray8, kW, kH, kW, pixels, bytes};
+    const Linearizer& lin = Linearizer::get(true);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    int last_pixels = 0, compared = 0;
+    for (int trial = 0; trial < 10000; ++trial) {
+        const int steps = 1 + trial % 6;
+        const double a = 2 * M_PI * uni(rng);
+        const Eigen::Vector2d n(std::cos(a), std::sin(a)), along(-n.y(), n.x());
+        // Centres within a few pixels of the bottom-right corner; profiles that leave the image
+        // are skipped, as edgeOffset skips them.
+        const Eigen::Vector2d p(kW - 1.001 - 4.0 * uni(rng), kH - 1.001 - 4.0 * uni(rng));
+        bool inside = true, reaches = false;
+        for (const double k : {-steps - 1.0, steps + 1.0}) {
+            for (const double o : {-0.5, 0.5}) {
+                const Eigen::Vector2d q = p + (k * 0.25) * n + o * along;
+                inside = inside && q.x() >= 0 && q.y() >= 0 && q.x() <= kW - 1.001 && q.y() <= kH - 1.001;
+                reaches = reaches || (q.x() >= kW - 2 && q.y() >= kH - 2);
+            }
+        }
+        if (!inside) continue;
+        last_pixels += reaches ? 1 : 0;
+        const std::size_t count = static_cast<std::size_t>(2 * steps + 3);
+        std::vector<double> plain(count), avx2(count);
+        detail::sampleProfilePlain(img, lin.lut, p, n, along, steps, plain.data());
+        detail::sampleProfileAvx2(img, lin.lut, p, n, along, steps, avx2.data());
+        for (std::size_t i = 0; i < count; ++i) ASSERT_EQ(avx2[i], plain[i]) << "trial " << trial << " index " << i;
+        ++compared;
+    }
+    std::printf("  %d profiles compared, %d of them reach the last two pixels\n", compared, last_pixels);
+    munmap(map, pages * page);
+    EXPECT_GT(compared, 1000);
+    EXPECT_GT(last_pixels, 200);  // profiles whose samples use the last row's last two pixels
+}
+#endif
 
 }  // namespace
 }  // namespace commonlight::tracking
