@@ -312,7 +312,9 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
             from_prediction = true;
             const Rigid3d mirror = planarMirror(candidates[0].cam_from_tag);
             const double rms = tagReprojectionRms(corners, size, camera, mirror);
-            if (mirror.isValid() && std::isfinite(rms) && mirror.translation.z() > 0) candidates.push_back({mirror, rms});
+            if (mirror.isValid() && std::isfinite(rms) && mirror.translation.z() > 0) {
+                candidates.push_back({mirror, rms});
+            }
         } else {
             candidates.clear();
         }
