@@ -266,37 +266,6 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
     const cv::Mat dist = (cv::Mat_<double>(1, 5) << camera.distortion.k1, camera.distortion.k2, camera.distortion.p1,
                           camera.distortion.p2, camera.distortion.k3);
 
-    // Step 2: both planar candidates from IPPE.
-    std::vector<Rigid3d> initial;
-    try {
-        std::vector<cv::Mat> rvecs, tvecs;
-        cv::solvePnPGeneric(object, ideal, k_mat, cv::noArray(), rvecs, tvecs, false, cv::SOLVEPNP_IPPE_SQUARE);
-        for (std::size_t s = 0; s < rvecs.size(); ++s) {
-            // OpenCV 4.6's IPPE can return NaN (or garbage) on exactly fronto-parallel, noise-free
-            // corners: drop what is not finite or puts the tag behind the camera.
-            if (!finiteMat(rvecs[s]) || !finiteMat(tvecs[s])) continue;
-            const Rigid3d pose = fromRvecTvec(rvecs[s], tvecs[s]);
-            if (pose.isValid() && pose.translation.z() > 0) initial.push_back(pose);
-        }
-        // Exactly fronto-parallel, noise-free corners can also give finite garbage (metres off):
-        // judge the candidates by their reprojection of the ideal corners.
-        double best_rms = std::numeric_limits<double>::infinity();
-        for (const Rigid3d& pose : initial) best_rms = std::min(best_rms, idealRms(object, ideal, camera, pose));
-        if (!(best_rms < 1.0 + 0.05 * quadScale(corners))) {
-            initial.clear();
-            // Fallback: SQPnP (globally optimal, no planar special case) on the same points.
-            cv::Mat rvec, tvec;
-            if (cv::solvePnP(object, ideal, k_mat, cv::noArray(), rvec, tvec, false, cv::SOLVEPNP_SQPNP) &&
-                finiteMat(rvec) && finiteMat(tvec)) {
-                const Rigid3d pose = fromRvecTvec(rvec, tvec);
-                if (pose.isValid() && pose.translation.z() > 0) initial.push_back(pose);
-            }
-        }
-    } catch (const cv::Exception& e) {
-        return fail(ErrorCode::kInternal, what + ": OpenCV's pose solver failed: " + e.what());
-    }
-    if (initial.empty()) return fail(ErrorCode::kBadInput, what + ": no pose explains the corners");
-
     // Step 3: refine each with Levenberg-Marquardt on the reprojection error in the distorted image.
     std::vector<TagPoseCandidate> candidates;
     std::array<Eigen::Vector3d, 4> object_in_tag;
@@ -332,59 +301,110 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
         });
         if (!duplicate) candidates.push_back(c);
     };
-    // With a prediction that clearly tells the two IPPE starts apart, the one far from it is not
-    // refined: the prediction chooses the other whatever LM does to it (LM moves a start by far
-    // less than the gap), and it stays as the alternative with its corner residual. This halves
-    // the Levenberg-Marquardt work of a tracked tag (docs/tracking.md, "Speed (issue 13)").
-    std::optional<Rigid3d> unrefined_far;
-    if (predicted && predicted->translation.z() > 0 && initial.size() == 2) {
-        const double d[2] = {rotationErrorDeg(initial[0], *predicted), rotationErrorDeg(initial[1], *predicted)};
-        const int far = d[1] > d[0] ? 1 : 0;
-        if (d[1 - far] < 0.5 * options.prediction_gate_deg && d[far] > 2.0 * options.prediction_gate_deg) {
-            unrefined_far = initial[static_cast<std::size_t>(far)];
-            initial.erase(initial.begin() + far);
+    // Corners from the prediction itself (start_at_prediction): LM from the prediction, without
+    // IPPE, where the prediction is unambiguous and the refined pose stays near it.
+    bool from_prediction = false;
+    if (options.start_at_prediction && predicted && predicted->translation.z() > 0 &&
+        rotationErrorDeg(planarMirror(*predicted), *predicted) > 2.0 * options.prediction_gate_deg) {
+        refineStart(*predicted);
+        if (candidates.size() == 1 &&
+            rotationErrorDeg(candidates[0].cam_from_tag, *predicted) < 0.5 * options.prediction_gate_deg) {
+            from_prediction = true;
+            const Rigid3d mirror = planarMirror(candidates[0].cam_from_tag);
+            const double rms = tagReprojectionRms(corners, size, camera, mirror);
+            if (mirror.isValid() && std::isfinite(rms) && mirror.translation.z() > 0) {
+                candidates.push_back({mirror, rms});
+            }
+        } else {
+            candidates.clear();
         }
     }
-    // Kept unrefined only when the near start stays near the prediction and the far one would
-    // survive the plausibility cut below as it is (refined, its residual is smaller still).
-    const auto shortcutHolds = [&](double far_rms) {
-        return candidates.size() == 1 && std::isfinite(far_rms) && far_rms <= 3.0 * candidates[0].rms_px + 2.0 &&
-               rotationErrorDeg(candidates[0].cam_from_tag, *predicted) < 0.5 * options.prediction_gate_deg;
-    };
     bool refined = true;
-    if (unrefined_far && !options.refine_predicted_start) {
-        // The caller refines the near start itself: it stays as IPPE gave it, with its corner
-        // residual, when the shortcut holds for it as it is; otherwise as with the option on.
-        const Rigid3d& near = initial[0];
-        const double near_rms = tagReprojectionRms(corners, size, camera, near);
-        if (near.isValid() && std::isfinite(near_rms) && near.translation.z() > 0) {
-            candidates.push_back({near, near_rms});
-            const double far_rms = tagReprojectionRms(corners, size, camera, *unrefined_far);
-            if (shortcutHolds(far_rms)) {
-                candidates.push_back({*unrefined_far, far_rms});
-                unrefined_far.reset();
-                refined = false;
-            } else {
-                candidates.clear();
+    if (!from_prediction) {
+        // Step 2: both planar candidates from IPPE.
+        std::vector<Rigid3d> initial;
+        try {
+            std::vector<cv::Mat> rvecs, tvecs;
+            cv::solvePnPGeneric(object, ideal, k_mat, cv::noArray(), rvecs, tvecs, false, cv::SOLVEPNP_IPPE_SQUARE);
+            for (std::size_t s = 0; s < rvecs.size(); ++s) {
+                // OpenCV 4.6's IPPE can return NaN (or garbage) on exactly fronto-parallel, noise-free
+                // corners: drop what is not finite or puts the tag behind the camera.
+                if (!finiteMat(rvecs[s]) || !finiteMat(tvecs[s])) continue;
+                const Rigid3d pose = fromRvecTvec(rvecs[s], tvecs[s]);
+                if (pose.isValid() && pose.translation.z() > 0) initial.push_back(pose);
+            }
+            // Exactly fronto-parallel, noise-free corners can also give finite garbage (metres off):
+            // judge the candidates by their reprojection of the ideal corners.
+            double best_rms = std::numeric_limits<double>::infinity();
+            for (const Rigid3d& pose : initial) best_rms = std::min(best_rms, idealRms(object, ideal, camera, pose));
+            if (!(best_rms < 1.0 + 0.05 * quadScale(corners))) {
+                initial.clear();
+                // Fallback: SQPnP (globally optimal, no planar special case) on the same points.
+                cv::Mat rvec, tvec;
+                if (cv::solvePnP(object, ideal, k_mat, cv::noArray(), rvec, tvec, false, cv::SOLVEPNP_SQPNP) &&
+                    finiteMat(rvec) && finiteMat(tvec)) {
+                    const Rigid3d pose = fromRvecTvec(rvec, tvec);
+                    if (pose.isValid() && pose.translation.z() > 0) initial.push_back(pose);
+                }
+            }
+        } catch (const cv::Exception& e) {
+            return fail(ErrorCode::kInternal, what + ": OpenCV's pose solver failed: " + e.what());
+        }
+        if (initial.empty()) return fail(ErrorCode::kBadInput, what + ": no pose explains the corners");
+
+        // With a prediction that clearly tells the two IPPE starts apart, the one far from it is not
+        // refined: the prediction chooses the other whatever LM does to it (LM moves a start by far
+        // less than the gap), and it stays as the alternative with its corner residual. This halves
+        // the Levenberg-Marquardt work of a tracked tag (docs/tracking.md, "Speed (issue 13)").
+        std::optional<Rigid3d> unrefined_far;
+        if (predicted && predicted->translation.z() > 0 && initial.size() == 2) {
+            const double d[2] = {rotationErrorDeg(initial[0], *predicted), rotationErrorDeg(initial[1], *predicted)};
+            const int far = d[1] > d[0] ? 1 : 0;
+            if (d[1 - far] < 0.5 * options.prediction_gate_deg && d[far] > 2.0 * options.prediction_gate_deg) {
+                unrefined_far = initial[static_cast<std::size_t>(far)];
+                initial.erase(initial.begin() + far);
             }
         }
-    }
-    if (refined) {
-        for (const Rigid3d& start : initial) refineStart(start);
-        if (unrefined_far) {
-            const double rms = tagReprojectionRms(corners, size, camera, *unrefined_far);
-            if (shortcutHolds(rms)) {
-                candidates.push_back({*unrefined_far, rms});
-            } else {
-                refineStart(*unrefined_far);  // the shortcut does not hold: as without it
+        // Kept unrefined only when the near start stays near the prediction and the far one would
+        // survive the plausibility cut below as it is (refined, its residual is smaller still).
+        const auto shortcutHolds = [&](double far_rms) {
+            return candidates.size() == 1 && std::isfinite(far_rms) && far_rms <= 3.0 * candidates[0].rms_px + 2.0 &&
+                   rotationErrorDeg(candidates[0].cam_from_tag, *predicted) < 0.5 * options.prediction_gate_deg;
+        };
+        if (unrefined_far && !options.refine_predicted_start) {
+            // The caller refines the near start itself: it stays as IPPE gave it, with its corner
+            // residual, when the shortcut holds for it as it is; otherwise as with the option on.
+            const Rigid3d& near = initial[0];
+            const double near_rms = tagReprojectionRms(corners, size, camera, near);
+            if (near.isValid() && std::isfinite(near_rms) && near.translation.z() > 0) {
+                candidates.push_back({near, near_rms});
+                const double far_rms = tagReprojectionRms(corners, size, camera, *unrefined_far);
+                if (shortcutHolds(far_rms)) {
+                    candidates.push_back({*unrefined_far, far_rms});
+                    unrefined_far.reset();
+                    refined = false;
+                } else {
+                    candidates.clear();
+                }
             }
         }
+        if (refined) {
+            for (const Rigid3d& start : initial) refineStart(start);
+            if (unrefined_far) {
+                const double rms = tagReprojectionRms(corners, size, camera, *unrefined_far);
+                if (shortcutHolds(rms)) {
+                    candidates.push_back({*unrefined_far, rms});
+                } else {
+                    refineStart(*unrefined_far);  // the shortcut does not hold: as without it
+                }
+            }
+        }
+        // The prediction is a third start: with noise, both IPPE starts can fall into the mirrored
+        // minimum while the true one is still a minimum near the prediction. When they found two
+        // distinct minima, the prediction's start ends on one of them (on every tag of bench
+        // tracking's cases: 1187 of 1187), and is not run.
+        if (predicted && predicted->translation.z() > 0 && candidates.size() < 2) refineStart(*predicted);
     }
-    // The prediction is a third start: with noise, both IPPE starts can fall into the mirrored
-    // minimum while the true one is still a minimum near the prediction. When they found two
-    // distinct minima, the prediction's start ends on one of them (on every tag of bench
-    // tracking's cases: 1187 of 1187), and is not run.
-    if (predicted && predicted->translation.z() > 0 && candidates.size() < 2) refineStart(*predicted);
     if (candidates.empty()) return fail(ErrorCode::kBadInput, what + ": no pose candidate reprojects its corners");
     // Only plausible alternatives stay: a candidate far worse than the best is not the other
     // side of an ambiguity but a failed start.

@@ -50,6 +50,14 @@ struct TagPoseOptions {
     // for a caller that refines the pose itself from there (the tracker's pattern alignment),
     // and solves again with this on when its own refinement fails.
     bool refine_predicted_start = true;
+    // For corners that came from the prediction itself (the tracker's verified tags: the
+    // predicted corners moved by the template's best shift, within a pixel or so): when the
+    // prediction is unambiguous (its planar mirror beyond twice the gate from it, as for the
+    // shortcut above), Levenberg-Marquardt starts at the prediction and IPPE is not run. The
+    // refined pose must stay within half the gate of the prediction (else the solve is done as
+    // without this); the alternative is its planar mirror, unrefined, with its corner residual,
+    // as IPPE's far start stays unrefined in the shortcut (docs/tracking.md, "Speed (issue 13)").
+    bool start_at_prediction = false;
     Result<void> validate() const;
 };
 

@@ -497,7 +497,9 @@ Result<FrameTrack> Tracker::processAt(const ImageView& gray8, std::int64_t times
             tag.detection.center = 0.25 * (v.corners[0] + v.corners[1] + v.corners[2] + v.corners[3]);
             tag.verified = true;
             tag.verified_known = v.alternatives_skipped;
-            auto pose = solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, s.options.tag_pose);
+            TagPoseOptions pose_options = s.options.tag_pose;
+            pose_options.start_at_prediction = s.options.verify_solve_from_prediction;
+            auto pose = solveTagPose(item.id, v.corners, item.size, s.camera, predicted_cam_from_tag, pose_options);
             if (pose) {
                 tag.pose = std::move(*pose);
             } else {

@@ -69,6 +69,10 @@ struct TrackerOptions {
     // other ids (tag_verify.h, `known_at_px`): a third of the verification's correlations. Not
     // in independent frames (nothing is carried from one to the next).
     bool verify_trust_last_frame = true;
+    // A verified tag's corners are its prediction's moved by the template's shift: its pose is
+    // solved from the prediction (TagPoseOptions::start_at_prediction) instead of IPPE's two
+    // starts where the prediction is unambiguous (docs/tracking.md, "Speed (issue 13)").
+    bool verify_solve_from_prediction = true;
     // Predicted foreshortened tags the verification leaves to the detector (shorter span over
     // TagVerifyOptions::max_foreshortened_span_px) that the frame's detector missed (decimated):
     // detected again at full resolution (decimate 1) in a window around each, a detected tag like

@@ -204,6 +204,55 @@ TEST(TagPose, UnrefinedPredictedStartIsIppesPoseAndTheRestIsUnchanged) {
     }
 }
 
+TEST(TagPose, StartAtPredictionSkipsIppeOnlyWhereThePredictionIsUnambiguous) {
+    // start_at_prediction (the tracker's verified tags): a prediction whose mirror is far from it
+    // is refined alone, onto the minimum the default reaches from IPPE's near start, and the
+    // alternative is the refined pose's planar mirror (IPPE was not run). A prediction nearly
+    // head-on (its mirror within twice the gate), or one the refinement leaves by more than half
+    // the gate, is solved bit for bit as by default.
+    const CameraModel cam = camera(-0.2);
+    std::mt19937 rng(11);
+    std::normal_distribution<double> noise(0.0, 0.3);
+    TagPoseOptions fast;
+    fast.start_at_prediction = true;
+    const auto sameBits = [](const TagPose& a, const TagPose& b) {
+        return a.cam_from_tag.translation == b.cam_from_tag.translation &&
+               a.cam_from_tag.rotation.coeffs() == b.cam_from_tag.rotation.coeffs() && a.rms_px == b.rms_px &&
+               a.candidates.size() == b.candidates.size() && a.ambiguity_ratio == b.ambiguity_ratio;
+    };
+    for (int trial = 0; trial < 30; ++trial) {
+        const Rigid3d truth = tagPose(2.5, 30.0 + trial, 10.0 * trial, Vector3d(0.3, -0.2, 0.0));
+        Corners noisy = project(cam, truth, 0.1);
+        for (auto& c : noisy) c += Vector2d(noise(rng), noise(rng));
+        const Rigid3d predicted = expSe3((Vector6d() << 0.03, -0.02, 0.0, 0.005, 0.0, 0.0).finished()) * truth;
+        auto full = solveTagPose(0, noisy, 0.1, cam, predicted);
+        auto quick = solveTagPose(0, noisy, 0.1, cam, predicted, fast);
+        ASSERT_TRUE(full && quick);
+        EXPECT_EQ(quick->choice, PoseChoice::kPrediction);
+        EXPECT_TRUE(quick->refined);
+        EXPECT_LT(rotationErrorDeg(quick->cam_from_tag, full->cam_from_tag), 1e-4) << "trial " << trial;
+        EXPECT_LT(translationError(quick->cam_from_tag, full->cam_from_tag), 1e-7);
+        EXPECT_NEAR(quick->rms_px, full->rms_px, 1e-9);
+        ASSERT_EQ(quick->candidates.size(), 2u);
+        EXPECT_LT(rotationErrorDeg(quick->candidates[1].cam_from_tag, planarMirror(quick->cam_from_tag)), 1e-9);
+        EXPECT_FALSE(quick->ambiguous);
+        EXPECT_TRUE(quick->covariance.allFinite());
+        // Nearly head-on (its mirror 8 degrees away), and 25 degrees off the truth: as by default.
+        const Rigid3d head_on = tagPose(2.5, 4.0, 10.0 * trial, Vector3d(0.3, -0.2, 0.0));
+        Corners head_on_corners = project(cam, head_on, 0.1);
+        for (auto& c : head_on_corners) c += Vector2d(noise(rng), noise(rng));
+        auto a = solveTagPose(0, head_on_corners, 0.1, cam, head_on);
+        auto b = solveTagPose(0, head_on_corners, 0.1, cam, head_on, fast);
+        ASSERT_TRUE(a && b);
+        EXPECT_TRUE(sameBits(*a, *b)) << "trial " << trial;
+        const Rigid3d elsewhere = expSe3((Vector6d() << 0.0, 0.0, 0.44, 0.0, 0.0, 0.0).finished()) * truth;
+        auto c = solveTagPose(0, noisy, 0.1, cam, elsewhere);
+        auto d = solveTagPose(0, noisy, 0.1, cam, elsewhere, fast);
+        ASSERT_TRUE(c && d);
+        EXPECT_TRUE(sameBits(*c, *d)) << "trial " << trial;
+    }
+}
+
 TEST(TagPose, PredictionResolvesTheAmbiguity) {
     const CameraModel cam = camera();
     const Rigid3d truth = tagPose(3.0, 20.0, 5.0);
