@@ -349,9 +349,11 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     stats_.ms_observe = last_observe_ms_;
     stats_.leaves = with_.summary.elements;
     if (std::getenv("CL_LIGHTING_DEBUG")) {
-        std::fprintf(stderr, "lighting update (%s): observe %.1f columns %.1f links %.1f fit %.1f solve %.1f influence %.1f snapshot %.1f ms; leaves %d\n",
+        std::fprintf(stderr, "lighting update (%s): observe %.1f columns %.1f links %.1f fit %.1f solve %.1f influence %.1f snapshot %.1f ms; leaves %d; "
+                     "texels traced %ld (made ahead since the last reset %ld, of them asked for %ld)\n",
                      stats_.full ? "full" : "incremental", stats_.ms_observe, stats_.ms_columns, stats_.ms_links, stats_.ms_fit,
-                     stats_.ms_solve, stats_.ms_influence, stats_.ms_snapshot, rad.hierarchy().leafCount());
+                     stats_.ms_solve, stats_.ms_influence, stats_.ms_snapshot, rad.hierarchy().leafCount(), stats_.texels_traced,
+                     d.texels ? d.texels->prefetched() : 0L, d.texels ? d.texels->prefetchUsed() : 0L);
     }
     return snapshot;
 }
