@@ -4,6 +4,7 @@
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 #include <tbb/parallel_reduce.h>
+#include <tbb/task_group.h>
 #if defined(__SANITIZE_THREAD__)
 #include <tbb/global_control.h>
 #endif
@@ -209,9 +210,37 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     }
     std::optional<InfluenceViewer> viewer;
     if (d.viewer) viewer = InfluenceViewer{d.camera, *d.viewer};
+    const std::size_t faces = rad.realFaceCount();
+    const bool all_faces = d.face_builds.size() != faces;
+    // The area lights' direct light per texel where the objects change it (lighting/texel_direct.h;
+    // only when every light is an area light: the others' direct light stays the elements').
+    const bool area_only = !d.sources.empty() && std::all_of(d.sources.begin(), d.sources.end(), [](const Source& s) {
+        return s.direct.kind == DirectSource::Kind::kPolygon && s.direct.polygon != nullptr;
+    });
+    const bool texels_on = options_.texel_direct_pairs > 0 && area_only && d.probe_lights.size() == d.sources.size();
+    const bool texels_kept = texels_on && !all_faces && d.texels;
     {
         ScopedMs timer(stats_.ms_influence);
-        CL_TRY(stats_.influence, d.influence->update(objects, viewer));
+        // Once the objects are committed at their new poses, the texels' answers a move reached go,
+        // and those the last textures asked for are made again beside the influence's update (its
+        // serial stretches leave a thread idle); the textures below ask for them.
+        tbb::task_group ahead;
+        struct WaitAhead {
+            tbb::task_group& group;
+            ~WaitAhead() {
+                try {
+                    group.wait();
+                } catch (...) {  // (only when leaving by an error: the error is reported)
+                }
+            }
+        } wait_ahead{ahead};
+        const auto committed = [&] {
+            if (!texels_kept) return;
+            d.texels->forget(d.influence->movedBalls());
+            ahead.run([&d] { d.texels->prefetch(); });
+        };
+        CL_TRY(stats_.influence, d.influence->update(objects, viewer, committed));
+        ahead.wait();
     }
     const VirtualInfluence& inf = *d.influence;
     with_.radiance = inf.radiance();
@@ -225,9 +254,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     LightingSnapshot snapshot = d.last;
     snapshot.frames_used = observations_->frames();
     // Textures: every face after a full update, then the faces the influence changed.
-    const std::size_t faces = rad.realFaceCount();
     std::vector<int> todo;
-    const bool all_faces = d.face_builds.size() != faces;
     if (all_faces) {
         d.face_builds.clear();
         d.face_builds.resize(faces);
@@ -235,24 +262,17 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     } else {
         todo = inf.changedFaces();
     }
-    // The area lights' direct light per texel where the objects change it (lighting/texel_direct.h;
-    // only when every light is an area light: the others' direct light stays the elements').
     std::optional<TexelDirect> texel_direct;
     long traced_before = 0;  // (TexelDirectCache::traced() before this update's textures)
     std::vector<Eigen::Vector3d> area_without, area_with;
-    const bool area_only = !d.sources.empty() && std::all_of(d.sources.begin(), d.sources.end(), [](const Source& s) {
-        return s.direct.kind == DirectSource::Kind::kPolygon && s.direct.polygon != nullptr;
-    });
-    if (options_.texel_direct_pairs > 0 && area_only && d.probe_lights.size() == d.sources.size()) {
-        if (all_faces || !d.texels) {
+    if (texels_on) {
+        if (!texels_kept) {
             std::vector<TexelDirectCache::Light> lights;
             for (std::size_t k = 0; k < d.sources.size(); ++k) lights.push_back({d.sources[k].direct.polygon, d.probe_lights[k].emission});
             d.texels = std::make_unique<TexelDirectCache>(*rays_, options_.texel_direct_pairs);
             std::vector<Face> real_faces;
             for (std::size_t f = 0; f < faces; ++f) real_faces.push_back(rad.face(static_cast<int>(f)));
             d.texels->reset(std::move(lights), std::move(real_faces));
-        } else {
-            d.texels->forget(inf.movedBalls());
         }
         // Per element, in parallel (each element its own sums; the largest is a maximum, the same
         // in any order).
@@ -329,9 +349,11 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     stats_.ms_observe = last_observe_ms_;
     stats_.leaves = with_.summary.elements;
     if (std::getenv("CL_LIGHTING_DEBUG")) {
-        std::fprintf(stderr, "lighting update (%s): observe %.1f columns %.1f links %.1f fit %.1f solve %.1f influence %.1f snapshot %.1f ms; leaves %d\n",
+        std::fprintf(stderr, "lighting update (%s): observe %.1f columns %.1f links %.1f fit %.1f solve %.1f influence %.1f snapshot %.1f ms; leaves %d; "
+                     "texels traced %ld (made ahead since the last reset %ld, of them asked for %ld)\n",
                      stats_.full ? "full" : "incremental", stats_.ms_observe, stats_.ms_columns, stats_.ms_links, stats_.ms_fit,
-                     stats_.ms_solve, stats_.ms_influence, stats_.ms_snapshot, rad.hierarchy().leafCount());
+                     stats_.ms_solve, stats_.ms_influence, stats_.ms_snapshot, rad.hierarchy().leafCount(), stats_.texels_traced,
+                     d.texels ? d.texels->prefetched() : 0L, d.texels ? d.texels->prefetchUsed() : 0L);
     }
     return snapshot;
 }

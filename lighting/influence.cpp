@@ -425,7 +425,7 @@ void VirtualInfluence::Impl::select(int b) {
 
 
 Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObject>& objects,
-                                                const std::optional<InfluenceViewer>& viewer) {
+                                                const std::optional<InfluenceViewer>& viewer, const std::function<void()>& committed) {
     Impl& d = *impl_;
     if (!has_base_) return fail(ErrorCode::kInternal, "lighting: the influence has no base solution (setBase() first)");
     const auto t0 = std::chrono::steady_clock::now();
@@ -484,6 +484,7 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
         for (int o : moved) poses[static_cast<std::size_t>(o)] = d.objects[static_cast<std::size_t>(o)].pose;
         radiosity_.setVirtualPoses(poses);
     }
+    if (committed) committed();
     // The cluster links' shared answers the move reached: their blocked faces (the candidates read
     // which faces' shafts each object meets from them); their transmissions after the candidates
     // (answerNodes(): only where a base leaf selects a transfer; faces walked again if they changed).

@@ -49,6 +49,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -189,8 +190,12 @@ public:
     bool hasBase() const noexcept { return has_base_; }
 
     // The objects now (by virtual object index) and the camera: recomputes what changed and
-    // propagates. `viewer` nullopt: no camera, elements down to min_size.
-    Result<InfluenceStats> update(const std::vector<InfluenceObject>& objects, const std::optional<InfluenceViewer>& viewer);
+    // propagates. `viewer` nullopt: no camera, elements down to min_size. `committed`, if given, is
+    // called once the objects are committed at their new poses in the RayScene and movedBalls() is
+    // this update's (before the candidates): from then on until update() returns, the RayScene is
+    // only read, so work that needs the new poses (the textures' direct light) may run beside it.
+    Result<InfluenceStats> update(const std::vector<InfluenceObject>& objects, const std::optional<InfluenceViewer>& viewer,
+                                  const std::function<void()>& committed = {});
     // The same from nothing: every object new, candidates by a scan of every shaft (no index),
     // and B solved by dense Jacobi sweeps. What a full re-solve would do; the same answer.
     Result<InfluenceStats> rebuild(const std::vector<InfluenceObject>& objects, const std::optional<InfluenceViewer>& viewer);

@@ -8,6 +8,9 @@
 #include <optional>
 #include <utility>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include "lighting/form_factor.h"
 #include "lighting/sampling.h"
 
@@ -27,9 +30,13 @@ void TexelDirectCache::reset(std::vector<Light> lights, std::vector<Face> faces)
     locks_.clear();
     locks_.resize(faces_.size());
     traced_ = 0;
+    round_ = 1;
+    prefetched_ = 0;
+    prefetch_used_ = 0;
 }
 
 void TexelDirectCache::forget(const std::vector<Ball>& moved) {
+    ++round_;
     if (moved.empty()) return;
     // The (light, moved ball) pairs whose cone from a ball around `x` of radius `r` to a ball
     // holding light k's polygon (it holds every shaft from a point of the first ball to the
@@ -80,12 +87,47 @@ void TexelDirectCache::forget(const std::vector<Ball>& moved) {
                         Entry& e = f.entries[k];
                         if (!e.valid || !any(e.x, of_tile)) continue;
                         e.valid = false;
+                        if (e.prefetched) {  // (made ahead, never asked for: gone without it, not listed again)
+                            e.prefetched = false;
+                            continue;
+                        }
                         if (!f.all_gone) f.gone.push_back(static_cast<std::uint32_t>(k));
                     }
                 }
             }
         }
     }
+}
+
+void TexelDirectCache::prefetch() {
+    // The texels forget() took whose answers the last update's textures asked for: answered again at
+    // their kept points, as at() would answer them now (the virtual objects are committed).
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> todo;  // (face, texel)
+    for (std::size_t fi = 0; fi < faces_.size(); ++fi) {
+        const FaceState& f = faces_[fi];
+        for (const std::uint32_t k : f.gone) {
+            const Entry& e = f.entries[k];
+            if (!e.valid && e.real && e.asked + 1 == round_) todo.emplace_back(static_cast<std::uint32_t>(fi), k);
+        }
+    }
+    // (A texel forgotten twice before its face's textures took the list is listed twice.)
+    std::sort(todo.begin(), todo.end());
+    todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, todo.size(), 16), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            FaceState& f = faces_[todo[i].first];
+            Entry& e = f.entries[todo[i].second];
+            const std::uint32_t asked = e.asked;
+            const Eigen::Vector3d x = e.x;
+            Eigen::Vector3d without, with;
+            at(static_cast<int>(todo[i].first), todo[i].second, f.width, f.height, x, f.geometry.normal, without, with);
+            // Not asked for yet: at() counts it and marks it asked when the textures ask.
+            e.asked = asked;
+            e.prefetched = true;
+            --traced_;
+        }
+    });
+    prefetched_ += static_cast<long>(todo.size());
 }
 
 bool TexelDirectCache::takeForgotten(int face, std::vector<std::uint32_t>& texels) {
@@ -115,7 +157,13 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
     }
     Entry& e = f.entries[texel];
     const bool same_point = e.real && (e.x - x).squaredNorm() < 1e-18;
+    e.asked = round_;
     if (e.valid && same_point) {
+        if (e.prefetched) {  // made ahead by prefetch(): counted now, as if traced now
+            e.prefetched = false;
+            ++traced_;
+            ++prefetch_used_;
+        }
         without = e.without;
         with = e.with;
         return;

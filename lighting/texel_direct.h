@@ -41,6 +41,12 @@ public:
     // Before the textures of an update: the answers whose shafts meet any of `moved` go (tested
     // by tiles of texels first: most of a face is far from a move).
     void forget(const std::vector<Ball>& moved);
+    // Ahead of the textures, on another thread while the influence is updated (the virtual objects
+    // already committed at their new poses): the answers forget() took that the last update's
+    // textures asked for (a good guess of what this update's ask for), made again at their kept
+    // points. Each stays unread (kept() false) until at() asks for it, which then counts it as
+    // traced: the textures, their answers and traced() are what they would be without it.
+    void prefetch();
     // The texels of face `face` whose answers went since the last call, appended to `texels`
     // (TexelDirect::forgotten); false when any may have (none taken since the last reset()).
     bool takeForgotten(int face, std::vector<std::uint32_t>& texels);
@@ -52,14 +58,19 @@ public:
     // The answer of texel `texel` of face `face` stands (made, and no move reached it since).
     bool kept(int face, std::size_t texel) const {
         const FaceState& f = faces_[static_cast<std::size_t>(face)];
-        return texel < f.entries.size() && f.entries[texel].valid && f.entries[texel].real;
+        return texel < f.entries.size() && f.entries[texel].valid && f.entries[texel].real && !f.entries[texel].prefetched;
     }
     long traced() const noexcept { return traced_; }  // texels traced since the last reset() (statistics)
+    // Statistics of prefetch() since the last reset(): answers made ahead, and of them those at() asked for.
+    long prefetched() const noexcept { return prefetched_; }
+    long prefetchUsed() const noexcept { return prefetch_used_; }
 
 private:
     struct Entry {
         bool valid = false;  // `with` stands (no move reached the texel's shafts)
         bool real = false;   // `without` and the parts below stand (the texel's point is x)
+        bool prefetched = false;  // `with` made by prefetch(), not yet asked for
+        std::uint32_t asked = 0;  // round_ when at() last asked for it
         Eigen::Vector3d x = Eigen::Vector3d::Zero();
         Eigen::Vector3d without = Eigen::Vector3d::Zero(), with = Eigen::Vector3d::Zero();
     };
@@ -85,6 +96,8 @@ private:
     std::vector<FaceState> faces_;
     std::deque<std::mutex> locks_;  // by face: a change of layout
     std::atomic<long> traced_{0};
+    std::uint32_t round_ = 1;  // forget() calls since the last reset(), plus one
+    std::atomic<long> prefetched_{0}, prefetch_used_{0};
 };
 
 }  // namespace commonlight::lighting

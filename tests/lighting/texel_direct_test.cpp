@@ -548,6 +548,61 @@ TEST(TexelDirect, AnswersEqualThePlainPerPairSum) {
     EXPECT_GT(low_blocked, 1000) << "the curb hides some of the low lamp's pairs with weight";
 }
 
+// prefetch() makes again, ahead of the textures, the answers forget() took that the last update
+// asked for; the textures then read them through at(). Two caches over the same moves of a ball,
+// one prefetching: every answer asked for equal to the bit, kept() and traced() the same before
+// and after each update's asks, and the prefetch both used and (for texels the window no longer
+// asks for) unused.
+TEST(TexelDirect, PrefetchedAnswersEqualTheAskedOnesAndCountAsTheyWould) {
+    const Face floor = squareFloor(0.4);
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.04;
+    auto rays = RayScene::build({floor}, {}, {sphere});
+    ASSERT_TRUE(rays) << rays.error().message;
+    RayScene& scene = **rays;
+    const LightGeometry lamp = squareLamp({0.05, 0.0, 0.7}, 0.15);
+    const LightGeometry lamp2 = squareLamp({-0.3, 0.2, 0.6}, 0.1);
+    constexpr int kSide = 40;
+    std::vector<Eigen::Vector3d> points;
+    for (int j = 0; j < kSide; ++j) {
+        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
+    }
+    TexelDirectCache ahead(scene, 8), plain(scene, 8);
+    for (TexelDirectCache* c : {&ahead, &plain}) c->reset({{&lamp, Eigen::Vector3d::Constant(80.0)}, {&lamp2, Eigen::Vector3d(20, 30, 40)}}, {floor});
+    // The ball along a line at 12 cm; each update asks for the texels within 0.15 m of a point
+    // 5 cm ahead of it (the next update's window overlaps the last one's, not all of it, and
+    // misses some of the shadow the ball leaves behind).
+    Eigen::Vector3d last = Eigen::Vector3d::Zero();
+    for (int step = 0; step < 12; ++step) {
+        const Eigen::Vector3d centre(-0.25 + 0.045 * step, 0.02 * std::sin(step), 0.12);
+        scene.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), centre));
+        ASSERT_TRUE(scene.commitVirtual());
+        if (step > 0) {
+            const std::vector<Ball> moved{Ball{last, 0.04}, Ball{centre, 0.04}};
+            ahead.forget(moved);
+            plain.forget(moved);
+            ahead.prefetch();
+        }
+        last = centre;
+        for (std::size_t k = 0; k < points.size(); ++k) ASSERT_EQ(ahead.kept(0, k), plain.kept(0, k)) << "step " << step << " texel " << k;
+        for (std::size_t k = 0; k < points.size(); ++k) {
+            if ((points[k] - Eigen::Vector3d(centre.x() + 0.05, centre.y(), 0.0)).norm() > 0.15) continue;
+            Eigen::Vector3d a0, a1, b0, b1;
+            ahead.at(0, k, kSide, kSide, points[k], floor.normal, a0, a1);
+            plain.at(0, k, kSide, kSide, points[k], floor.normal, b0, b1);
+            ASSERT_EQ(a0, b0) << "step " << step << " texel " << k;
+            ASSERT_EQ(a1, b1) << "step " << step << " texel " << k;
+        }
+        ASSERT_EQ(ahead.traced(), plain.traced()) << "step " << step;
+        for (std::size_t k = 0; k < points.size(); ++k) ASSERT_EQ(ahead.kept(0, k), plain.kept(0, k)) << "step " << step << " texel " << k;
+        std::vector<std::uint32_t> a, b;
+        ASSERT_EQ(ahead.takeForgotten(0, a), plain.takeForgotten(0, b));
+        ASSERT_EQ(a, b) << "step " << step;
+    }
+    EXPECT_GT(ahead.prefetchUsed(), 200) << "answers made ahead and asked for";
+    EXPECT_GT(ahead.prefetched(), ahead.prefetchUsed()) << "some made ahead and not asked for";
+}
+
 // A texture build visits only the boxes of the texels that marked each tile (TileMarks): each box
 // is exactly the bounding box of the marked texels in its tile, against a brute-force count over
 // every texel of a layout with partial tiles, for random rectangles and single texels.
