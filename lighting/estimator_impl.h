@@ -98,6 +98,7 @@ struct Estimator::Impl {
     std::vector<FaceBuild> face_builds;  // by real face: the textures and what their next build keeps
     std::unique_ptr<TexelDirectCache> texels;               // the area lights' direct light per texel (null: off)
     std::vector<ProbeLight> probe_lights;
+    ProbeMemories probe_memories;  // the probes' real hits, kept between full updates (buildProbes())
     std::vector<Eigen::Vector3d> solve_emission;  // Le per element of the last full update
 };
 

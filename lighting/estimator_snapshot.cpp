@@ -256,6 +256,8 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     // Textures: every face after a full update, then the faces the influence changed.
     std::vector<int> todo;
     if (all_faces) {
+        // A full update: the hierarchy may be new, the lights too; the probes trace afresh.
+        d.probe_memories.clear();
         d.face_builds.clear();
         d.face_builds.resize(faces);
         for (std::size_t f = 0; f < faces; ++f) todo.push_back(static_cast<int>(f));
@@ -331,7 +333,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
             buildFaceModulations(rad, d.scene, inf.original(), inf.radiance(), inf.reflectance(), todo, d.face_builds, 1e-3,
                                  256, texel_direct ? &*texel_direct : nullptr);
         },
-        [&] { probes = buildProbes(rad, d.scene, inf.radiance(), d.probe_lights); });
+        [&] { probes = buildProbes(rad, d.scene, inf.radiance(), d.probe_lights, 256, &d.probe_memories); });
     stats_.texels_built = stats_.texels = 0;
     stats_.texels_traced = d.texels ? d.texels->traced() - traced_before : 0;
     for (int f : todo) {

@@ -171,7 +171,20 @@ int Hierarchy::leafAt(int face, Eigen::Vector2d st) const {
     const bool tri = faces_[static_cast<std::size_t>(face)].triangle;
     st = st.cwiseMax(0.0).cwiseMin(1.0);
     if (tri && st.sum() > 1.0) st /= st.sum();
-    int current = roots_[static_cast<std::size_t>(face)];
+    return descend(roots_[static_cast<std::size_t>(face)], st);
+}
+
+int Hierarchy::leafAtAgain(int face, Eigen::Vector2d st, int last) const {
+    if (last < 0 || elements_[static_cast<std::size_t>(last)].retired || elements_[static_cast<std::size_t>(last)].face != face) {
+        return leafAt(face, st);
+    }
+    const bool tri = faces_[static_cast<std::size_t>(face)].triangle;
+    st = st.cwiseMax(0.0).cwiseMin(1.0);
+    if (tri && st.sum() > 1.0) st /= st.sum();
+    return descend(last, st);
+}
+
+int Hierarchy::descend(int current, const Eigen::Vector2d& st) const {
     while (!elements_[static_cast<std::size_t>(current)].leaf()) {
         const Element& e = elements_[static_cast<std::size_t>(current)];
         int next = -1;

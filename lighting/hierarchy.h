@@ -86,6 +86,14 @@ public:
     static ElementGeometry geometry(const Element& e, const Face& face);
     // The leaf containing face point (s, t) (clamped into the face), starting from the face's root.
     int leafAt(int face, Eigen::Vector2d st) const;
+    // leafAt(face, st) again, `last` being what leafAt(face, st) gave for the same (s, t) at an
+    // earlier state of this hierarchy (splits and collapses since): the same leaf, descending from
+    // `last` instead of the root while `last` is not retired. (A non-retired element's ancestors
+    // are not retired either and hold the same children as when it was found: collapse() retires
+    // everything under an element, subdivide() brings back the same children or makes new ones, the
+    // old staying retired; and the descent's choice at an element reads its children alone.)
+    // `last` retired, of another face or -1: from the root.
+    int leafAtAgain(int face, Eigen::Vector2d st, int last) const;
     // Leaves under an element (itself when it is a leaf).
     void leavesUnder(int element, std::vector<int>& out) const;
     // Marks an element and everything under it buried (or not).
@@ -96,6 +104,8 @@ public:
 private:
     // Appends an element and its ab_from_st_.
     void add(const Element& e);
+    // leafAt()'s descent from element `current` (its face's clamped (s, t)).
+    int descend(int current, const Eigen::Vector2d& st) const;
 
     std::vector<Element> elements_;
     // By element: the inverse of [ds dt], (a, b) = ab_from_st_ * ((s, t) - st). leafAt() descends

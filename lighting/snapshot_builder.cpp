@@ -6,6 +6,8 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <map>
 #include <numbers>
 #include <numeric>
@@ -45,6 +47,9 @@ const std::vector<Eigen::Vector3d>& sphereDirections(int n) {
     if (made) it->second = makeSphereDirections(n);
     return it->second;
 }
+
+// The same point to the bit (a probe's memory holds for its point alone).
+bool sameBits(const Eigen::Vector3d& a, const Eigen::Vector3d& b) { return std::memcmp(a.data(), b.data(), 3 * sizeof(double)) == 0; }
 
 std::array<double, 9> basis(const Eigen::Vector3d& n) {
     const auto y = shBasis(n.cast<float>());
@@ -547,7 +552,7 @@ void buildFaceModulations(const Radiosity& radiosity, const Scene& scene, const 
 
 ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3d& p, int object,
                                 const std::vector<Eigen::Vector3d>& radiance, const std::vector<ProbeLight>& lights,
-                                int directions, std::uint64_t seed, bool other_objects) {
+                                int directions, std::uint64_t seed, bool other_objects, ProbeMemory* memory) {
     const RayScene& rays = radiosity.rays();
     const Hierarchy& h = radiosity.hierarchy();
     const std::vector<Eigen::Vector3d>& dirs = sphereDirections(directions);
@@ -556,9 +561,25 @@ ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3
     for (auto& c : dir) c.setZero();
     // Step 1: radiance from every direction (surfaces and the environment's residual).
     const double d_omega = 4.0 * kPi / static_cast<double>(dirs.size());
-    // The real hits first, in packets (the same hits as one ray at a time).
-    std::vector<RayHit> real_hits(dirs.size());
-    rays.intersectRealMany(p, dirs.data(), static_cast<int>(dirs.size()), real_hits.data());
+    // The real hits first, in packets (the same hits as one ray at a time); or last time's, from
+    // the same point.
+    const bool again = memory && memory->valid && sameBits(memory->point, p) && memory->real_hits.size() == dirs.size();
+    std::vector<RayHit> local_hits;
+    std::vector<int> local_leaves;
+    std::vector<RayHit>& real_hits = memory ? memory->real_hits : local_hits;
+    std::vector<int>& leaves = memory ? memory->leaves : local_leaves;
+    if (!again) {
+        real_hits.assign(dirs.size(), RayHit{});
+        leaves.assign(dirs.size(), -1);
+        rays.intersectRealMany(p, dirs.data(), static_cast<int>(dirs.size()), real_hits.data());
+        if (memory) {
+            memory->valid = true;
+            memory->point = p;
+            memory->sample_target.clear();
+            memory->sample_normal.clear();
+            memory->sample_open.clear();
+        }
+    }
     for (std::size_t di = 0; di < dirs.size(); ++di) {
         const Eigen::Vector3d& w = dirs[di];
         const RayHit& real = real_hits[di];
@@ -590,7 +611,8 @@ ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3
             }
         } else if (real.kind == HitKind::kRealFace) {
             const Face& face = radiosity.face(real.index);
-            const int leaf = h.leafAt(real.index, faceCoordinates(face, p + real.distance * w));
+            const int leaf = h.leafAtAgain(real.index, faceCoordinates(face, p + real.distance * w), leaves[di]);
+            leaves[di] = leaf;
             if (!h[leaf].buried) l = radiance[static_cast<std::size_t>(leaf)];
         } else if (real.kind == HitKind::kNone && w.z() > 0.0) {
             for (const ProbeLight& pl : lights) {
@@ -605,7 +627,27 @@ ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3
         const auto y = basis(w);
         for (int k = 0; k < 9; ++k) ind[static_cast<std::size_t>(k)] += d_omega * y[static_cast<std::size_t>(k)] * l;
     }
-    // Step 2: the lights the renderer draws, sampled on their own geometry.
+    // Step 2: the lights the renderer draws, sampled on their own geometry. The real visibility of
+    // a sample asked last time from this point at the same target is last time's.
+    std::size_t sample = 0;
+    const auto openToReal = [&](const Eigen::Vector3d& target, const Eigen::Vector3d& target_normal, const auto& trace) {
+        if (!memory) return !trace();
+        const std::size_t k = sample++;
+        if (k < memory->sample_open.size() && sameBits(memory->sample_target[k], target) && sameBits(memory->sample_normal[k], target_normal)) {
+            return memory->sample_open[k] != 0;
+        }
+        const bool open = !trace();
+        if (k < memory->sample_open.size()) {
+            memory->sample_target[k] = target;
+            memory->sample_normal[k] = target_normal;
+            memory->sample_open[k] = open ? 1 : 0;
+        } else {
+            memory->sample_target.push_back(target);
+            memory->sample_normal.push_back(target_normal);
+            memory->sample_open.push_back(open ? 1 : 0);
+        }
+        return open;
+    };
     for (std::size_t li = 0; li < lights.size(); ++li) {
         const ProbeLight& pl = lights[li];
         if (pl.indirect) continue;
@@ -614,7 +656,9 @@ ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3
             for (int k = 0; k < 9; ++k) dir[static_cast<std::size_t>(k)] += y[static_cast<std::size_t>(k)] * radiance_times_omega;
         };
         const auto visible = [&](const Eigen::Vector3d& target, const Eigen::Vector3d& target_normal) {
-            if (rays.occludedReal(p, Eigen::Vector3d::Zero(), target, target_normal)) return false;
+            if (!openToReal(target, target_normal, [&] { return rays.occludedReal(p, Eigen::Vector3d::Zero(), target, target_normal); })) {
+                return false;
+            }
             if (!other_objects) return true;
             const Eigen::Vector3d d = target - p;
             const RayHit hv = rays.intersectVirtualExcept(p, d.normalized(), object, d.norm() - rays.epsilon());
@@ -643,7 +687,8 @@ ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3
             }
             case DirectSource::Kind::kDirection: {
                 const Eigen::Vector3d towards = -pl.source.direction.normalized();
-                if (!rays.occludedRealRay(p, Eigen::Vector3d::Zero(), towards) &&
+                if (openToReal(towards, Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()),
+                               [&] { return rays.occludedRealRay(p, Eigen::Vector3d::Zero(), towards); }) &&
                     (!other_objects || rays.intersectVirtualExcept(p, towards, object).kind == HitKind::kNone)) {
                     add(towards, pl.emission);
                 }
@@ -662,9 +707,14 @@ ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3
 }
 
 std::vector<VirtualIrradiance> buildProbes(const Radiosity& radiosity, const Scene& scene, const std::vector<Eigen::Vector3d>& radiance,
-                                           const std::vector<ProbeLight>& lights, int directions) {
+                                           const std::vector<ProbeLight>& lights, int directions, ProbeMemories* memories) {
     std::vector<VirtualIrradiance> out;
     const Hierarchy& h = radiosity.hierarchy();
+    if (memories) {
+        if (memories->radiosity != &radiosity) memories->clear();
+        memories->radiosity = &radiosity;
+        memories->objects.resize(scene.virtual_objects.size());
+    }
     for (std::size_t v = 0; v < scene.virtual_objects.size(); ++v) {
         VirtualIrradiance probe;
         probe.object = scene.virtual_objects[v].name;
@@ -683,6 +733,8 @@ std::vector<VirtualIrradiance> buildProbes(const Radiosity& radiosity, const Sce
         const int count = probe.dims.prod();
         probe.indirect.assign(static_cast<std::size_t>(count), IrradianceSh{});
         probe.direct.assign(static_cast<std::size_t>(count), IrradianceSh{});
+        std::vector<ProbeMemory>* memory = memories ? &memories->objects[v] : nullptr;
+        if (memory) memory->resize(static_cast<std::size_t>(count));
         tbb::parallel_for(0, count, [&](int index) {
             const int ix = index % probe.dims.x(), iy = (index / probe.dims.x()) % probe.dims.y(), iz = index / (probe.dims.x() * probe.dims.y());
             const Eigen::Vector3d frac((probe.dims.x() > 1 ? static_cast<double>(ix) / (probe.dims.x() - 1) : 0.5),
@@ -690,7 +742,8 @@ std::vector<VirtualIrradiance> buildProbes(const Radiosity& radiosity, const Sce
                                        (probe.dims.z() > 1 ? static_cast<double>(iz) / (probe.dims.z() - 1) : 0.5));
             const Eigen::Vector3d p = box.min() + frac.cwiseProduct(extent);
             const ProbeIrradiance e = probeIrradiance(radiosity, p, static_cast<int>(v), radiance, lights, directions,
-                                                      hashCombine(0xfeedull, static_cast<std::uint64_t>(v * 1000 + index)));
+                                                      hashCombine(0xfeedull, static_cast<std::uint64_t>(v * 1000 + index)), true,
+                                                      memory ? &(*memory)[static_cast<std::size_t>(index)] : nullptr);
             probe.indirect[static_cast<std::size_t>(index)] = e.indirect;
             probe.direct[static_cast<std::size_t>(index)] = e.direct;
         });

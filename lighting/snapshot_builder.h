@@ -125,13 +125,45 @@ struct ProbeIrradiance {
     IrradianceSh indirect;
     IrradianceSh direct;
 };
+//
+// `memory` (optional): what the probe's real rays met at its last call, kept for the next. A probe
+// at the same point (to the bit) with as many directions meets the same real faces at the same
+// points (the real scene does not move): its real rays are not traced again, and each hit's leaf is
+// found from last time's (Hierarchy::leafAtAgain(): the same leaf through splits and collapses);
+// a light sample at the same target keeps its real visibility. The virtual objects are asked
+// every time. The answer is the same to the bit as without `memory`. It must be cleared when the
+// radiosity's hierarchy or real scene is replaced, or the lights' geometry changes.
+struct ProbeMemory {
+    bool valid = false;
+    Eigen::Vector3d point = Eigen::Vector3d::Zero();
+    std::vector<RayHit> real_hits;  // by direction
+    std::vector<int> leaves;        // by direction: the real hit's leaf last time (-1: none)
+    // The lights' visibility samples in the order they were asked: target, its normal, open to the
+    // real scene.
+    std::vector<Eigen::Vector3d> sample_target, sample_normal;
+    std::vector<char> sample_open;
+};
 ProbeIrradiance probeIrradiance(const Radiosity& radiosity, const Eigen::Vector3d& p, int object,
                                 const std::vector<Eigen::Vector3d>& radiance, const std::vector<ProbeLight>& lights,
-                                int directions, std::uint64_t seed, bool other_objects = true);
+                                int directions, std::uint64_t seed, bool other_objects = true, ProbeMemory* memory = nullptr);
+
+// buildProbes()'s memories, by virtual object and probe (ProbeMemory); clear() when the radiosity's
+// hierarchy or the lights are replaced (a full update).
+struct ProbeMemories {
+    const Radiosity* radiosity = nullptr;
+    std::vector<std::vector<ProbeMemory>> objects;
+    void clear() {
+        radiosity = nullptr;
+        objects.clear();
+    }
+};
 
 // Irradiance probes over each virtual object's bounds (lighting/snapshot.h VirtualIrradiance),
-// each probeIrradiance() with `radiance` the solution with the virtual objects (B).
+// each probeIrradiance() with `radiance` the solution with the virtual objects (B). `memories`
+// (optional): kept between calls, so that the probes of an object that did not move trace no real
+// ray again (the same probes to the bit).
 std::vector<VirtualIrradiance> buildProbes(const Radiosity& radiosity, const Scene& scene, const std::vector<Eigen::Vector3d>& radiance,
-                                           const std::vector<ProbeLight>& lights, int directions = 256);
+                                           const std::vector<ProbeLight>& lights, int directions = 256,
+                                           ProbeMemories* memories = nullptr);
 
 }  // namespace commonlight::lighting

@@ -16,6 +16,7 @@
 
 #include "core/scene_io.h"
 #include "lighting/estimator.h"
+#include "lighting/snapshot_builder.h"
 #include "tests/lighting/influence_test_support.h"
 
 namespace commonlight::lighting {
@@ -83,6 +84,73 @@ TEST(Influence, IncrementalEqualsFromScratchWhenTheElementsDrawTheDirectLight) {
     ASSERT_EQ(scene.lights.size(), 2u);
     SCOPED_TRACE("a point and a directional light");
     expectRandomMovesEqualFresh(scene, testOptions(), 12);
+}
+
+// The probes built with their memories (ProbeMemories, what the estimator keeps between moves)
+// against the probes built afresh, to the bit, while the ball moves and the cube stands still (its
+// probes then trace no real ray again, and the influence splits and collapses leaves under their
+// hits meanwhile), the cube moved now and then; with a polygon, a point (moved once), a distant
+// light and a sky cell (the residual the probes count as indirect).
+TEST(Influence, ProbesWithTheirMemoriesEqualProbesBuiltAfresh) {
+    const Scene scene = parse(kScene);
+    auto est = make(scene);
+    Config config = sceneConfig(scene);
+    const auto geometry = lightGeometry(scene);
+    ASSERT_TRUE(geometry && !geometry->empty());
+    std::vector<ProbeLight> lights(4);
+    lights[0].source.polygon = &(*geometry)[0];
+    lights[0].emission = Eigen::Vector3d(20, 20, 20);
+    lights[1].source.kind = DirectSource::Kind::kPoint;
+    lights[1].source.position = Eigen::Vector3d(0.2, -0.3, 1.2);
+    lights[1].emission = Eigen::Vector3d(3, 2, 1);
+    lights[2].source.kind = DirectSource::Kind::kDirection;
+    lights[2].source.direction = Eigen::Vector3d(0.3, 0.5, -1.0);
+    lights[2].emission = Eigen::Vector3d(2, 2, 2);
+    lights[3].source.kind = DirectSource::Kind::kCell;
+    lights[3].source.cos0 = 0.1;
+    lights[3].source.cos1 = 0.9;
+    lights[3].source.phi1 = 4.0;
+    lights[3].emission = Eigen::Vector3d(0.5, 0.6, 0.7);
+    lights[3].indirect = true;
+    ProbeMemories memories;
+    std::mt19937 rng(9);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    int kept = 0, leaves_changed = 0;
+    for (int step = 0; step < 12; ++step) {
+        const int o = step % 4 == 3 ? 1 : 0;
+        config.poses[static_cast<std::size_t>(o)].translation = Eigen::Vector3d(0.35 * u(rng), 0.25 * u(rng), 0.56 + 0.03 * std::abs(u(rng)));
+        ASSERT_TRUE(apply(*est, config)) << "step " << step;
+        // The point light moved under the floor, the memories kept: its target differs, traced again.
+        if (step == 6) lights[1].source.position = Eigen::Vector3d(0.2, 0.1, -0.3);
+        const Radiosity& rad = est->radiosity();
+        const std::vector<ProbeMemory> before = memories.objects.empty() ? std::vector<ProbeMemory>{} : memories.objects[1];
+        const std::vector<VirtualIrradiance> got = buildProbes(rad, scene, est->with().radiance, lights, 64, &memories);
+        const std::vector<VirtualIrradiance> want = buildProbes(rad, scene, est->with().radiance, lights, 64);
+        ASSERT_EQ(got.size(), want.size());
+        for (std::size_t v = 0; v < got.size(); ++v) {
+            ASSERT_EQ(got[v].indirect.size(), want[v].indirect.size());
+            for (std::size_t i = 0; i < got[v].indirect.size(); ++i) {
+                for (std::size_t k = 0; k < 9; ++k) {
+                    for (int c = 0; c < 3; ++c) {
+                        ASSERT_EQ(got[v].indirect[i][k][c], want[v].indirect[i][k][c]) << "step " << step << " object " << v << " probe " << i;
+                        ASSERT_EQ(got[v].direct[i][k][c], want[v].direct[i][k][c]) << "step " << step << " object " << v << " probe " << i;
+                    }
+                }
+            }
+        }
+        // The still cube's probes kept their real hits; some of their leaves were split or collapsed.
+        if (o == 0 && step > 0) {
+            ASSERT_EQ(before.size(), memories.objects[1].size());
+            for (std::size_t i = 0; i < before.size(); ++i) {
+                const ProbeMemory& m = memories.objects[1][i];
+                ASSERT_TRUE(before[i].valid && m.valid && before[i].point == m.point) << "step " << step;
+                ++kept;
+                for (std::size_t r = 0; r < m.leaves.size(); ++r) leaves_changed += before[i].leaves[r] != m.leaves[r] ? 1 : 0;
+            }
+        }
+    }
+    EXPECT_GT(kept, 0);
+    EXPECT_GT(leaves_changed, 0);
 }
 
 // The minimum ratio B/B~ over a face's leaves, and the leaves' count.

@@ -437,5 +437,65 @@ TEST(Hierarchy, LeafAtFindsTheLeafHoldingThePointThroughSplitsAndCollapses) {
     check("split otherwise");
 }
 
+// leafAtAgain() (the probes' hits found from last move's leaf): the leaf leafAt() finds, through
+// splits under the last leaf, collapses above it, retired children brought back and other splits
+// made instead, for points inside leaves, on their shared borders (the descent's rounding
+// fallback) and outside the face (clamped), on a skewed parallelogram and a triangle.
+TEST(Hierarchy, LeafAtAgainFindsWhatLeafAtFindsThroughSplitsAndCollapses) {
+    Face quad;
+    quad.edge_s = Eigen::Vector3d(1.3, 0.2, 0);
+    quad.edge_t = Eigen::Vector3d(0.4, 0.7, 0);
+    Face tri = quad;
+    tri.triangle = true;
+    Hierarchy h({quad, tri});
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::uniform_int_distribution<int> grid(-1, 17);
+    struct Point {
+        int face;
+        Eigen::Vector2d st;
+        int last;
+    };
+    std::vector<Point> points;
+    for (int n = 0; n < 3000; ++n) {
+        const int face = n % 2;
+        // A third on the grid of sixteenths (the elements' corners and borders), some outside the face.
+        const Eigen::Vector2d st = n % 3 == 0 ? Eigen::Vector2d(grid(rng) / 16.0, grid(rng) / 16.0) : Eigen::Vector2d(u(rng), u(rng));
+        points.push_back({face, st, h.leafAt(face, st)});
+    }
+    std::vector<int> non_leaves;
+    int descended = 0, restarted = 0;
+    for (int round = 0; round < 40; ++round) {
+        // Split some leaves, finer or coarser (another split of a collapsed element: new children).
+        const double min_size = round % 5 == 4 ? 0.25 : 0.02;
+        for (int n = 0; n < 60; ++n) {
+            const int face = n % 2;
+            h.subdivide(h.leafAt(face, Eigen::Vector2d(u(rng), u(rng))), min_size);
+        }
+        // Collapse a few elements above leaves (their children retired, some brought back later).
+        non_leaves.clear();
+        for (std::size_t e = 0; e < h.elements().size(); ++e) {
+            if (!h[static_cast<int>(e)].retired && h[static_cast<int>(e)].child_count > 0) non_leaves.push_back(static_cast<int>(e));
+        }
+        for (int n = 0; n < 3 && !non_leaves.empty(); ++n) {
+            h.collapse(non_leaves[std::uniform_int_distribution<std::size_t>(0, non_leaves.size() - 1)(rng)]);
+        }
+        for (Point& p : points) {
+            const int want = h.leafAt(p.face, p.st);
+            if (h[p.last].retired) ++restarted;
+            else if (p.last != want) ++descended;
+            const int got = h.leafAtAgain(p.face, p.st, p.last);
+            ASSERT_EQ(got, want) << "round " << round << " face " << p.face << " at (" << p.st.x() << ", " << p.st.y() << ") last " << p.last;
+            p.last = got;
+        }
+    }
+    // Both ways were taken many times: on from a split last leaf, and from the root past a retired one.
+    EXPECT_GT(descended, 1000);
+    EXPECT_GT(restarted, 1000);
+    // A leaf of the other face, or none: from the root.
+    EXPECT_EQ(h.leafAtAgain(0, Eigen::Vector2d(0.3, 0.6), h.leafAt(1, Eigen::Vector2d(0.3, 0.6))), h.leafAt(0, Eigen::Vector2d(0.3, 0.6)));
+    EXPECT_EQ(h.leafAtAgain(1, Eigen::Vector2d(0.2, 0.1), -1), h.leafAt(1, Eigen::Vector2d(0.2, 0.1)));
+}
+
 }  // namespace
 }  // namespace commonlight::lighting
