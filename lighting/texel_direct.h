@@ -60,6 +60,11 @@ private:
     struct Entry {
         bool valid = false;  // `with` stands (no move reached the texel's shafts)
         bool real = false;   // `without` and the parts below stand (the texel's point is x)
+        // The still objects (virtual bits: those the latest commit did not change) whose answers
+        // the parts' `kept_blocked` hold, made or found to hold at RayScene::virtualStamp()
+        // `kept_at`: while none of them changes, a re-answer traces the other objects' rays alone.
+        std::uint32_t kept_objects = 0;
+        std::uint64_t kept_at = 0;
         Eigen::Vector3d x = Eigen::Vector3d::Zero();
         Eigen::Vector3d without = Eigen::Vector3d::Zero(), with = Eigen::Vector3d::Zero();
     };
@@ -69,6 +74,7 @@ private:
         double all = 0.0;            // kernel weight of the pairs
         std::uint64_t blocked = 0;   // pairs the real scene blocks (bit j), or with no weight
         double open = 0.0;           // kernel weight of the pairs it leaves open (summed in order)
+        std::uint64_t kept_blocked = 0;  // open pairs the entry's `kept_objects` block (bit j)
     };
     struct FaceState {
         lighting::Face geometry;
