@@ -8,7 +8,9 @@
 // A texel's answer is kept while no object that moved had its old or new bounds in the shaft
 // between the texel's point and a light (the influence's rule, lighting/influence.h), so a move
 // traces the texels it reaches; and of those, only the virtual rays: the form factor and which
-// pairs the real scene blocks are kept (the real scene does not change between full updates). Lighting thread only; at() is called in parallel for distinct texels.
+// pairs the real scene blocks are kept (the real scene does not change between full updates), and
+// so are the pairs the objects that stayed still block (RealPart::kept_blocked, valid at a change
+// stamp of the RayScene): a re-answer traces the rays of the objects that changed since. Lighting thread only; at() is called in parallel for distinct texels.
 #pragma once
 
 #include <atomic>
