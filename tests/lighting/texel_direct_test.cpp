@@ -548,6 +548,94 @@ TEST(TexelDirect, AnswersEqualThePlainPerPairSum) {
     EXPECT_GT(low_blocked, 1000) << "the curb hides some of the low lamp's pairs with weight";
 }
 
+// The still objects' answers kept per texel and light (TexelDirectCache's kept bits, valid at the
+// change stamp they were made at) are, to the bit, the answers of a cache made fresh at the same
+// poses: a ball and a cube over a floor under two lamps, moved one at a time and both, each
+// leaving and coming back; at one commit only the even texels are answered, so the odd ones are
+// answered a commit later with the cube (still at that later commit) changed since their bits.
+TEST(TexelDirect, KeptBitsOfStillObjectsEqualFreshAnswers) {
+    const Face floor = squareFloor(0.3);
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.05;
+    VirtualShape cube;  // side 0.1 about its origin, outward faces
+    {
+        const double h = 0.05, a = 0.1;
+        const auto face = [&](Eigen::Vector3d o, Eigen::Vector3d es, Eigen::Vector3d et) {
+            Face f;
+            f.owner = FaceOwner::kVirtual;
+            f.origin = o;
+            f.edge_s = es;
+            f.edge_t = et;
+            f.normal = es.cross(et).normalized();
+            f.area = es.cross(et).norm();
+            cube.faces.push_back(f);
+        };
+        face({-h, -h, -h}, {0, a, 0}, {a, 0, 0});
+        face({-h, -h, h}, {a, 0, 0}, {0, a, 0});
+        face({-h, -h, -h}, {a, 0, 0}, {0, 0, a});
+        face({-h, h, -h}, {0, 0, a}, {a, 0, 0});
+        face({-h, -h, -h}, {0, 0, a}, {0, a, 0});
+        face({h, -h, -h}, {0, a, 0}, {0, 0, a});
+    }
+    auto rays = RayScene::build({floor}, {}, {sphere, cube});
+    ASSERT_TRUE(rays) << rays.error().message;
+    RayScene& scene = **rays;
+    const std::vector<LightGeometry> lamps{squareLamp({0.05, 0.0, 0.6}, 0.2), squareLamp({-0.2, 0.1, 0.5}, 0.1)};
+    const std::vector<TexelDirectCache::Light> lights{{&lamps[0], Eigen::Vector3d(50.0, 40.0, 30.0)}, {&lamps[1], Eigen::Vector3d(20.0, 20.0, 25.0)}};
+    constexpr int kSide = 24, kPairs = 16;
+    std::vector<Eigen::Vector3d> points;
+    for (int j = 0; j < kSide; ++j) {
+        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
+    }
+    struct Step {
+        Eigen::Vector3d ball, cube;
+        bool ball_on = true, cube_on = true, even_only = false;
+    };
+    const Eigen::Vector3d b0(0.02, -0.01, 0.15), c0(-0.08, 0.05, 0.12), c1(0.0, -0.06, 0.1), c2(-0.12, 0.0, 0.14);
+    const std::vector<Step> steps{
+        {b0, c0},                                                // fresh
+        {{0.06, 0.02, 0.15}, c0},                                // the ball moves
+        {{0.0, 0.07, 0.14}, c0},                                 // again
+        {{0.0, 0.07, 0.14}, c1, true, true, true},               // the cube moves: even texels answered
+        {{0.05, -0.05, 0.16}, c1},                               // the ball: odd texels with the cube changed since
+        {{-0.04, 0.03, 0.13}, c2},                               // both
+        {{-0.04, 0.03, 0.13}, c2, true, false},                  // the cube leaves
+        {{0.07, 0.0, 0.15}, c2, true, false},                    // the ball moves
+        {{0.07, 0.0, 0.15}, c0},                                 // the cube comes back
+        {{0.03, 0.04, 0.15}, c0},                                // the ball moves
+        {{0.03, 0.04, 0.15}, c0, false, true},                   // the ball leaves
+        {{0.03, 0.04, 0.15}, c1, false, true},                   // the cube moves
+        {{-0.02, -0.03, 0.15}, c1},                              // the ball comes back
+        {{0.01, 0.0, 0.16}, c1},                                 // the ball moves
+    };
+    TexelDirectCache kept(scene, kPairs), fresh(scene, kPairs);
+    kept.reset(lights, {floor});
+    int compared = 0, shaded = 0;
+    for (std::size_t s = 0; s < steps.size(); ++s) {
+        const Step& step = steps[s];
+        // (Only the objects that move are posed: a pose set counts as a change.)
+        if (s == 0 || step.ball != steps[s - 1].ball) scene.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), step.ball));
+        if (s == 0 || step.cube != steps[s - 1].cube) scene.setVirtualPose(1, Rigid3d(Eigen::Quaterniond::Identity(), step.cube));
+        scene.setVirtualEnabled(0, step.ball_on);
+        scene.setVirtualEnabled(1, step.cube_on);
+        ASSERT_TRUE(scene.commitVirtual());
+        kept.forget({Ball{Eigen::Vector3d::Zero(), 10.0}});  // every texel answered again
+        fresh.reset(lights, {floor});
+        for (std::size_t k = 0; k < points.size(); ++k) {
+            if (step.even_only && k % 2 == 1) continue;
+            Eigen::Vector3d d0, d1, e0, e1;
+            kept.at(0, k, kSide, kSide, points[k], floor.normal, d0, d1);
+            fresh.at(0, k, kSide, kSide, points[k], floor.normal, e0, e1);
+            ASSERT_EQ(d0, e0) << "step " << s << " texel " << k;
+            ASSERT_EQ(d1, e1) << "step " << s << " texel " << k;
+            ++compared;
+            shaded += d1 != d0 ? 1 : 0;
+        }
+    }
+    EXPECT_EQ(compared, 13 * kSide * kSide + kSide * kSide / 2);
+    EXPECT_GT(shaded, 1500) << "the objects shade the floor";
+}
+
 // prefetch() makes again, ahead of the textures, the answers forget() took that the last update
 // asked for; the textures then read them through at(). Two caches over the same moves of a ball,
 // one prefetching: every answer asked for equal to the bit, kept() and traced() the same before
