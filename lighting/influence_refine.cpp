@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <numbers>
 
@@ -282,6 +283,9 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     }
     // Step 2: their real rays (unless known) as packets, occludedReal()'s answers.
     const std::uint64_t real = known ? 0 : rays.occludedRealMany(segments.data(), count);
+    // The pairs the real scene leaves open are kept: room for them at once (one allocation, not
+    // one per doubling; known, the blocked ones were skipped above).
+    if (keep_points) points->pairs.reserve(static_cast<std::size_t>(count - std::popcount(real)));
     // Step 3: in the pairs' order, the sums and the virtual rays of the pairs left open.
     for (int i = 0; i < count; ++i) {
         const Candidate& p = cand[static_cast<std::size_t>(i)];

@@ -559,14 +559,18 @@ PreparedSegment RayScene::prepareSegment(const Eigen::Vector3d& from, const Eige
     const double length = d.norm();
     if (length <= 2.0 * epsilon_) return s;  // hard case: touching points see each other
     const Eigen::Vector3d dir = d / length;
-    const Eigen::Vector3d o = lifted(from, from_normal, dir, epsilon_);
-    const Eigen::Vector3d t = lifted(to, to_normal, -dir, epsilon_);
+    // lifted(from, from_normal, dir) and lifted(to, to_normal, -dir) written out (the same
+    // operations, without the calls; `to_normal`'s squared norm once).
+    const double to_norm2 = to_normal.squaredNorm();
+    Eigen::Vector3d o = from, t = to;
+    if (from_normal.squaredNorm() != 0.0) o = from + (dir.dot(from_normal) >= 0.0 ? epsilon_ : -epsilon_) * from_normal;
+    if (to_norm2 != 0.0) t = to + ((-dir).dot(to_normal) >= 0.0 ? epsilon_ : -epsilon_) * to_normal;
     const Eigen::Vector3d span = t - o;
     const double span_length = span.norm();
     if (!(span_length > 0.0)) return s;
     s.origin = o;
     s.direction = span / span_length;
-    s.tfar = to_normal.squaredNorm() > 0.0 ? span_length : span_length - epsilon_;
+    s.tfar = to_norm2 > 0.0 ? span_length : span_length - epsilon_;
     return s;
 }
 

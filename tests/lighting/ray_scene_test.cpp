@@ -3,8 +3,8 @@
 // it (still traced by Embree), masks, a disabled object and a moved one; a mesh traced only where a
 // segment meets its bounding ball, with Embree's answer; intersectVirtualExcept()'s ball test; a prepared
 // segment's answer (prepareSegment()) against the plain one, also with the objects gathered once
-// (virtualSet()), for few objects and for more than VirtualSet::kMax; the change stamps of the
-// objects (virtualChangedSince()).
+// (virtualSet()), for few objects and for more than VirtualSet::kMax; the prepared segment against
+// the lifted segment it stands for, bit for bit; the change stamps of the objects (virtualChangedSince()).
 #include "lighting/ray_scene.h"
 
 #include <gtest/gtest.h>
@@ -507,6 +507,63 @@ TEST(RayScene, ChangeStampsMarkTheChangedObjectsAlone) {
     ASSERT_TRUE(other) << other.error().message;
     EXPECT_GT((*other)->virtualStamp(), rays.virtualStamp());
     EXPECT_EQ((*other)->virtualChangedSince(rays.virtualStamp()), b0);
+}
+
+
+// prepareSegment() against the segment ray_scene.h describes, written out here: each end lifted by
+// epsilon() along its normal (unit, or zero: not lifted) to the side the other end lies on (a
+// segment in the normal's plane: to the normal's side), the ray from the lifted start towards the
+// lifted end, unit, tfar their distance (epsilon() less when the end has no normal), and no
+// segment between ends 2 epsilon() or less apart. Bit for bit, for random segments, segments in
+// their ends' plane, and short ones around 2 epsilon().
+TEST(RayScene, PreparedSegmentIsTheLiftedSegment) {
+    auto built = RayScene::build(floorFace(), {}, {});
+    ASSERT_TRUE(built) << built.error().message;
+    const RayScene& rays = **built;
+    const double eps = rays.epsilon();
+    const auto lift = [&](const Eigen::Vector3d& x, const Eigen::Vector3d& n, const Eigen::Vector3d& towards) {
+        if (n.squaredNorm() == 0.0) return x;
+        const Eigen::Vector3d dir = (towards - x) / (towards - x).norm();
+        return Eigen::Vector3d(x + (dir.dot(n) >= 0.0 ? eps : -eps) * n);
+    };
+    std::mt19937 rng(41);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    int lifted_both = 0, in_plane = 0, too_short = 0, flipped = 0;
+    for (int k = 0; k < 20000; ++k) {
+        const Eigen::Vector3d a(u(rng), u(rng), u(rng));
+        Eigen::Vector3d na = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+        Eigen::Vector3d b(u(rng), u(rng), u(rng)), nb = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+        if (k % 4 == 1) {
+            // Both ends on one plane z = a.z with its normal (or its opposite): the lifts' sign test
+            // meets a zero product.
+            b.z() = a.z();
+            na = Eigen::Vector3d(0, 0, k % 8 == 1 ? 1 : -1);
+            nb = na;
+            ++in_plane;
+        }
+        if (k % 7 == 2) b = a + (1.0 + 0.2 * u(rng)) * 2.0 * eps * Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+        if (k % 3 == 0) na.setZero();
+        if (k % 5 == 0) nb.setZero();
+        const PreparedSegment s = rays.prepareSegment(a, na, b, nb);
+        if ((b - a).norm() <= 2.0 * eps) {
+            ASSERT_EQ(s.tfar, 0.0) << k;
+            ++too_short;
+            continue;
+        }
+        const Eigen::Vector3d o = lift(a, na, b);
+        const Eigen::Vector3d t = lift(b, nb, a);
+        const Eigen::Vector3d span = t - o;
+        ASSERT_GT(span.norm(), 0.0) << k;
+        ASSERT_EQ(s.origin, o) << k;
+        ASSERT_EQ(s.direction, Eigen::Vector3d(span / span.norm())) << k;
+        ASSERT_EQ(s.tfar, nb.squaredNorm() > 0.0 ? span.norm() : span.norm() - eps) << k;
+        if (na.squaredNorm() > 0.0 && nb.squaredNorm() > 0.0) ++lifted_both;
+        if (na.squaredNorm() > 0.0 && (b - a).dot(na) < 0.0) ++flipped;  // lifted against its normal
+    }
+    EXPECT_GT(lifted_both, 5000);
+    EXPECT_GT(in_plane, 4000);
+    EXPECT_GT(too_short, 1000);
+    EXPECT_GT(flipped, 3000);
 }
 
 }  // namespace
