@@ -41,8 +41,7 @@ std::uint64_t nextVirtualStamp() { return g_virtual_stamp.fetch_add(1, std::memo
 constexpr unsigned kFacesGeometry = 0;  // geometry ids inside the real scene
 constexpr unsigned kLightsGeometry = 1;
 
-// A triangle geometry from a list of triangles (world or object frame). Owned by the caller until
-// attached.
+// A triangle geometry from a list of triangles (world or object frame). Owned by the caller until attached.
 RTCGeometry trianglesGeometry(RTCDevice device, const std::vector<std::array<Eigen::Vector3d, 3>>& triangles) {
     RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
     auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
@@ -87,6 +86,13 @@ RTCGeometry instanceOf(RTCDevice device, RTCScene child, const Eigen::Matrix4f& 
     rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT4X4_COLUMN_MAJOR, world_from_object.data());
     rtcCommitGeometry(inst);
     return inst;
+}
+
+// The origin lifted off its surface towards the side the ray leaves to.
+Eigen::Vector3d lifted(const Eigen::Vector3d& from, const Eigen::Vector3d& normal, const Eigen::Vector3d& dir,
+                       double epsilon) {
+    if (normal.squaredNorm() == 0.0) return from;
+    return from + (dir.dot(normal) >= 0.0 ? epsilon : -epsilon) * normal;
 }
 
 }  // namespace
@@ -541,17 +547,6 @@ std::uint32_t RayScene::virtualChangedSince(std::uint64_t stamp) const {
 
 std::uint32_t RayScene::virtualChangedLast() const noexcept { return impl_->changed_last; }
 
-namespace {
-
-// The origin lifted off its surface towards the side the ray leaves to.
-Eigen::Vector3d lifted(const Eigen::Vector3d& from, const Eigen::Vector3d& normal, const Eigen::Vector3d& dir,
-                       double epsilon) {
-    if (normal.squaredNorm() == 0.0) return from;
-    return from + (dir.dot(normal) >= 0.0 ? epsilon : -epsilon) * normal;
-}
-
-}  // namespace
-
 PreparedSegment RayScene::prepareSegment(const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
                                          const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal) const {
     PreparedSegment s;
@@ -559,8 +554,7 @@ PreparedSegment RayScene::prepareSegment(const Eigen::Vector3d& from, const Eige
     const double length = d.norm();
     if (length <= 2.0 * epsilon_) return s;  // hard case: touching points see each other
     const Eigen::Vector3d dir = d / length;
-    // lifted(from, from_normal, dir) and lifted(to, to_normal, -dir) written out (the same
-    // operations, without the calls; `to_normal`'s squared norm once).
+    // lifted(from, from_normal, dir) and lifted(to, to_normal, -dir) written out (the same operations).
     const double to_norm2 = to_normal.squaredNorm();
     Eigen::Vector3d o = from, t = to;
     if (from_normal.squaredNorm() != 0.0) o = from + (dir.dot(from_normal) >= 0.0 ? epsilon_ : -epsilon_) * from_normal;
