@@ -177,29 +177,15 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
     // whose cone from x (every segment from x to a point of its ball) meets none of them has
     // every pair open to them, so `with` takes the real answer (the same sum in the same order).
     std::array<Ball, 32> balls;
-    std::array<std::uint32_t, 32> ball_bit{};  // their objects' bits
     std::size_t ball_count = 0;
-    std::uint32_t present = 0;  // the bits of the enabled objects
     for (std::size_t v = 0; v < rays_.virtualCount() && ball_count < balls.size(); ++v) {
         Ball b;
         if (!rays_.virtualBall(static_cast<int>(v), b.centre, b.radius)) continue;
         b.radius += 2.0 * rays_.epsilon() + 1e-6 * (1.0 + b.radius);
-        ball_bit[ball_count] = RayScene::virtualBit(static_cast<int>(v));
-        present |= ball_bit[ball_count];
         balls[ball_count++] = b;
     }
     const bool all_balls = rays_.virtualCount() <= balls.size();
-    // A pair is blocked when one of the objects blocks it (each object's answer its own), and an
-    // object whose ball misses a light's cone blocks none of its pairs. The answers of the
-    // objects the latest commit did not change (`still`) are kept per light (RealPart::kept_blocked)
-    // and used while none of them changes: then only the other objects' rays are traced, and
-    // none for a pair the kept ones block. Kept for other objects (one changed since, or left or
-    // joined the still ones), or for another point: made again.
-    const std::uint32_t still = all_balls ? present & ~rays_.virtualChangedLast() : 0u;
-    const bool reuse = same_point && all_balls && e.kept_objects == still &&
-                       (still == 0u || (rays_.virtualChangedSince(e.kept_at) & still) == 0u);
-    // occludedVirtual()'s objects, gathered at the first virtual ray: the changed ones, the still ones.
-    std::optional<VirtualSet> moved_set, still_set;
+    std::optional<VirtualSet> set;  // occludedVirtual()'s objects, gathered at the first virtual ray
     if (!same_point) without.setZero();
     with.setZero();
     for (std::size_t k = 0; k < nl; ++k) {
@@ -210,16 +196,10 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             part = RealPart{};
             part.form = pointToPolygon(x, normal, light.polygon, light.normal);
         }
-        if (!reuse) part.kept_blocked = 0;
         if (!(part.form > 0.0)) continue;
         const Shaft cone{x, light.centre, 0.0, light_radius_[k] * (1.0 + 1e-9) + 1e-12};
-        std::uint32_t near = all_balls ? 0u : ~0u;  // the objects whose balls meet the cone
-        for (std::size_t b = 0; all_balls && b < ball_count; ++b) {
-            if (shaftMeetsBall(cone, balls[b])) near |= ball_bit[b];
-        }
-        const bool clear = near == 0u;
-        const bool trace_still = !reuse && (near & still) != 0u;  // (kept: their answers are part.kept_blocked)
-        const bool trace_moved = (near & ~still) != 0u;
+        const bool clear = all_balls && std::none_of(balls.begin(), balls.begin() + static_cast<std::ptrdiff_t>(ball_count),
+                                                     [&](const Ball& b) { return shaftMeetsBall(cone, b); });
         if (same_point && clear) {
             if (part.all > 0.0) with += kPi * part.form * (part.open / part.all) * lights_[k].emission;
             continue;
@@ -233,7 +213,6 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
         const std::uint64_t every = pairs == 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << pairs) - 1;
         const std::uint64_t todo = same_point ? every & ~part.blocked : every;
         std::uint64_t weighed = 0;  // pairs with weight > 0, of `todo`
-        const std::uint64_t kept = reuse ? part.kept_blocked : 0;  // (no segment for a pair they block)
         for (std::uint64_t rest = todo; rest != 0; rest &= rest - 1) {
             const int j = std::countr_zero(rest);
             const Eigen::Vector3d q = sampleLight(light, stratified2d(seed, j, pairs));
@@ -243,8 +222,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             weight[static_cast<std::size_t>(j)] = w;
             if (!(w > 0.0)) continue;
             weighed |= std::uint64_t{1} << j;
-            const bool virtual_rays = !clear && (trace_still || (trace_moved && (kept & (std::uint64_t{1} << j)) == 0));
-            if (!same_point || virtual_rays) segments[static_cast<std::size_t>(j)] = rays_.prepareSegment(x, normal, q, light.normal);
+            if (!same_point || !clear) segments[static_cast<std::size_t>(j)] = rays_.prepareSegment(x, normal, q, light.normal);
         }
         std::uint64_t blocked_real = 0;  // of `weighed` (a new point)
         if (!same_point && weighed != 0) {
@@ -279,18 +257,8 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
                 open_both += w;
                 continue;
             }
-            const PreparedSegment& segment = segments[static_cast<std::size_t>(j)];
-            bool blocked = (kept & bit) != 0;
-            if (trace_still) {
-                if (!still_set) still_set = rays_.virtualSet(still);
-                blocked = rays_.occludedVirtual(segment, *still_set);
-                if (blocked) part.kept_blocked |= bit;
-            }
-            if (!blocked && trace_moved) {
-                if (!moved_set) moved_set = rays_.virtualSet(~still);
-                blocked = rays_.occludedVirtual(segment, *moved_set);
-            }
-            if (!blocked) open_both += w;
+            if (!set) set = rays_.virtualSet(~0u);
+            if (!rays_.occludedVirtual(segments[static_cast<std::size_t>(j)], *set)) open_both += w;
         }
         if (!same_point) part.open = open_real;
         if (!(part.all > 0.0)) continue;
@@ -301,8 +269,6 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
     ++traced_;
     e.valid = true;
     e.real = true;
-    e.kept_objects = still;
-    e.kept_at = rays_.virtualStamp();
     e.x = x;
     e.without = without;
     e.with = with;

@@ -8,9 +8,7 @@
 // A texel's answer is kept while no object that moved had its old or new bounds in the shaft
 // between the texel's point and a light (the influence's rule, lighting/influence.h), so a move
 // traces the texels it reaches; and of those, only the virtual rays: the form factor and which
-// pairs the real scene blocks are kept (the real scene does not change between full updates), and
-// so are the pairs the objects that stayed still block (RealPart::kept_blocked, valid at a change
-// stamp of the RayScene): a re-answer traces the rays of the objects that changed since. Lighting thread only; at() is called in parallel for distinct texels.
+// pairs the real scene blocks are kept (the real scene does not change between full updates). Lighting thread only; at() is called in parallel for distinct texels.
 #pragma once
 
 #include <atomic>
@@ -73,11 +71,6 @@ private:
         bool real = false;   // `without` and the parts below stand (the texel's point is x)
         bool prefetched = false;  // `with` made by prefetch(), not yet asked for
         std::uint32_t asked = 0;  // round_ when at() last asked for it
-        // The still objects (virtual bits: those the latest commit did not change) whose answers
-        // the parts' `kept_blocked` hold, made or found to hold at RayScene::virtualStamp()
-        // `kept_at`: while none of them changes, a re-answer traces the other objects' rays alone.
-        std::uint32_t kept_objects = 0;
-        std::uint64_t kept_at = 0;
         Eigen::Vector3d x = Eigen::Vector3d::Zero();
         Eigen::Vector3d without = Eigen::Vector3d::Zero(), with = Eigen::Vector3d::Zero();
     };
@@ -87,7 +80,6 @@ private:
         double all = 0.0;            // kernel weight of the pairs
         std::uint64_t blocked = 0;   // pairs the real scene blocks (bit j), or with no weight
         double open = 0.0;           // kernel weight of the pairs it leaves open (summed in order)
-        std::uint64_t kept_blocked = 0;  // open pairs the entry's `kept_objects` block (bit j)
     };
     struct FaceState {
         lighting::Face geometry;
