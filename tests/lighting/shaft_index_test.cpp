@@ -376,16 +376,21 @@ TEST(Hierarchy, CollapseRetiresAndSubdivideBringsTheSameChildrenBack) {
     EXPECT_EQ(g.leafCount(), 2);
 }
 
-// leafAt() descends through inverses kept per element (made with the element, not per visit): after
-// splits, collapses, re-activated children and a different split, it finds the leaf whose own
-// (s, t) parallelogram or triangle holds the point, on a skewed parallelogram and a triangle.
-TEST(Hierarchy, LeafAtFindsTheLeafHoldingThePointThroughSplitsAndCollapses) {
+// A skewed parallelogram and a triangle on the same edges (the leaf searches' faces).
+std::vector<Face> skewedQuadAndTriangle() {
     Face quad;
     quad.edge_s = Eigen::Vector3d(1.3, 0.2, 0);
     quad.edge_t = Eigen::Vector3d(0.4, 0.7, 0);
     Face tri = quad;
     tri.triangle = true;
-    Hierarchy h({quad, tri});
+    return {quad, tri};
+}
+
+// leafAt() descends through inverses kept per element (made with the element, not per visit): after
+// splits, collapses, re-activated children and a different split, it finds the leaf whose own
+// (s, t) parallelogram or triangle holds the point, on a skewed parallelogram and a triangle.
+TEST(Hierarchy, LeafAtFindsTheLeafHoldingThePointThroughSplitsAndCollapses) {
+    Hierarchy h(skewedQuadAndTriangle());
     std::mt19937 rng(11);
     std::uniform_real_distribution<double> u(0.0, 1.0);
     const auto splitSome = [&](double min_size, int count) {
@@ -442,12 +447,7 @@ TEST(Hierarchy, LeafAtFindsTheLeafHoldingThePointThroughSplitsAndCollapses) {
 // made instead, for points inside leaves, on their shared borders (the descent's rounding
 // fallback) and outside the face (clamped), on a skewed parallelogram and a triangle.
 TEST(Hierarchy, LeafAtAgainFindsWhatLeafAtFindsThroughSplitsAndCollapses) {
-    Face quad;
-    quad.edge_s = Eigen::Vector3d(1.3, 0.2, 0);
-    quad.edge_t = Eigen::Vector3d(0.4, 0.7, 0);
-    Face tri = quad;
-    tri.triangle = true;
-    Hierarchy h({quad, tri});
+    Hierarchy h(skewedQuadAndTriangle());
     std::mt19937 rng(5);
     std::uniform_real_distribution<double> u(0.0, 1.0);
     std::uniform_int_distribution<int> grid(-1, 17);
