@@ -129,7 +129,7 @@ public:
         for (double g : image_) mean += g;
         mean /= std::max<double>(1.0, static_cast<double>(image_.size()));
         for (double& g : image_) g -= mean;  // centred once: the NCC needs the image's deviations only
-        for (double g : image_) image_ss_ += g * g;
+        for (double g : image_) image_ss_ += g * g, image_sum_ += g;
         model_.assign(static_cast<std::size_t>(width * height), 0.0);
         blurred_.assign(3 * model_.size(), 0.0);
         m_.resize(3 * mask_.size());
@@ -304,9 +304,11 @@ private:
             }
         }
         double best = -2.0;
-        // The NCC of one blur level's values at the mask's pixels.
+        const double n = static_cast<double>(mask_.size());
+        // The NCC of one blur level's values at the mask's pixels, the plain way (reference_ncc:
+        // the level's mean subtracted, then the two sums); `sm`: the sum of the values.
         const auto score = [&](const double* m, double sm) {
-            sm /= static_cast<double>(mask_.size());
+            sm /= n;
             double smg = 0, smm = 0;
             for (std::size_t i = 0; i < mask_.size(); ++i) {
                 const double a = m[i] - sm;
@@ -315,21 +317,44 @@ private:
             }
             if (smm > 0 && image_ss_ > 0) best = std::max(best, smg / std::sqrt(smm * image_ss_));
         };
+        // The same from one pass of three sums (TagVerifyOptions::reference_ncc off): sum m,
+        // sum m^2 and sum m g (g: the image's deviations), then the centred sums as
+        // sum m g - mean(m) sum g and sum m^2 - mean(m) sum m. Not the same roundings as the plain
+        // way (within 1e-12 of it; docs/tracking.md, "Speed (issue 13)").
+        const auto fromSums = [&](double s, double q, double c) {
+            const double mean = s / n;
+            const double smg = c - mean * image_sum_, smm = q - mean * s;
+            // A flat model (every value equal) has smm 0 but for rounding: not scored, as above.
+            if (smm > 1e-12 * q && image_ss_ > 0) best = std::max(best, smg / std::sqrt(smm * image_ss_));
+        };
+        const auto scoreFast = [&](const double* m) {
+            std::size_t i = 0;
+            double s = 0, q = 0, c = 0;
+#if defined(__SSE2__)
+            __m128d vs = _mm_setzero_pd(), vq = _mm_setzero_pd(), vc = _mm_setzero_pd();
+            for (; i + 2 <= mask_.size(); i += 2) {
+                const __m128d v = _mm_loadu_pd(m + i);
+                vs = _mm_add_pd(vs, v);
+                vq = _mm_add_pd(vq, _mm_mul_pd(v, v));
+                vc = _mm_add_pd(vc, _mm_mul_pd(v, _mm_loadu_pd(image_.data() + i)));
+            }
+            double lanes[6];
+            _mm_storeu_pd(lanes, vs), _mm_storeu_pd(lanes + 2, vq), _mm_storeu_pd(lanes + 4, vc);
+            s = lanes[0] + lanes[1], q = lanes[2] + lanes[3], c = lanes[4] + lanes[5];
+#endif
+            for (; i < mask_.size(); ++i) s += m[i], q += m[i] * m[i], c += m[i] * image_[i];
+            fromSums(s, q, c);
+        };
         // The blur levels three at a time (one pass over the model's rows and the mask's runs for
-        // the three; each level's values the sums they were one level at a time), the no-blur
-        // level as the model itself. The best is a maximum: the levels' order does not change it.
+        // the three), the no-blur level as the model itself. The best is a maximum: the levels'
+        // order does not change it.
         std::array<const std::array<double, 5>*, 3> group{};
         int grouped = 0;
         const auto flush = [&] {
             if (grouped == 3) blurLevels<3>(group);
             if (grouped == 2) blurLevels<2>(group);
             if (grouped == 1) blurLevels<1>(group);
-            for (int g = 0; g < grouped; ++g) {
-                const double* m = m_.data() + static_cast<std::size_t>(g) * mask_.size();
-                double sm = 0;
-                for (std::size_t i = 0; i < mask_.size(); ++i) sm += m[i];
-                score(m, sm);
-            }
+            for (int g = 0; g < grouped; ++g) scoreFast(m_.data() + static_cast<std::size_t>(g) * mask_.size());
             grouped = 0;
         };
         for (const auto& k : kernels_) {
@@ -338,13 +363,13 @@ private:
                 continue;
             }
             if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
-                // No blur: the model itself (what the sums below give, exactly).
-                double sm = 0;
+                // No blur: the model itself at the mask's pixels.
+                double s = 0, q = 0, c = 0;
                 for (std::size_t i = 0; i < mask_.size(); ++i) {
-                    m_[i] = model_[static_cast<std::size_t>(mask_[i])];
-                    sm += m_[i];
+                    const double v = model_[static_cast<std::size_t>(mask_[i])];
+                    s += v, q += v * v, c += v * image_[i];
                 }
-                score(m_.data(), sm);
+                fromSums(s, q, c);
                 continue;
             }
             group[static_cast<std::size_t>(grouped++)] = &k;
@@ -470,6 +495,7 @@ private:
     std::vector<int> blur_lo_, blur_hi_, render_lo_, render_hi_;
     std::vector<double> image_;  // linear, minus its mean
     double image_ss_ = 0.0;
+    double image_sum_ = 0.0;  // of the deviations: 0 but for rounding
     mutable std::vector<double> model_, blurred_, m_;
 };
 
