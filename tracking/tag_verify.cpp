@@ -160,6 +160,8 @@ public:
         const int steps = static_cast<int>(std::floor(search / step + 1e-9));
         const int side = 2 * steps + 1;
         int tried = 0;
+        // The grid's shifts and half a step around them.
+        prepareFixed(white, Eigen::Vector2d::Constant(step * steps + 0.5 * step));
         if (!ascent) {
             for (int sy = -steps; sy <= steps; ++sy) {
                 for (int sx = -steps; sx <= steps; ++sx) {
@@ -206,17 +208,66 @@ public:
                 if (v > best_ncc) best_ncc = v, best_shift = shift;
             }
         }
+        releaseFixed();
         return {best_ncc, best_shift};
     }
+    // Prepares `white` for calls of ncc with shifts of at most `bound` px each way (either
+    // component): a pixel whose sub-samples, under every such shift, lie in cells of one colour
+    // (the cells between the floors of its extremes moved by the largest shift in cells, which
+    // bound those of any smaller shift: the subtraction and the floor are monotonic) takes that
+    // colour into the model now, once; ncc renders only the others (`variable_`) while the shift
+    // is within the bound and the template this one. Off for reference_ncc (the plain loops).
+    void prepareFixed(const Cells& white, const Eigen::Vector2d& bound) const {
+        fixed_for_ = nullptr;
+        if (reference_) return;
+        const Eigen::Matrix2d a = cells_per_px_.cwiseAbs();
+        fixed_d_ = a * bound * (1.0 + 1e-9);  // a margin for the roundings of the shifts
+        const int padded = total_ + 2;
+        const std::uint8_t* cells = white.data();
+        // White cells summed over the padded template's rectangles from its top left (one more
+        // row and column of zeros first): a rectangle is one colour when it has none or all.
+        const int stride = padded + 1;
+        sat_.assign(static_cast<std::size_t>(stride * stride), 0);
+        for (int r = 0; r < padded; ++r) {
+            for (int c = 0; c < padded; ++c) {
+                sat_[static_cast<std::size_t>((r + 1) * stride + c + 1)] =
+                    cells[r * padded + c] + sat_[static_cast<std::size_t>(r * stride + c + 1)] +
+                    sat_[static_cast<std::size_t>((r + 1) * stride + c)] - sat_[static_cast<std::size_t>(r * stride + c)];
+            }
+        }
+        variable_.clear();
+        for (int y = 0; y < height_; ++y) {
+            for (int x = render_lo_[static_cast<std::size_t>(y)]; x <= render_hi_[static_cast<std::size_t>(y)]; ++x) {
+                const int p = y * width_ + x;
+                const double* range = range_[static_cast<std::size_t>(p)].data();
+                // The lowest floors under the largest shift, the highest under the most negative.
+                const auto [col_lo, col_hi] = paddedFloors(range, fixed_d_.x(), -fixed_d_.x(), total_);
+                const auto [row_lo, row_hi] = paddedFloors(range + 2, fixed_d_.y(), -fixed_d_.y(), total_);
+                // Padded rows row_lo + 1 .. row_hi + 1, columns likewise: sat_ rows and columns one on.
+                const auto at = [&](int r, int c) { return sat_[static_cast<std::size_t>(r * stride + c)]; };
+                const int white_cells = at(row_hi + 2, col_hi + 2) - at(row_lo + 1, col_hi + 2) - at(row_hi + 2, col_lo + 1) +
+                                        at(row_lo + 1, col_lo + 1);
+                const int area = (row_hi - row_lo + 1) * (col_hi - col_lo + 1);
+                if (white_cells == 0 || white_cells == area)
+                    model_[static_cast<std::size_t>(p)] = white_cells ? 1.0 : 0.0;
+                else
+                    variable_.push_back(p);
+            }
+        }
+        fixed_for_ = cells;
+    }
+    void releaseFixed() const { fixed_for_ = nullptr; }
     // The NCC at one shift.
     double at(const Cells& white, const Eigen::Vector2d& shift_px) const { return ncc(white, shift_px); }
     // The best NCC on a 3 x 3 grid of `step` px around `centre`.
     double bestAround(const Cells& white, const Eigen::Vector2d& centre, double step) const {
         double best_ncc = -2.0;
+        prepareFixed(white, centre.cwiseAbs() + Eigen::Vector2d::Constant(step));
         for (int sy = -1; sy <= 1; ++sy) {
             for (int sx = -1; sx <= 1; ++sx)
                 best_ncc = std::max(best_ncc, ncc(white, centre + Eigen::Vector2d(step * sx, step * sy)));
         }
+        releaseFixed();
         return best_ncc;
     }
 
@@ -268,39 +319,46 @@ private:
                                                                    8.0 / kSub, 9.0 / kSub};
         const int padded = total_ + 2;
         const std::uint8_t* cells = white.data();
-        for (int y = 0; y < height_; ++y) {
-            for (int x = render_lo_[static_cast<std::size_t>(y)]; x <= render_hi_[static_cast<std::size_t>(y)]; ++x) {
-                const std::size_t p = static_cast<std::size_t>(y * width_ + x);
-                const Eigen::Vector2d* uv = uv_.data() + p * kSub;
-                // The pixel's sub-samples lie in the cells between its extremes' (the subtraction
-                // and the floor are monotonic): within one cell, or cells of one colour, the pixel
-                // is that colour without the nine lookups.
-                const double* range = range_[p].data();
-                const auto [col_lo, col_hi] = paddedFloors(range, d.x(), d.x(), total_);
-                const auto [row_lo, row_hi] = paddedFloors(range + 2, d.y(), d.y(), total_);
-                int count = 0;
-                const std::uint8_t* corner = cells + (row_lo + 1) * padded + col_lo + 1;
-                if (col_lo == col_hi && row_lo == row_hi) {
-                    count = kSub * corner[0];
-                } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1 && corner[0] == corner[col_hi - col_lo] &&
-                           corner[0] == corner[(row_hi - row_lo) * padded] &&
-                           corner[0] == corner[(row_hi - row_lo) * padded + col_hi - col_lo]) {
-                    // Across a boundary between cells of one colour (up to 2 x 2 cells).
-                    count = kSub * corner[0];
-                } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1) {
-                    // Within 2 x 2 cells: a sub-sample's cell is the corner one, or the next
-                    // across each boundary it reaches (floor(v) > n - 1 exactly when v >= n).
-                    const std::array<int, 4> colour = {corner[0], corner[col_hi - col_lo], corner[(row_hi - row_lo) * padded],
-                                                       corner[(row_hi - row_lo) * padded + col_hi - col_lo]};
-                    for (int k = 0; k < kSub; ++k)
-                        count += colour[static_cast<std::size_t>(pastBoundaries(uv[k].data(), d.x(), d.y(), col_lo + 1, row_lo + 1))];
-                } else {
-                    for (int k = 0; k < kSub; ++k) {
-                        const auto [col, row] = paddedFloors(uv[k].data(), d.x(), d.y(), total_);
-                        count += cells[(row + 1) * padded + col + 1];
-                    }
+        const auto render = [&](std::size_t p) {
+            const Eigen::Vector2d* uv = uv_.data() + p * kSub;
+            // The pixel's sub-samples lie in the cells between its extremes' (the subtraction
+            // and the floor are monotonic): within one cell, or cells of one colour, the pixel
+            // is that colour without the nine lookups.
+            const double* range = range_[p].data();
+            const auto [col_lo, col_hi] = paddedFloors(range, d.x(), d.x(), total_);
+            const auto [row_lo, row_hi] = paddedFloors(range + 2, d.y(), d.y(), total_);
+            int count = 0;
+            const std::uint8_t* corner = cells + (row_lo + 1) * padded + col_lo + 1;
+            if (col_lo == col_hi && row_lo == row_hi) {
+                count = kSub * corner[0];
+            } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1 && corner[0] == corner[col_hi - col_lo] &&
+                       corner[0] == corner[(row_hi - row_lo) * padded] &&
+                       corner[0] == corner[(row_hi - row_lo) * padded + col_hi - col_lo]) {
+                // Across a boundary between cells of one colour (up to 2 x 2 cells).
+                count = kSub * corner[0];
+            } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1) {
+                // Within 2 x 2 cells: a sub-sample's cell is the corner one, or the next
+                // across each boundary it reaches (floor(v) > n - 1 exactly when v >= n).
+                const std::array<int, 4> colour = {corner[0], corner[col_hi - col_lo], corner[(row_hi - row_lo) * padded],
+                                                   corner[(row_hi - row_lo) * padded + col_hi - col_lo]};
+                for (int k = 0; k < kSub; ++k)
+                    count += colour[static_cast<std::size_t>(pastBoundaries(uv[k].data(), d.x(), d.y(), col_lo + 1, row_lo + 1))];
+            } else {
+                for (int k = 0; k < kSub; ++k) {
+                    const auto [col, row] = paddedFloors(uv[k].data(), d.x(), d.y(), total_);
+                    count += cells[(row + 1) * padded + col + 1];
                 }
-                model_[p] = kFraction[static_cast<std::size_t>(count)];
+            }
+            model_[p] = kFraction[static_cast<std::size_t>(count)];
+        };
+        if (fixed_for_ == cells && std::abs(d.x()) <= fixed_d_.x() && std::abs(d.y()) <= fixed_d_.y()) {
+            // The template prepared (prepareFixed): the other pixels' values are in the model.
+            for (const int p : variable_) render(static_cast<std::size_t>(p));
+        } else {
+            fixed_for_ = nullptr;  // the model rendered whole: its fixed pixels' values are this shift's
+            for (int y = 0; y < height_; ++y) {
+                for (int x = render_lo_[static_cast<std::size_t>(y)]; x <= render_hi_[static_cast<std::size_t>(y)]; ++x)
+                    render(static_cast<std::size_t>(y * width_ + x));
             }
         }
         double best = -2.0;
@@ -497,6 +555,10 @@ private:
     double image_ss_ = 0.0;
     double image_sum_ = 0.0;  // of the deviations: 0 but for rounding
     mutable std::vector<double> model_, blurred_, m_;
+    // prepareFixed's template (null: none), its bound in cells each way, the pixels rendered.
+    mutable const std::uint8_t* fixed_for_ = nullptr;
+    mutable Eigen::Vector2d fixed_d_ = Eigen::Vector2d::Zero();
+    mutable std::vector<int> variable_, sat_;  // and the template's summed-area table
 };
 
 }  // namespace

@@ -72,8 +72,9 @@ struct TagVerifyOptions {
     double retry_min_ncc = 0.7;
     bool srgb = true;  // pixels are sRGB-encoded (as TagAlignOptions::srgb)
     // Tests: the NCC's blur levels through plain scalar loops, one tap and one pixel at a time
-    // (what the vectorized passes must equal exactly), and each level scored the plain way (mean
-    // subtracted, then summed; the one-pass sums must come within 1e-12 of it; docs/tracking.md,
+    // (what the vectorized passes must equal exactly), each level scored the plain way (mean
+    // subtracted, then summed; the one-pass sums must come within 1e-12 of it), and every pixel
+    // rendered at every shift (not only those whose colour the shift can change; docs/tracking.md,
     // "Speed (issue 13)").
     bool reference_ncc = false;
 };

@@ -392,7 +392,8 @@ TEST(TinyTagsSequence, TheSearchClimbsToTheGridsShiftFromAnyPredictionWithinIt) 
 }
 
 // The verification's NCC through its vectorized blur passes (three levels at once, two pixels at
-// a time) and its one-pass sums equals the plain scalar loops and two-pass scores
+// a time), its one-pass sums and its pixels of one colour under every shift of a search rendered
+// once equals the plain scalar loops, two-pass scores and every pixel rendered at every shift
 // (TagVerifyOptions::reference_ncc): every correlation within 1e-12, every other field exactly,
 // over predictions off by up to a pixel, blur level sets that make groups of one, two and three,
 // the frame with a tag replaced and one covered, a noisy copy, and a flat image (no contrast:
