@@ -34,7 +34,8 @@ Cells cellsOf(int total, const std::function<bool(int, int)>& white) {
     return c;
 }
 
-// 5-tap Gaussian kernels of the optics' blur levels tried (sigma 0: none).
+// 5-tap Gaussian kernels of the optics' blur levels tried (sigma 0: none); symmetric to the bit
+// (k[0] == k[4], k[1] == k[3]: the same operations), which Matcher::blurLevels relies on.
 std::vector<std::array<double, 5>> blurKernels(const std::vector<double>& sigmas) {
     std::vector<std::array<double, 5>> out;
     for (const double sigma : sigmas) {
@@ -465,8 +466,9 @@ private:
     }
     // G blur levels of the model: the Gaussian each way, edges clamped (rows over the spans the
     // vertical pass reads, columns at the mask's pixels only; the clamping only within 2 px of an
-    // edge), into m_'s first G blocks. Each value is the five products summed left to right, as
-    // the taps were (0 + the first is the first: all are >= 0).
+    // edge), into m_'s first G blocks. Each value is k0 (outer pair) + k1 (inner pair) + k2 centre,
+    // the kernels being symmetric: not the plain loops' roundings (referenceLevel sums the five
+    // products left to right; the NCCs agree within 1e-12).
     template <int G>
     void blurLevels(const std::array<const std::array<double, 5>*, 3>& levels) const {
         const std::size_t area = static_cast<std::size_t>(width_ * height_), n = mask_.size();
@@ -475,22 +477,22 @@ private:
             for (int t = 0; t < 5; ++t) kk[g][t] = (*levels[static_cast<std::size_t>(g)])[static_cast<std::size_t>(t)];
         }
         // One output of each level from the five values around it (lane-wise the same operations
-        // where two neighbours are done at once).
+        // where two neighbours are done at once). The kernels are symmetric (blurKernels): the
+        // outer pairs are added first, once for the levels.
         const auto taps = [&](auto a, auto b, auto c, auto d, auto e, auto store) {
-            for (int g = 0; g < G; ++g) {
-                const double* k = kk[g];
 #if defined(__SSE2__)
-                if constexpr (!std::is_same_v<decltype(a), double>) {  // __m128d
-                    __m128d v = _mm_mul_pd(_mm_set1_pd(k[0]), a);
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[1]), b));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), c));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[3]), d));
-                    store(g, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[4]), e)));
-                } else
-#endif
-                {
-                    store(g, k[0] * a + k[1] * b + k[2] * c + k[3] * d + k[4] * e);
+            if constexpr (!std::is_same_v<decltype(a), double>) {  // __m128d
+                const __m128d ae = _mm_add_pd(a, e), bd = _mm_add_pd(b, d);
+                for (int g = 0; g < G; ++g) {
+                    const double* k = kk[g];
+                    const __m128d v = _mm_add_pd(_mm_mul_pd(_mm_set1_pd(k[0]), ae), _mm_mul_pd(_mm_set1_pd(k[1]), bd));
+                    store(g, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), c)));
                 }
+            } else
+#endif
+            {
+                const double ae = a + e, bd = b + d;
+                for (int g = 0; g < G; ++g) store(g, kk[g][0] * ae + kk[g][1] * bd + kk[g][2] * c);
             }
         };
         for (int y = 0; y < height_; ++y) {
@@ -522,15 +524,15 @@ private:
                 double* out = m_.data() + static_cast<std::size_t>(g) * n + static_cast<std::size_t>(r.i0 - r.x0);
                 int x = r.x0;
 #if defined(__SSE2__)
+                const __m128d k0 = _mm_set1_pd(k[0]), k1 = _mm_set1_pd(k[1]), k2 = _mm_set1_pd(k[2]);
                 for (; x + 1 <= r.x1; x += 2) {
-                    __m128d v = _mm_mul_pd(_mm_set1_pd(k[0]), _mm_loadu_pd(r0 + x));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[1]), _mm_loadu_pd(r1 + x)));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), _mm_loadu_pd(r2 + x)));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[3]), _mm_loadu_pd(r3 + x)));
-                    _mm_storeu_pd(out + x, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[4]), _mm_loadu_pd(r4 + x))));
+                    const __m128d ae = _mm_add_pd(_mm_loadu_pd(r0 + x), _mm_loadu_pd(r4 + x));
+                    const __m128d bd = _mm_add_pd(_mm_loadu_pd(r1 + x), _mm_loadu_pd(r3 + x));
+                    const __m128d v = _mm_add_pd(_mm_mul_pd(k0, ae), _mm_mul_pd(k1, bd));
+                    _mm_storeu_pd(out + x, _mm_add_pd(v, _mm_mul_pd(k2, _mm_loadu_pd(r2 + x))));
                 }
 #endif
-                for (; x <= r.x1; ++x) out[x] = k[0] * r0[x] + k[1] * r1[x] + k[2] * r2[x] + k[3] * r3[x] + k[4] * r4[x];
+                for (; x <= r.x1; ++x) out[x] = k[0] * (r0[x] + r4[x]) + k[1] * (r1[x] + r3[x]) + k[2] * r2[x];
             }
         }
     }
