@@ -34,7 +34,8 @@ Cells cellsOf(int total, const std::function<bool(int, int)>& white) {
     return c;
 }
 
-// 5-tap Gaussian kernels of the optics' blur levels tried (sigma 0: none).
+// 5-tap Gaussian kernels of the optics' blur levels tried (sigma 0: none); symmetric to the bit
+// (k[0] == k[4], k[1] == k[3]: the same operations), which Matcher::blurLevels relies on.
 std::vector<std::array<double, 5>> blurKernels(const std::vector<double>& sigmas) {
     std::vector<std::array<double, 5>> out;
     for (const double sigma : sigmas) {
@@ -129,7 +130,7 @@ public:
         for (double g : image_) mean += g;
         mean /= std::max<double>(1.0, static_cast<double>(image_.size()));
         for (double& g : image_) g -= mean;  // centred once: the NCC needs the image's deviations only
-        for (double g : image_) image_ss_ += g * g;
+        for (double g : image_) image_ss_ += g * g, image_sum_ += g;
         model_.assign(static_cast<std::size_t>(width * height), 0.0);
         blurred_.assign(3 * model_.size(), 0.0);
         m_.resize(3 * mask_.size());
@@ -160,6 +161,8 @@ public:
         const int steps = static_cast<int>(std::floor(search / step + 1e-9));
         const int side = 2 * steps + 1;
         int tried = 0;
+        // The grid's shifts and half a step around them.
+        prepareFixed(white, Eigen::Vector2d::Constant(step * steps + 0.5 * step));
         if (!ascent) {
             for (int sy = -steps; sy <= steps; ++sy) {
                 for (int sx = -steps; sx <= steps; ++sx) {
@@ -206,17 +209,66 @@ public:
                 if (v > best_ncc) best_ncc = v, best_shift = shift;
             }
         }
+        releaseFixed();
         return {best_ncc, best_shift};
     }
+    // Prepares `white` for calls of ncc with shifts of at most `bound` px each way (either
+    // component): a pixel whose sub-samples, under every such shift, lie in cells of one colour
+    // (the cells between the floors of its extremes moved by the largest shift in cells, which
+    // bound those of any smaller shift: the subtraction and the floor are monotonic) takes that
+    // colour into the model now, once; ncc renders only the others (`variable_`) while the shift
+    // is within the bound and the template this one. Off for reference_ncc (the plain loops).
+    void prepareFixed(const Cells& white, const Eigen::Vector2d& bound) const {
+        fixed_for_ = nullptr;
+        if (reference_) return;
+        const Eigen::Matrix2d a = cells_per_px_.cwiseAbs();
+        fixed_d_ = a * bound * (1.0 + 1e-9);  // a margin for the roundings of the shifts
+        const int padded = total_ + 2;
+        const std::uint8_t* cells = white.data();
+        // White cells summed over the padded template's rectangles from its top left (one more
+        // row and column of zeros first): a rectangle is one colour when it has none or all.
+        const int stride = padded + 1;
+        sat_.assign(static_cast<std::size_t>(stride * stride), 0);
+        for (int r = 0; r < padded; ++r) {
+            for (int c = 0; c < padded; ++c) {
+                sat_[static_cast<std::size_t>((r + 1) * stride + c + 1)] =
+                    cells[r * padded + c] + sat_[static_cast<std::size_t>(r * stride + c + 1)] +
+                    sat_[static_cast<std::size_t>((r + 1) * stride + c)] - sat_[static_cast<std::size_t>(r * stride + c)];
+            }
+        }
+        variable_.clear();
+        for (int y = 0; y < height_; ++y) {
+            for (int x = render_lo_[static_cast<std::size_t>(y)]; x <= render_hi_[static_cast<std::size_t>(y)]; ++x) {
+                const int p = y * width_ + x;
+                const double* range = range_[static_cast<std::size_t>(p)].data();
+                // The lowest floors under the largest shift, the highest under the most negative.
+                const auto [col_lo, col_hi] = paddedFloors(range, fixed_d_.x(), -fixed_d_.x(), total_);
+                const auto [row_lo, row_hi] = paddedFloors(range + 2, fixed_d_.y(), -fixed_d_.y(), total_);
+                // Padded rows row_lo + 1 .. row_hi + 1, columns likewise: sat_ rows and columns one on.
+                const auto at = [&](int r, int c) { return sat_[static_cast<std::size_t>(r * stride + c)]; };
+                const int white_cells = at(row_hi + 2, col_hi + 2) - at(row_lo + 1, col_hi + 2) - at(row_hi + 2, col_lo + 1) +
+                                        at(row_lo + 1, col_lo + 1);
+                const int area = (row_hi - row_lo + 1) * (col_hi - col_lo + 1);
+                if (white_cells == 0 || white_cells == area)
+                    model_[static_cast<std::size_t>(p)] = white_cells ? 1.0 : 0.0;
+                else
+                    variable_.push_back(p);
+            }
+        }
+        fixed_for_ = cells;
+    }
+    void releaseFixed() const { fixed_for_ = nullptr; }
     // The NCC at one shift.
     double at(const Cells& white, const Eigen::Vector2d& shift_px) const { return ncc(white, shift_px); }
     // The best NCC on a 3 x 3 grid of `step` px around `centre`.
     double bestAround(const Cells& white, const Eigen::Vector2d& centre, double step) const {
         double best_ncc = -2.0;
+        prepareFixed(white, centre.cwiseAbs() + Eigen::Vector2d::Constant(step));
         for (int sy = -1; sy <= 1; ++sy) {
             for (int sx = -1; sx <= 1; ++sx)
                 best_ncc = std::max(best_ncc, ncc(white, centre + Eigen::Vector2d(step * sx, step * sy)));
         }
+        releaseFixed();
         return best_ncc;
     }
 
@@ -268,45 +320,54 @@ private:
                                                                    8.0 / kSub, 9.0 / kSub};
         const int padded = total_ + 2;
         const std::uint8_t* cells = white.data();
-        for (int y = 0; y < height_; ++y) {
-            for (int x = render_lo_[static_cast<std::size_t>(y)]; x <= render_hi_[static_cast<std::size_t>(y)]; ++x) {
-                const std::size_t p = static_cast<std::size_t>(y * width_ + x);
-                const Eigen::Vector2d* uv = uv_.data() + p * kSub;
-                // The pixel's sub-samples lie in the cells between its extremes' (the subtraction
-                // and the floor are monotonic): within one cell, or cells of one colour, the pixel
-                // is that colour without the nine lookups.
-                const double* range = range_[p].data();
-                const auto [col_lo, col_hi] = paddedFloors(range, d.x(), d.x(), total_);
-                const auto [row_lo, row_hi] = paddedFloors(range + 2, d.y(), d.y(), total_);
-                int count = 0;
-                const std::uint8_t* corner = cells + (row_lo + 1) * padded + col_lo + 1;
-                if (col_lo == col_hi && row_lo == row_hi) {
-                    count = kSub * corner[0];
-                } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1 && corner[0] == corner[col_hi - col_lo] &&
-                           corner[0] == corner[(row_hi - row_lo) * padded] &&
-                           corner[0] == corner[(row_hi - row_lo) * padded + col_hi - col_lo]) {
-                    // Across a boundary between cells of one colour (up to 2 x 2 cells).
-                    count = kSub * corner[0];
-                } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1) {
-                    // Within 2 x 2 cells: a sub-sample's cell is the corner one, or the next
-                    // across each boundary it reaches (floor(v) > n - 1 exactly when v >= n).
-                    const std::array<int, 4> colour = {corner[0], corner[col_hi - col_lo], corner[(row_hi - row_lo) * padded],
-                                                       corner[(row_hi - row_lo) * padded + col_hi - col_lo]};
-                    for (int k = 0; k < kSub; ++k)
-                        count += colour[static_cast<std::size_t>(pastBoundaries(uv[k].data(), d.x(), d.y(), col_lo + 1, row_lo + 1))];
-                } else {
-                    for (int k = 0; k < kSub; ++k) {
-                        const auto [col, row] = paddedFloors(uv[k].data(), d.x(), d.y(), total_);
-                        count += cells[(row + 1) * padded + col + 1];
-                    }
+        const auto render = [&](std::size_t p) {
+            const Eigen::Vector2d* uv = uv_.data() + p * kSub;
+            // The pixel's sub-samples lie in the cells between its extremes' (the subtraction
+            // and the floor are monotonic): within one cell, or cells of one colour, the pixel
+            // is that colour without the nine lookups.
+            const double* range = range_[p].data();
+            const auto [col_lo, col_hi] = paddedFloors(range, d.x(), d.x(), total_);
+            const auto [row_lo, row_hi] = paddedFloors(range + 2, d.y(), d.y(), total_);
+            int count = 0;
+            const std::uint8_t* corner = cells + (row_lo + 1) * padded + col_lo + 1;
+            if (col_lo == col_hi && row_lo == row_hi) {
+                count = kSub * corner[0];
+            } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1 && corner[0] == corner[col_hi - col_lo] &&
+                       corner[0] == corner[(row_hi - row_lo) * padded] &&
+                       corner[0] == corner[(row_hi - row_lo) * padded + col_hi - col_lo]) {
+                // Across a boundary between cells of one colour (up to 2 x 2 cells).
+                count = kSub * corner[0];
+            } else if (col_hi - col_lo <= 1 && row_hi - row_lo <= 1) {
+                // Within 2 x 2 cells: a sub-sample's cell is the corner one, or the next
+                // across each boundary it reaches (floor(v) > n - 1 exactly when v >= n).
+                const std::array<int, 4> colour = {corner[0], corner[col_hi - col_lo], corner[(row_hi - row_lo) * padded],
+                                                   corner[(row_hi - row_lo) * padded + col_hi - col_lo]};
+                for (int k = 0; k < kSub; ++k)
+                    count += colour[static_cast<std::size_t>(pastBoundaries(uv[k].data(), d.x(), d.y(), col_lo + 1, row_lo + 1))];
+            } else {
+                for (int k = 0; k < kSub; ++k) {
+                    const auto [col, row] = paddedFloors(uv[k].data(), d.x(), d.y(), total_);
+                    count += cells[(row + 1) * padded + col + 1];
                 }
-                model_[p] = kFraction[static_cast<std::size_t>(count)];
+            }
+            model_[p] = kFraction[static_cast<std::size_t>(count)];
+        };
+        if (fixed_for_ == cells && std::abs(d.x()) <= fixed_d_.x() && std::abs(d.y()) <= fixed_d_.y()) {
+            // The template prepared (prepareFixed): the other pixels' values are in the model.
+            for (const int p : variable_) render(static_cast<std::size_t>(p));
+        } else {
+            fixed_for_ = nullptr;  // the model rendered whole: its fixed pixels' values are this shift's
+            for (int y = 0; y < height_; ++y) {
+                for (int x = render_lo_[static_cast<std::size_t>(y)]; x <= render_hi_[static_cast<std::size_t>(y)]; ++x)
+                    render(static_cast<std::size_t>(y * width_ + x));
             }
         }
         double best = -2.0;
-        // The NCC of one blur level's values at the mask's pixels.
+        const double n = static_cast<double>(mask_.size());
+        // The NCC of one blur level's values at the mask's pixels, the plain way (reference_ncc:
+        // the level's mean subtracted, then the two sums); `sm`: the sum of the values.
         const auto score = [&](const double* m, double sm) {
-            sm /= static_cast<double>(mask_.size());
+            sm /= n;
             double smg = 0, smm = 0;
             for (std::size_t i = 0; i < mask_.size(); ++i) {
                 const double a = m[i] - sm;
@@ -315,21 +376,44 @@ private:
             }
             if (smm > 0 && image_ss_ > 0) best = std::max(best, smg / std::sqrt(smm * image_ss_));
         };
+        // The same from one pass of three sums (TagVerifyOptions::reference_ncc off): sum m,
+        // sum m^2 and sum m g (g: the image's deviations), then the centred sums as
+        // sum m g - mean(m) sum g and sum m^2 - mean(m) sum m. Not the same roundings as the plain
+        // way (within 1e-12 of it; docs/tracking.md, "Speed (issue 13)").
+        const auto fromSums = [&](double s, double q, double c) {
+            const double mean = s / n;
+            const double smg = c - mean * image_sum_, smm = q - mean * s;
+            // A flat model (every value equal) has smm 0 but for rounding: not scored, as above.
+            if (smm > 1e-12 * q && image_ss_ > 0) best = std::max(best, smg / std::sqrt(smm * image_ss_));
+        };
+        const auto scoreFast = [&](const double* m) {
+            std::size_t i = 0;
+            double s = 0, q = 0, c = 0;
+#if defined(__SSE2__)
+            __m128d vs = _mm_setzero_pd(), vq = _mm_setzero_pd(), vc = _mm_setzero_pd();
+            for (; i + 2 <= mask_.size(); i += 2) {
+                const __m128d v = _mm_loadu_pd(m + i);
+                vs = _mm_add_pd(vs, v);
+                vq = _mm_add_pd(vq, _mm_mul_pd(v, v));
+                vc = _mm_add_pd(vc, _mm_mul_pd(v, _mm_loadu_pd(image_.data() + i)));
+            }
+            double lanes[6];
+            _mm_storeu_pd(lanes, vs), _mm_storeu_pd(lanes + 2, vq), _mm_storeu_pd(lanes + 4, vc);
+            s = lanes[0] + lanes[1], q = lanes[2] + lanes[3], c = lanes[4] + lanes[5];
+#endif
+            for (; i < mask_.size(); ++i) s += m[i], q += m[i] * m[i], c += m[i] * image_[i];
+            fromSums(s, q, c);
+        };
         // The blur levels three at a time (one pass over the model's rows and the mask's runs for
-        // the three; each level's values the sums they were one level at a time), the no-blur
-        // level as the model itself. The best is a maximum: the levels' order does not change it.
+        // the three), the no-blur level as the model itself. The best is a maximum: the levels'
+        // order does not change it.
         std::array<const std::array<double, 5>*, 3> group{};
         int grouped = 0;
         const auto flush = [&] {
             if (grouped == 3) blurLevels<3>(group);
             if (grouped == 2) blurLevels<2>(group);
             if (grouped == 1) blurLevels<1>(group);
-            for (int g = 0; g < grouped; ++g) {
-                const double* m = m_.data() + static_cast<std::size_t>(g) * mask_.size();
-                double sm = 0;
-                for (std::size_t i = 0; i < mask_.size(); ++i) sm += m[i];
-                score(m, sm);
-            }
+            for (int g = 0; g < grouped; ++g) scoreFast(m_.data() + static_cast<std::size_t>(g) * mask_.size());
             grouped = 0;
         };
         for (const auto& k : kernels_) {
@@ -338,13 +422,13 @@ private:
                 continue;
             }
             if (k[0] == 0.0 && k[1] == 0.0 && k[2] == 1.0 && k[3] == 0.0 && k[4] == 0.0) {
-                // No blur: the model itself (what the sums below give, exactly).
-                double sm = 0;
+                // No blur: the model itself at the mask's pixels.
+                double s = 0, q = 0, c = 0;
                 for (std::size_t i = 0; i < mask_.size(); ++i) {
-                    m_[i] = model_[static_cast<std::size_t>(mask_[i])];
-                    sm += m_[i];
+                    const double v = model_[static_cast<std::size_t>(mask_[i])];
+                    s += v, q += v * v, c += v * image_[i];
                 }
-                score(m_.data(), sm);
+                fromSums(s, q, c);
                 continue;
             }
             group[static_cast<std::size_t>(grouped++)] = &k;
@@ -382,8 +466,9 @@ private:
     }
     // G blur levels of the model: the Gaussian each way, edges clamped (rows over the spans the
     // vertical pass reads, columns at the mask's pixels only; the clamping only within 2 px of an
-    // edge), into m_'s first G blocks. Each value is the five products summed left to right, as
-    // the taps were (0 + the first is the first: all are >= 0).
+    // edge), into m_'s first G blocks. Each value is k0 (outer pair) + k1 (inner pair) + k2 centre,
+    // the kernels being symmetric: not the plain loops' roundings (referenceLevel sums the five
+    // products left to right; the NCCs agree within 1e-12).
     template <int G>
     void blurLevels(const std::array<const std::array<double, 5>*, 3>& levels) const {
         const std::size_t area = static_cast<std::size_t>(width_ * height_), n = mask_.size();
@@ -392,22 +477,22 @@ private:
             for (int t = 0; t < 5; ++t) kk[g][t] = (*levels[static_cast<std::size_t>(g)])[static_cast<std::size_t>(t)];
         }
         // One output of each level from the five values around it (lane-wise the same operations
-        // where two neighbours are done at once).
+        // where two neighbours are done at once). The kernels are symmetric (blurKernels): the
+        // outer pairs are added first, once for the levels.
         const auto taps = [&](auto a, auto b, auto c, auto d, auto e, auto store) {
-            for (int g = 0; g < G; ++g) {
-                const double* k = kk[g];
 #if defined(__SSE2__)
-                if constexpr (!std::is_same_v<decltype(a), double>) {  // __m128d
-                    __m128d v = _mm_mul_pd(_mm_set1_pd(k[0]), a);
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[1]), b));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), c));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[3]), d));
-                    store(g, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[4]), e)));
-                } else
-#endif
-                {
-                    store(g, k[0] * a + k[1] * b + k[2] * c + k[3] * d + k[4] * e);
+            if constexpr (!std::is_same_v<decltype(a), double>) {  // __m128d
+                const __m128d ae = _mm_add_pd(a, e), bd = _mm_add_pd(b, d);
+                for (int g = 0; g < G; ++g) {
+                    const double* k = kk[g];
+                    const __m128d v = _mm_add_pd(_mm_mul_pd(_mm_set1_pd(k[0]), ae), _mm_mul_pd(_mm_set1_pd(k[1]), bd));
+                    store(g, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), c)));
                 }
+            } else
+#endif
+            {
+                const double ae = a + e, bd = b + d;
+                for (int g = 0; g < G; ++g) store(g, kk[g][0] * ae + kk[g][1] * bd + kk[g][2] * c);
             }
         };
         for (int y = 0; y < height_; ++y) {
@@ -439,15 +524,15 @@ private:
                 double* out = m_.data() + static_cast<std::size_t>(g) * n + static_cast<std::size_t>(r.i0 - r.x0);
                 int x = r.x0;
 #if defined(__SSE2__)
+                const __m128d k0 = _mm_set1_pd(k[0]), k1 = _mm_set1_pd(k[1]), k2 = _mm_set1_pd(k[2]);
                 for (; x + 1 <= r.x1; x += 2) {
-                    __m128d v = _mm_mul_pd(_mm_set1_pd(k[0]), _mm_loadu_pd(r0 + x));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[1]), _mm_loadu_pd(r1 + x)));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[2]), _mm_loadu_pd(r2 + x)));
-                    v = _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[3]), _mm_loadu_pd(r3 + x)));
-                    _mm_storeu_pd(out + x, _mm_add_pd(v, _mm_mul_pd(_mm_set1_pd(k[4]), _mm_loadu_pd(r4 + x))));
+                    const __m128d ae = _mm_add_pd(_mm_loadu_pd(r0 + x), _mm_loadu_pd(r4 + x));
+                    const __m128d bd = _mm_add_pd(_mm_loadu_pd(r1 + x), _mm_loadu_pd(r3 + x));
+                    const __m128d v = _mm_add_pd(_mm_mul_pd(k0, ae), _mm_mul_pd(k1, bd));
+                    _mm_storeu_pd(out + x, _mm_add_pd(v, _mm_mul_pd(k2, _mm_loadu_pd(r2 + x))));
                 }
 #endif
-                for (; x <= r.x1; ++x) out[x] = k[0] * r0[x] + k[1] * r1[x] + k[2] * r2[x] + k[3] * r3[x] + k[4] * r4[x];
+                for (; x <= r.x1; ++x) out[x] = k[0] * (r0[x] + r4[x]) + k[1] * (r1[x] + r3[x]) + k[2] * r2[x];
             }
         }
     }
@@ -470,7 +555,12 @@ private:
     std::vector<int> blur_lo_, blur_hi_, render_lo_, render_hi_;
     std::vector<double> image_;  // linear, minus its mean
     double image_ss_ = 0.0;
+    double image_sum_ = 0.0;  // of the deviations: 0 but for rounding
     mutable std::vector<double> model_, blurred_, m_;
+    // prepareFixed's template (null: none), its bound in cells each way, the pixels rendered.
+    mutable const std::uint8_t* fixed_for_ = nullptr;
+    mutable Eigen::Vector2d fixed_d_ = Eigen::Vector2d::Zero();
+    mutable std::vector<int> variable_, sat_;  // and the template's summed-area table
 };
 
 }  // namespace

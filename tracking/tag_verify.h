@@ -71,8 +71,12 @@ struct TagVerifyOptions {
     // when its pattern correlated at least this much (but under min_ncc) the first time.
     double retry_min_ncc = 0.7;
     bool srgb = true;  // pixels are sRGB-encoded (as TagAlignOptions::srgb)
-    // Tests: the NCC's blur levels through plain scalar loops, one tap and one pixel at a time
-    // (what the vectorized passes must equal exactly; docs/tracking.md, "Speed (issue 13)").
+    // Tests: the NCC the plain way: each blur level through scalar loops, one tap and one pixel
+    // at a time, the five products left to right; each level scored with its mean subtracted,
+    // then summed; every pixel rendered at every shift. The fast paths (symmetric taps, two
+    // pixels a vector, one-pass sums, pixels of one colour under a search's shifts rendered once)
+    // must give the same decisions and shifts and NCCs within 1e-12 (docs/tracking.md, "Speed
+    // (issue 13)").
     bool reference_ncc = false;
 };
 
