@@ -177,6 +177,46 @@ Moved moveThenFresh(const Scene& scene, const std::vector<Eigen::Vector3d>& cent
     return out;
 }
 
+// The elements' direct light without the objects (the columns' sums the textures read) is kept
+// over the moves and made again at a full update: after moves and a new solve with the lamp twice as
+// bright in red and half in blue, the floor's textures are those of an estimator that only ever
+// solved with that lamp.
+TEST(TexelDirect, ElementsDirectLightMadeAgainAtAFullUpdate) {
+    auto scene = parseScene(kScene, "texel_direct.yaml");
+    std::string yaml = kScene;
+    yaml.replace(yaml.find("radiance: [100, 100, 100]"), 25, "radiance: [200, 100, 50]");
+    auto other = parseScene(yaml, "texel_direct_other.yaml");
+    ASSERT_TRUE(scene && other);
+    auto moving = makeEstimator(*scene, 16);
+    auto fresh_est = makeEstimator(*other, 16);
+    ASSERT_TRUE(moving && fresh_est);
+    std::vector<Rigid3d> poses = SceneLighting::scenePoses(*scene, 0.0);
+    ASSERT_TRUE(moving->update(poses));
+    for (double x : {0.03, 0.06}) {
+        poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(x, 0.0, 0.2), Eigen::Vector3d::Zero());
+        ASSERT_TRUE(moving->update(poses));
+    }
+    ASSERT_TRUE(moving->solveWith({*other->lights[0].emission.value},
+                                  std::vector<Eigen::Vector3d>(scene->real_objects.size(), Eigen::Vector3d::Constant(0.5)), poses));
+    auto last = moving->update(poses);
+    auto fresh = fresh_est->update(poses);
+    ASSERT_TRUE(last && fresh);
+    const FaceModulation* a = last->findFace(0, 0);
+    const FaceModulation* b = fresh->findFace(0, 0);
+    ASSERT_TRUE(a && b);
+    ASSERT_EQ(a->ratio.size(), b->ratio.size());
+    double worst = 0.0;
+    int shadow = 0;
+    for (std::size_t k = 0; k < a->ratio.size(); ++k) {
+        const double scale = std::max(1e-6f, b->original[k].maxCoeff());
+        worst = std::max(worst, static_cast<double>((a->original[k] - b->original[k]).cwiseAbs().maxCoeff()) / scale);
+        worst = std::max(worst, static_cast<double>((a->ratio[k] - b->ratio[k]).cwiseAbs().maxCoeff()));
+        if (b->ratio[k].y() < 0.9f) ++shadow;
+    }
+    EXPECT_GT(shadow, 50) << "the ball's shadow is in the textures";
+    EXPECT_LT(worst, 0.01) << "largest relative B~ or ratio difference against the other lamp's estimator";
+}
+
 // A texel's real visibility is traced once and kept; a move traces its virtual rays again where the
 // ball's old or new bounds reach its shafts. After three moves the floor's texture is the one a
 // fresh estimator gives with the ball where it ended (both estimators trace the same pairs): a
