@@ -588,6 +588,67 @@ TEST(TexelDirect, AnswersEqualThePlainPerPairSum) {
     EXPECT_GT(low_blocked, 1000) << "the curb hides some of the low lamp's pairs with weight";
 }
 
+// A pair whose segment meets none of the objects' (widened) balls is not traced against them: the
+// answers are still those of the plain per-pair sum to the bit. Two balls over a floor, each moved
+// in turn, the second also where the first's cone does not reach: texels shaded by either alone.
+TEST(TexelDirect, PairsMissingEveryBallAnswerAsThePlainSum) {
+    const Face floor = squareFloor(0.3);
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.04;
+    auto rays = RayScene::build({floor}, {}, {sphere, sphere});
+    ASSERT_TRUE(rays) << rays.error().message;
+    RayScene& scene = **rays;
+    const LightGeometry lamp = squareLamp({0.0, 0.0, 0.6}, 0.2);
+    const Eigen::Vector3d emission(50.0, 40.0, 30.0);
+    constexpr int kSide = 24, kPairs = 16;
+    TexelDirectCache cache(scene, kPairs);
+    cache.reset({{&lamp, emission}}, {floor});
+    const auto plain = [&](std::size_t texel, const Eigen::Vector3d& x, Eigen::Vector3d& without, Eigen::Vector3d& with) {
+        const std::uint64_t seed = hashCombine(hashCombine(0x7e8e1ull, 0), hashCombine(texel, 0));
+        const double form = pointToPolygon(x, floor.normal, lamp.polygon, lamp.normal);
+        double all = 0.0, open_real = 0.0, open_both = 0.0;
+        for (int j = 0; j < kPairs; ++j) {
+            const Eigen::Vector3d q = sampleLight(lamp, stratified2d(seed, j, kPairs));
+            const Eigen::Vector3d dv = q - x;
+            const double w = std::max(0.0, floor.normal.dot(dv)) * std::max(0.0, -lamp.normal.dot(dv)) / (dv.squaredNorm() * dv.squaredNorm());
+            all += w;
+            open_real += w;
+            if (!scene.occludedVirtual(x, floor.normal, q, lamp.normal)) open_both += w;
+        }
+        without = std::numbers::pi * form * (open_real / all) * emission;
+        with = std::numbers::pi * form * (open_both / all) * emission;
+    };
+    // (first ball, second ball): together, the second moved, the first moved away, then back.
+    const std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> steps{{{0.1, 0.1, 0.2}, {-0.1, -0.05, 0.15}},
+                                                                       {{0.1, 0.1, 0.2}, {-0.12, 0.0, 0.1}},
+                                                                       {{3.0, 3.0, 3.0}, {-0.12, 0.0, 0.1}},
+                                                                       {{0.11, 0.1, 0.2}, {-0.12, 0.0, 0.1}}};
+    std::array<int, 2> shaded{};  // texels darker than without, on the first ball's side (x > 0) and the second's
+    for (std::size_t step = 0; step < steps.size(); ++step) {
+        scene.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), steps[step].first));
+        scene.setVirtualPose(1, Rigid3d(Eigen::Quaterniond::Identity(), steps[step].second));
+        ASSERT_TRUE(scene.commitVirtual());
+        if (step > 0) {
+            cache.forget({Ball{steps[step - 1].first, 0.04}, Ball{steps[step].first, 0.04}, Ball{steps[step - 1].second, 0.04},
+                          Ball{steps[step].second, 0.04}});
+        }
+        for (int j = 0; j < kSide; ++j) {
+            for (int i = 0; i < kSide; ++i) {
+                const std::size_t k = static_cast<std::size_t>(j * kSide + i);
+                const Eigen::Vector3d x = floor.point((i + 0.5) / kSide, (j + 0.5) / kSide);
+                Eigen::Vector3d d0, d1, e0, e1;
+                cache.at(0, k, kSide, kSide, x, floor.normal, d0, d1);
+                plain(k, x, e0, e1);
+                ASSERT_EQ(d0, e0) << "step " << step << " texel " << k;
+                ASSERT_EQ(d1, e1) << "step " << step << " texel " << k;
+                if (d1 != d0) ++shaded[x.x() > 0.0 ? 0 : 1];
+            }
+        }
+    }
+    EXPECT_GT(shaded[0], 20) << "the first ball shades the floor";
+    EXPECT_GT(shaded[1], 20) << "the second ball shades the floor";
+}
+
 // prefetch() makes again, ahead of the textures, the answers forget() took that the last update
 // asked for; the textures then read them through at(). Two caches over the same moves of a ball,
 // one prefetching: every answer asked for equal to the bit, kept() and traced() the same before
