@@ -173,6 +173,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
     // real part is traced once per point; a move traces the virtual rays of the open pairs.
     constexpr double kPi = std::numbers::pi;
     const int pairs = std::clamp(pairs_, 1, 64);
+    const int side = stratifiedSide(pairs);  // (the pairs' grid on each light)
     // The virtual objects' balls, widened by both ends' lift and a margin for round-off: a light
     // whose cone from x (every segment from x to a point of its ball) meets none of them has
     // every pair open to them, so `with` takes the real answer (the same sum in the same order).
@@ -219,7 +220,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
         std::uint64_t near = all_balls ? 0 : ~std::uint64_t{0};
         for (std::uint64_t rest = todo; rest != 0; rest &= rest - 1) {
             const int j = std::countr_zero(rest);
-            const Eigen::Vector3d q = sampleLight(light, stratified2d(seed, j, pairs));
+            const Eigen::Vector3d q = sampleLight(light, stratified2dOnSide(seed, j, side));
             const Eigen::Vector3d dv = q - x;
             const double d2 = dv.squaredNorm();
             const double w = d2 > 0.0 ? std::max(0.0, normal.dot(dv)) * std::max(0.0, -light.normal.dot(dv)) / (d2 * d2) : 0.0;

@@ -649,6 +649,22 @@ TEST(TexelDirect, PairsMissingEveryBallAnswerAsThePlainSum) {
     EXPECT_GT(shaded[1], 20) << "the second ball shades the floor";
 }
 
+// at() takes its pairs' grid side once (stratifiedSide()) for all its samples: the side is the
+// smallest m with m * m >= n, and the samples on it are stratified2d()'s, each in its own cell.
+TEST(TexelDirect, StratifiedSamplesOnTheirSideAreThoseOfTheirCount) {
+    for (int n = 1; n <= 64; ++n) {
+        const int m = stratifiedSide(n);
+        ASSERT_GE(m * m, n);
+        ASSERT_LT((m - 1) * (m - 1), n);
+        for (int k = 0; k < n; ++k) {
+            const Eigen::Vector2d u = stratified2dOnSide(0x5eedull + static_cast<std::uint64_t>(n), k, m);
+            ASSERT_EQ(u, stratified2d(0x5eedull + static_cast<std::uint64_t>(n), k, n)) << n << " " << k;
+            ASSERT_EQ(static_cast<int>(u.x() * m), k % m) << n << " " << k;
+            ASSERT_EQ(static_cast<int>(u.y() * m), (k / m) % m) << n << " " << k;
+        }
+    }
+}
+
 // prefetch() makes again, ahead of the textures, the answers forget() took that the last update
 // asked for; the textures then read them through at(). Two caches over the same moves of a ball,
 // one prefetching: every answer asked for equal to the bit, kept() and traced() the same before
