@@ -228,8 +228,11 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             if (!(w > 0.0)) continue;
             const std::uint64_t bit = std::uint64_t{1} << j;
             weighed |= bit;
-            if (!clear && all_balls &&
-                std::any_of(balls.begin(), balls.begin() + static_cast<std::ptrdiff_t>(ball_count), [&](const Ball& b) { return segmentMeetsBall(x, q, b); })) {
+            // (The segment's line against each ball, without a division: a line that misses a
+            // ball has no segment of it meeting the ball.)
+            if (!clear && all_balls && std::any_of(balls.begin(), balls.begin() + static_cast<std::ptrdiff_t>(ball_count), [&](const Ball& b) {
+                    return dv.cross(b.centre - x).squaredNorm() <= b.radius * b.radius * d2;
+                })) {
                 near |= bit;
             }
             if (!same_point || (!clear && (near & bit) != 0)) segments[static_cast<std::size_t>(j)] = rays_.prepareSegment(x, normal, q, light.normal);
