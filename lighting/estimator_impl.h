@@ -97,6 +97,11 @@ struct Estimator::Impl {
     LightingSnapshot last;          // the last full update's snapshot (lights, warnings)
     std::vector<FaceBuild> face_builds;  // by real face: the textures and what their next build keeps
     std::unique_ptr<TexelDirectCache> texels;               // the area lights' direct light per texel (null: off)
+    // Per element, the area lights' direct light without the objects (finishUpdate(); made with
+    // `texels`: the columns and the lights' emissions stand until the next full update), and the
+    // largest channel of any of them.
+    std::vector<Eigen::Vector3d> texel_area_without;
+    double texel_area_largest = 0.0;
     std::vector<ProbeLight> probe_lights;
     ProbeMemories probe_memories;  // the probes' real hits, kept between full updates (buildProbes())
     std::vector<Eigen::Vector3d> solve_emission;  // Le per element of the last full update

@@ -266,7 +266,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     }
     std::optional<TexelDirect> texel_direct;
     long traced_before = 0;  // (TexelDirectCache::traced() before this update's textures)
-    std::vector<Eigen::Vector3d> area_without, area_with;
+    std::vector<Eigen::Vector3d> area_with;
     if (texels_on) {
         if (!texels_kept) {
             std::vector<TexelDirectCache::Light> lights;
@@ -276,27 +276,40 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
             for (std::size_t f = 0; f < faces; ++f) real_faces.push_back(rad.face(static_cast<int>(f)));
             d.texels->reset(std::move(lights), std::move(real_faces));
         }
-        // Per element, in parallel (each element its own sums; the largest is a maximum, the same
-        // in any order).
+        // Per element: the lights' sum (its columns' direct light) and that plus the objects' share.
+        // The sums depend on the element's number, the columns and the emissions alone, which stand
+        // until the next full update (a new cache): kept, and made only for elements added since
+        // (refinement appends them). In parallel (each element its own sums; the largest is a
+        // maximum, the same in any order).
         const std::size_t n = rad.hierarchy().elements().size();
+        std::vector<Eigen::Vector3d>& area_without = d.texel_area_without;
+        std::size_t known = texels_kept ? area_without.size() : 0;
+        if (known > n) known = 0;  // (elements went: every sum again)
+        if (known == 0) d.texel_area_largest = 0.0;
         area_without.resize(n);
-        area_with.resize(n);
-        const double largest = tbb::parallel_reduce(
-            tbb::blocked_range<std::size_t>(0, n, 1024), 0.0,
-            [&](const tbb::blocked_range<std::size_t>& r, double top) {
-                for (std::size_t e = r.begin(); e < r.end(); ++e) {
-                    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-                    for (std::size_t k = 0; k < d.sources.size(); ++k) {
-                        const auto& col = d.sources[k].column.real;
-                        if (e < col.size()) sum += static_cast<double>(col[e]) * d.probe_lights[k].emission;
+        if (known < n) {
+            const double largest = tbb::parallel_reduce(
+                tbb::blocked_range<std::size_t>(known, n, 1024), 0.0,
+                [&](const tbb::blocked_range<std::size_t>& r, double top) {
+                    for (std::size_t e = r.begin(); e < r.end(); ++e) {
+                        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+                        for (std::size_t k = 0; k < d.sources.size(); ++k) {
+                            const auto& col = d.sources[k].column.real;
+                            if (e < col.size()) sum += static_cast<double>(col[e]) * d.probe_lights[k].emission;
+                        }
+                        area_without[e] = sum;
+                        top = std::max(top, sum.maxCoeff());
                     }
-                    area_without[e] = sum;
-                    area_with[e] = sum + inf.leafDirect(static_cast<int>(e));
-                    top = std::max(top, sum.maxCoeff());
-                }
-                return top;
-            },
-            [](double a, double b) { return std::max(a, b); });
+                    return top;
+                },
+                [](double a, double b) { return std::max(a, b); });
+            d.texel_area_largest = std::max(d.texel_area_largest, largest);
+        }
+        const double largest = d.texel_area_largest;
+        area_with.resize(n);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024), [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t e = r.begin(); e < r.end(); ++e) area_with[e] = area_without[e] + inf.leafDirect(static_cast<int>(e));
+        });
         TexelDirect td;
         td.without = &area_without;
         td.with = &area_with;

@@ -26,13 +26,19 @@ inline double unitFromHash(std::uint64_t h) { return static_cast<double>(h >> 11
 
 // Sample k of n stratified over [0,1)^2 (an m x m grid, m = ceil(sqrt(n)), jittered within its
 // cell), for stream `seed`.
-inline Eigen::Vector2d stratified2d(std::uint64_t seed, int k, int n) {
+// The grid's side m for n samples (stratified2d()).
+inline int stratifiedSide(int n) {
     int m = 1;
     while (m * m < n) ++m;
+    return m;
+}
+// stratified2d(seed, k, n) with its grid's side m = stratifiedSide(n) given (many samples of one n).
+inline Eigen::Vector2d stratified2dOnSide(std::uint64_t seed, int k, int m) {
     const int i = k % m, j = (k / m) % m;
     const std::uint64_t h = hashCombine(seed, static_cast<std::uint64_t>(k));
     return {(i + unitFromHash(h)) / m, (j + unitFromHash(hash64(h))) / m};
 }
+inline Eigen::Vector2d stratified2d(std::uint64_t seed, int k, int n) { return stratified2dOnSide(seed, k, stratifiedSide(n)); }
 
 // Image of k under a pseudo-random permutation of [0, n) keyed by `seed` (n <= 2^20): a bijection
 // of [0, 2^b) (b the bits of n; rounds of xor with a key, multiplication by an odd key and a right

@@ -173,6 +173,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
     // real part is traced once per point; a move traces the virtual rays of the open pairs.
     constexpr double kPi = std::numbers::pi;
     const int pairs = std::clamp(pairs_, 1, 64);
+    const int side = stratifiedSide(pairs);  // (the pairs' grid on each light)
     // The virtual objects' balls, widened by both ends' lift and a margin for round-off: a light
     // whose cone from x (every segment from x to a point of its ball) meets none of them has
     // every pair open to them, so `with` takes the real answer (the same sum in the same order).
@@ -208,21 +209,33 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
         // pair skip the lifting: occludedVirtual(prepareSegment(...), set) is occludedVirtual()'s
         // answer). A new point traces the real scene for every pair with weight, in packets
         // (occludedRealMany(): occludedReal()'s rays); a kept point only its open pairs.
+        // A pair whose segment meets none of the widened balls is open to the virtual objects (the
+        // cone's rule above, segment by segment): `near` holds the others (every pair when the balls
+        // are not all known), and only they are prepared for and traced against the objects.
         std::array<PreparedSegment, 64> segments;
         std::array<double, 64> weight{};
         const std::uint64_t every = pairs == 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << pairs) - 1;
         const std::uint64_t todo = same_point ? every & ~part.blocked : every;
         std::uint64_t weighed = 0;  // pairs with weight > 0, of `todo`
+        std::uint64_t near = all_balls ? 0 : ~std::uint64_t{0};
         for (std::uint64_t rest = todo; rest != 0; rest &= rest - 1) {
             const int j = std::countr_zero(rest);
-            const Eigen::Vector3d q = sampleLight(light, stratified2d(seed, j, pairs));
+            const Eigen::Vector3d q = sampleLight(light, stratified2dOnSide(seed, j, side));
             const Eigen::Vector3d dv = q - x;
             const double d2 = dv.squaredNorm();
             const double w = d2 > 0.0 ? std::max(0.0, normal.dot(dv)) * std::max(0.0, -light.normal.dot(dv)) / (d2 * d2) : 0.0;
             weight[static_cast<std::size_t>(j)] = w;
             if (!(w > 0.0)) continue;
-            weighed |= std::uint64_t{1} << j;
-            if (!same_point || !clear) segments[static_cast<std::size_t>(j)] = rays_.prepareSegment(x, normal, q, light.normal);
+            const std::uint64_t bit = std::uint64_t{1} << j;
+            weighed |= bit;
+            // (The segment's line against each ball, without a division: a line that misses a
+            // ball has no segment of it meeting the ball.)
+            if (!clear && all_balls && std::any_of(balls.begin(), balls.begin() + static_cast<std::ptrdiff_t>(ball_count), [&](const Ball& b) {
+                    return dv.cross(b.centre - x).squaredNorm() <= b.radius * b.radius * d2;
+                })) {
+                near |= bit;
+            }
+            if (!same_point || (!clear && (near & bit) != 0)) segments[static_cast<std::size_t>(j)] = rays_.prepareSegment(x, normal, q, light.normal);
         }
         std::uint64_t blocked_real = 0;  // of `weighed` (a new point)
         if (!same_point && weighed != 0) {
@@ -253,7 +266,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
                 part.all += w;
             }
             open_real += w;
-            if (clear || (weighed & bit) == 0) {
+            if (clear || (weighed & bit) == 0 || (near & bit) == 0) {
                 open_both += w;
                 continue;
             }

@@ -177,6 +177,46 @@ Moved moveThenFresh(const Scene& scene, const std::vector<Eigen::Vector3d>& cent
     return out;
 }
 
+// The elements' direct light without the objects (the columns' sums the textures read) is kept
+// over the moves and made again at a full update: after moves and a new solve with the lamp twice as
+// bright in red and half in blue, the floor's textures are those of an estimator that only ever
+// solved with that lamp.
+TEST(TexelDirect, ElementsDirectLightMadeAgainAtAFullUpdate) {
+    auto scene = parseScene(kScene, "texel_direct.yaml");
+    std::string yaml = kScene;
+    yaml.replace(yaml.find("radiance: [100, 100, 100]"), 25, "radiance: [200, 100, 50]");
+    auto other = parseScene(yaml, "texel_direct_other.yaml");
+    ASSERT_TRUE(scene && other);
+    auto moving = makeEstimator(*scene, 16);
+    auto fresh_est = makeEstimator(*other, 16);
+    ASSERT_TRUE(moving && fresh_est);
+    std::vector<Rigid3d> poses = SceneLighting::scenePoses(*scene, 0.0);
+    ASSERT_TRUE(moving->update(poses));
+    for (double x : {0.03, 0.06}) {
+        poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(x, 0.0, 0.2), Eigen::Vector3d::Zero());
+        ASSERT_TRUE(moving->update(poses));
+    }
+    ASSERT_TRUE(moving->solveWith({*other->lights[0].emission.value},
+                                  std::vector<Eigen::Vector3d>(scene->real_objects.size(), Eigen::Vector3d::Constant(0.5)), poses));
+    auto last = moving->update(poses);
+    auto fresh = fresh_est->update(poses);
+    ASSERT_TRUE(last && fresh);
+    const FaceModulation* a = last->findFace(0, 0);
+    const FaceModulation* b = fresh->findFace(0, 0);
+    ASSERT_TRUE(a && b);
+    ASSERT_EQ(a->ratio.size(), b->ratio.size());
+    double worst = 0.0;
+    int shadow = 0;
+    for (std::size_t k = 0; k < a->ratio.size(); ++k) {
+        const double scale = std::max(1e-6f, b->original[k].maxCoeff());
+        worst = std::max(worst, static_cast<double>((a->original[k] - b->original[k]).cwiseAbs().maxCoeff()) / scale);
+        worst = std::max(worst, static_cast<double>((a->ratio[k] - b->ratio[k]).cwiseAbs().maxCoeff()));
+        if (b->ratio[k].y() < 0.9f) ++shadow;
+    }
+    EXPECT_GT(shadow, 50) << "the ball's shadow is in the textures";
+    EXPECT_LT(worst, 0.01) << "largest relative B~ or ratio difference against the other lamp's estimator";
+}
+
 // A texel's real visibility is traced once and kept; a move traces its virtual rays again where the
 // ball's old or new bounds reach its shafts. After three moves the floor's texture is the one a
 // fresh estimator gives with the ball where it ended (both estimators trace the same pairs): a
@@ -546,6 +586,83 @@ TEST(TexelDirect, AnswersEqualThePlainPerPairSum) {
     EXPECT_GT(shaded, 50) << "the ball shades the floor";
     EXPECT_GT(weightless, 1000) << "the low lamp's pairs below the horizon";
     EXPECT_GT(low_blocked, 1000) << "the curb hides some of the low lamp's pairs with weight";
+}
+
+// A pair whose segment meets none of the objects' (widened) balls is not traced against them: the
+// answers are still those of the plain per-pair sum to the bit. Two balls over a floor, each moved
+// in turn, the second also where the first's cone does not reach: texels shaded by either alone.
+TEST(TexelDirect, PairsMissingEveryBallAnswerAsThePlainSum) {
+    const Face floor = squareFloor(0.3);
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.04;
+    auto rays = RayScene::build({floor}, {}, {sphere, sphere});
+    ASSERT_TRUE(rays) << rays.error().message;
+    RayScene& scene = **rays;
+    const LightGeometry lamp = squareLamp({0.0, 0.0, 0.6}, 0.2);
+    const Eigen::Vector3d emission(50.0, 40.0, 30.0);
+    constexpr int kSide = 24, kPairs = 16;
+    TexelDirectCache cache(scene, kPairs);
+    cache.reset({{&lamp, emission}}, {floor});
+    const auto plain = [&](std::size_t texel, const Eigen::Vector3d& x, Eigen::Vector3d& without, Eigen::Vector3d& with) {
+        const std::uint64_t seed = hashCombine(hashCombine(0x7e8e1ull, 0), hashCombine(texel, 0));
+        const double form = pointToPolygon(x, floor.normal, lamp.polygon, lamp.normal);
+        double all = 0.0, open_real = 0.0, open_both = 0.0;
+        for (int j = 0; j < kPairs; ++j) {
+            const Eigen::Vector3d q = sampleLight(lamp, stratified2d(seed, j, kPairs));
+            const Eigen::Vector3d dv = q - x;
+            const double w = std::max(0.0, floor.normal.dot(dv)) * std::max(0.0, -lamp.normal.dot(dv)) / (dv.squaredNorm() * dv.squaredNorm());
+            all += w;
+            open_real += w;
+            if (!scene.occludedVirtual(x, floor.normal, q, lamp.normal)) open_both += w;
+        }
+        without = std::numbers::pi * form * (open_real / all) * emission;
+        with = std::numbers::pi * form * (open_both / all) * emission;
+    };
+    // (first ball, second ball): together, the second moved, the first moved away, then back.
+    const std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> steps{{{0.1, 0.1, 0.2}, {-0.1, -0.05, 0.15}},
+                                                                       {{0.1, 0.1, 0.2}, {-0.12, 0.0, 0.1}},
+                                                                       {{3.0, 3.0, 3.0}, {-0.12, 0.0, 0.1}},
+                                                                       {{0.11, 0.1, 0.2}, {-0.12, 0.0, 0.1}}};
+    std::array<int, 2> shaded{};  // texels darker than without, on the first ball's side (x > 0) and the second's
+    for (std::size_t step = 0; step < steps.size(); ++step) {
+        scene.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), steps[step].first));
+        scene.setVirtualPose(1, Rigid3d(Eigen::Quaterniond::Identity(), steps[step].second));
+        ASSERT_TRUE(scene.commitVirtual());
+        if (step > 0) {
+            cache.forget({Ball{steps[step - 1].first, 0.04}, Ball{steps[step].first, 0.04}, Ball{steps[step - 1].second, 0.04},
+                          Ball{steps[step].second, 0.04}});
+        }
+        for (int j = 0; j < kSide; ++j) {
+            for (int i = 0; i < kSide; ++i) {
+                const std::size_t k = static_cast<std::size_t>(j * kSide + i);
+                const Eigen::Vector3d x = floor.point((i + 0.5) / kSide, (j + 0.5) / kSide);
+                Eigen::Vector3d d0, d1, e0, e1;
+                cache.at(0, k, kSide, kSide, x, floor.normal, d0, d1);
+                plain(k, x, e0, e1);
+                ASSERT_EQ(d0, e0) << "step " << step << " texel " << k;
+                ASSERT_EQ(d1, e1) << "step " << step << " texel " << k;
+                if (d1 != d0) ++shaded[x.x() > 0.0 ? 0 : 1];
+            }
+        }
+    }
+    EXPECT_GT(shaded[0], 20) << "the first ball shades the floor";
+    EXPECT_GT(shaded[1], 20) << "the second ball shades the floor";
+}
+
+// at() takes its pairs' grid side once (stratifiedSide()) for all its samples: the side is the
+// smallest m with m * m >= n, and the samples on it are stratified2d()'s, each in its own cell.
+TEST(TexelDirect, StratifiedSamplesOnTheirSideAreThoseOfTheirCount) {
+    for (int n = 1; n <= 64; ++n) {
+        const int m = stratifiedSide(n);
+        ASSERT_GE(m * m, n);
+        ASSERT_LT((m - 1) * (m - 1), n);
+        for (int k = 0; k < n; ++k) {
+            const Eigen::Vector2d u = stratified2dOnSide(0x5eedull + static_cast<std::uint64_t>(n), k, m);
+            ASSERT_EQ(u, stratified2d(0x5eedull + static_cast<std::uint64_t>(n), k, n)) << n << " " << k;
+            ASSERT_EQ(static_cast<int>(u.x() * m), k % m) << n << " " << k;
+            ASSERT_EQ(static_cast<int>(u.y() * m), (k / m) % m) << n << " " << k;
+        }
+    }
 }
 
 // prefetch() makes again, ahead of the textures, the answers forget() took that the last update
