@@ -35,6 +35,16 @@ bool shaftMeetsBall(const Shaft& shaft, const Ball& ball) {
         if (s2 > far * far * (1.0 + 1e-9)) return false;
         const double near = std::min(shaft.ra, shaft.rb) + ball.radius;
         if (near > 0.0 && s2 < near * near * (1.0 - 1e-9)) return true;
+        // Between the two (a cone whose ends' radii differ: a small element and a large source),
+        // tighter bounds where the axis point nearest the centre, u0 = B / A, lies on the segment:
+        // there |c - p(u)|^2 = s^2 + (u - u0)^2 A, so g(u0) = s - r(u0) bounds min g from above,
+        // and min over every u of sqrt(s^2 + t^2 A) - t dr, s sqrt(1 - dr^2 / A), less r(u0),
+        // bounds it from below. (The same margins; on the room 86 % of the calls left end here.)
+        if (A > dr * dr && B >= 0.0 && B <= A) {
+            const double reach = shaft.ra + u * dr + ball.radius;
+            if (s2 * (A - dr * dr) > reach * reach * A * (1.0 + 1e-9)) return false;
+            if (s2 < reach * reach * (1.0 - 1e-9)) return true;
+        }
     }
     const auto g = [&](double u) { return (q - u * d).norm() - (shaft.ra + u * dr); };
     double best = std::min(g(0.0), g(1.0));
