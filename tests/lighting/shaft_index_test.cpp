@@ -235,6 +235,27 @@ TEST(ShaftIndex, CachedHullAnswersAsTheHullTest) {
     EXPECT_GT(misses, 5000);
 }
 
+// A ball beyond a face plane by less than its round-off tolerance may still meet a segment between
+// the ends (hullMeetsBall() tests the segments first): a square with a corner lifted within that
+// tolerance (the plane of the other three is a face plane) and a point below it; a small ball over
+// the lifted corner, its centre beyond the plane by its radius and a little more, meets the
+// segment from that corner. The cached hull tests the segments there, and not for a ball well
+// beyond the plane.
+TEST(ShaftIndex, CachedHullTestsTheSegmentsOfABallJustBeyondAPlane) {
+    for (const double lift : {2e-10, 5e-10, 8e-10}) {
+        const std::vector<Eigen::Vector3d> pa{{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, lift}};
+        const std::vector<Eigen::Vector3d> apex{{0.5, 0.5, -1.0}};
+        const CachedHull hull = CachedHull::of(pa, apex);
+        const double r = 0.01;
+        const Ball touching{{0.0, 1.0, lift + r - 0.1 * lift}, r};  // beyond z = 0 by r + 0.9 lift
+        ASSERT_TRUE(hullMeetsBall(pa, apex, touching)) << lift;
+        EXPECT_TRUE(hull.meets(touching)) << lift;
+        const Ball beyond{{0.0, 1.0, r + 1e-3}, r};
+        ASSERT_FALSE(hullMeetsBall(pa, apex, beyond)) << lift;
+        EXPECT_FALSE(hull.meets(beyond)) << lift;
+    }
+}
+
 // The face planes CachedHull keeps are exactly those a plain enumeration finds: every candidate
 // (each end's plane, every edge of one end with a vertex of the other), normalised, a face plane
 // when no vertex lies beyond the round-off tolerance on both sides, in the same order and bit for
