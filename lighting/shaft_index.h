@@ -114,6 +114,10 @@ struct CachedHull {
     // The face planes (unit outward normal, offset) by component: every plane's n.x, then n.y,
     // n.z and the offsets (the loop over them in meets() two planes to an instruction).
     std::vector<double> planes;
+    // How far beyond a face plane a ball's reach must lie for no segment between the ends to meet
+    // it (those segments lie within the planes' round-off tolerance, far below this): meets() then
+    // answers "no" without them.
+    double beyond = 0.0;
     std::size_t planeCount() const { return planes.size() / 4; }
     std::array<double, 4> plane(std::size_t i) const {
         const std::size_t n = planeCount();

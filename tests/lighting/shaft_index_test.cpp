@@ -80,6 +80,49 @@ TEST(ShaftIndex, ShaftTestEqualsTheSampledMinimum) {
     EXPECT_GT(missed, 3000);
 }
 
+// The calls the distance to the axis alone leaves open (the centre between the reach of the
+// smaller and of the larger end's ball: a small element and a large source), decided by the
+// bounds from the axis point nearest the centre: the same answer as the exact minimum of the
+// convex g(u) (a golden-section search), met and missed, close calls left out.
+TEST(ShaftIndex, ShaftTestBetweenTheEndsReachEqualsTheExactMinimum) {
+    std::mt19937 rng(29);
+    std::uniform_real_distribution<double> u(-1.0, 1.0), unit(0.0, 1.0);
+    int met = 0, missed = 0;
+    for (int trial = 0; trial < 20000; ++trial) {
+        Shaft s;
+        s.a = {u(rng), u(rng), u(rng)};
+        s.b = s.a + (0.5 + 2.0 * unit(rng)) * Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+        s.ra = 0.02 * unit(rng);
+        s.rb = 0.1 + 0.6 * unit(rng);
+        if (trial % 2 == 0) std::swap(s.ra, s.rb), std::swap(s.a, s.b);
+        const Eigen::Vector3d d = s.b - s.a;
+        const Eigen::Vector3d side = d.unitOrthogonal();
+        const Eigen::Vector3d other = d.normalized().cross(side);
+        const double radius = trial % 3 == 0 ? 0.0 : 0.05 * unit(rng);
+        const double near = std::min(s.ra, s.rb) + radius, far = std::max(s.ra, s.rb) + radius;
+        const double off = near + unit(rng) * (far - near);
+        const double turn = 6.283185307179586 * unit(rng);
+        const Ball ball{s.a + unit(rng) * d + off * (std::cos(turn) * side + std::sin(turn) * other), radius};
+        const auto g = [&](double t) { return (ball.centre - (s.a + t * d)).norm() - (s.ra + t * (s.rb - s.ra)); };
+        double lo = 0.0, hi = 1.0;
+        for (int k = 0; k < 200; ++k) {
+            const double m1 = lo + (hi - lo) * 0.381966011250105, m2 = hi - (hi - lo) * 0.381966011250105;
+            if (g(m1) < g(m2)) {
+                hi = m2;
+            } else {
+                lo = m1;
+            }
+        }
+        const double best = std::min({g(0.0), g(1.0), g(0.5 * (lo + hi))});
+        if (std::abs(best - radius) < 1e-9) continue;
+        const bool expected = best < radius;
+        ASSERT_EQ(shaftMeetsBall(s, ball), expected) << "trial " << trial << " best " << best << " radius " << radius;
+        (expected ? met : missed)++;
+    }
+    EXPECT_GT(met, 3000);
+    EXPECT_GT(missed, 3000);
+}
+
 // Hard case of conservativeness: every point of the hull of two squares (random convex
 // combinations of their points), with a tiny ball around it, is reported as meeting the shaft.
 TEST(ShaftIndex, ConeOfBallsHoldsTheHullOfTheTwoEnds) {
@@ -190,6 +233,27 @@ TEST(ShaftIndex, CachedHullAnswersAsTheHullTest) {
     }
     EXPECT_GT(meets, 5000);
     EXPECT_GT(misses, 5000);
+}
+
+// A ball beyond a face plane by less than its round-off tolerance may still meet a segment between
+// the ends (hullMeetsBall() tests the segments first): a square with a corner lifted within that
+// tolerance (the plane of the other three is a face plane) and a point below it; a small ball over
+// the lifted corner, its centre beyond the plane by its radius and a little more, meets the
+// segment from that corner. The cached hull tests the segments there, and not for a ball well
+// beyond the plane.
+TEST(ShaftIndex, CachedHullTestsTheSegmentsOfABallJustBeyondAPlane) {
+    for (const double lift : {2e-10, 5e-10, 8e-10}) {
+        const std::vector<Eigen::Vector3d> pa{{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, lift}};
+        const std::vector<Eigen::Vector3d> apex{{0.5, 0.5, -1.0}};
+        const CachedHull hull = CachedHull::of(pa, apex);
+        const double r = 0.01;
+        const Ball touching{{0.0, 1.0, lift + r - 0.1 * lift}, r};  // beyond z = 0 by r + 0.9 lift
+        ASSERT_TRUE(hullMeetsBall(pa, apex, touching)) << lift;
+        EXPECT_TRUE(hull.meets(touching)) << lift;
+        const Ball beyond{{0.0, 1.0, r + 1e-3}, r};
+        ASSERT_FALSE(hullMeetsBall(pa, apex, beyond)) << lift;
+        EXPECT_FALSE(hull.meets(beyond)) << lift;
+    }
 }
 
 // The face planes CachedHull keeps are exactly those a plain enumeration finds: every candidate
