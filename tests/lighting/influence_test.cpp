@@ -531,5 +531,52 @@ lighting: {max_elements: 3000}
     EXPECT_GT(lit, 0) << "partly hidden floor leaves lit by the ball";
 }
 
+// A glowing ball above a small crate on the floor, a lamp far to the side (the crate's shadow of
+// it falls on the other side): the crate hides the ball from the floor under it, so that floor
+// gets none of the ball's own light (clusterVisibility()'s virtual rays, through the other objects
+// of the mask), while the floor beside the crate gets it.
+TEST(Influence, ObjectsLightIsHiddenByTheOtherObjects) {
+    const Scene scene = parse(R"(
+real:
+  - {name: floor, plane: {size: [2, 2]}, albedo: [0.5, 0.5, 0.5]}
+lights:
+  - {name: panel, area: {size: [0.4, 0.4]}, world_from_object: {t: [1.5, 0, 1.6], rpy_deg: [180, 0, 0]}, radiance: [20, 20, 20]}
+virtual:
+  - {name: glow, sphere: {radius: 0.04}, material: {albedo: [0.5, 0.5, 0.5]}, world_from_object: {t: [0, 0, 0.3]}}
+  - {name: crate, box: {size: [0.14, 0.14, 0.1]}, material: {albedo: [0.5, 0.5, 0.5]}, world_from_object: {t: [0, 0, 0.15]}}
+lighting: {max_elements: 3000}
+)");
+    auto est = make(scene);
+    Config config = sceneConfig(scene);
+    config.emission[0] = Eigen::Vector3d::Constant(200.0);
+    for (int step = 0; step < 3; ++step) {
+        config.poses[0].translation = Eigen::Vector3d(0.002 * step, 0, 0.3);
+        ASSERT_TRUE(apply(*est, config));
+        // The difference on the floor (x > 0: the lamp's side) under the crate and in a ring beside it.
+        const Radiosity& rad = est->radiosity();
+        double under = 0.0, beside = 1e300;
+        int n_under = 0, n_beside = 0;
+        for (int e : rad.leaves(Mode::kReal)) {
+            const Element& el = rad.hierarchy()[e];
+            const Eigen::Vector3d c = rad.geometry(e).centroid;
+            if (std::abs(c.z()) > 1e-6 || c.x() <= 0.0) continue;
+            const Eigen::Vector3d d = est->influence().difference()[static_cast<std::size_t>(e)];
+            const double reach = std::max(std::abs(c.x()), std::abs(c.y())) + 0.5 * std::max(el.size_s, el.size_t_);
+            const double r = std::hypot(c.x(), c.y());
+            if (reach <= 0.07) {
+                under = std::max(under, d.cwiseAbs().maxCoeff());
+                ++n_under;
+            } else if (r > 0.3 && r < 0.4) {
+                beside = std::min(beside, d.minCoeff());
+                ++n_beside;
+            }
+        }
+        ASSERT_GT(n_under, 0) << "step " << step;
+        ASSERT_GT(n_beside, 0) << "step " << step;
+        EXPECT_GT(beside, 0.0) << "step " << step << ": the floor beside the crate is lit by the ball";
+        EXPECT_LT(under, 0.05 * beside) << "step " << step << ": the crate hides the ball from the floor under it";
+    }
+}
+
 }  // namespace
 }  // namespace commonlight::lighting
