@@ -382,6 +382,54 @@ TEST(Influence, ManyRandomMovesKeepTheElementCountBounded) {
     EXPECT_LE(inc->stats().influence.stored, stored_half * 5 / 4) << "retired elements are reused";
 }
 
+// Random moves of both objects: after every move each real element above the leaves holds the
+// pulled mean of its children's differences (its children's area times exposure as weights), as
+// the propagation's pushes and pulls up (pushDown(), propagateUp()) keep it, up to rounding.
+TEST(Influence, EveryElementAboveTheLeavesHoldsItsChildrensPulledDifference) {
+    const Scene scene = parse(kScene);
+    auto inc = make(scene);
+    Config config = sceneConfig(scene);
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    for (int step = 0; step < 24; ++step) {
+        Rigid3d& p = config.poses[static_cast<std::size_t>(step % 2)];
+        p.translation = Eigen::Vector3d(0.35 * u(rng), 0.25 * u(rng), 0.56);
+        if (step % 6 == 5) config.emission[0] = step % 12 == 5 ? std::optional<Eigen::Vector3d>(Eigen::Vector3d(30, 25, 20)) : std::nullopt;
+        ASSERT_TRUE(apply(*inc, config));
+        const Radiosity& rad = inc->radiosity();
+        const Hierarchy& h = rad.hierarchy();
+        const std::vector<Eigen::Vector3d>& d = inc->influence().difference();
+        const double scale = scaleOf(*inc);
+        double worst = 0.0, largest = 0.0;
+        int checked = 0;
+        for (std::size_t f = 0; f < rad.realFaceCount(); ++f) {
+            std::vector<int> stack{h.root(static_cast<int>(f))};
+            while (!stack.empty()) {
+                const int e = stack.back();
+                stack.pop_back();
+                const Element& el = h[e];
+                if (el.child_count == 0 || el.buried) continue;
+                double total = 0.0;
+                for (int c = 0; c < el.child_count; ++c) {
+                    if (!h[el.first_child + c].buried) total += h[el.first_child + c].area * rad.exposure(el.first_child + c);
+                }
+                Eigen::Vector3d pulled = Eigen::Vector3d::Zero();
+                for (int c = 0; c < el.child_count; ++c) {
+                    const int k = el.first_child + c;
+                    if (!h[k].buried && total > 0.0) pulled += h[k].area * rad.exposure(k) / total * d[static_cast<std::size_t>(k)];
+                    stack.push_back(k);
+                }
+                worst = std::max(worst, (pulled - d[static_cast<std::size_t>(e)]).cwiseAbs().maxCoeff());
+                largest = std::max(largest, d[static_cast<std::size_t>(e)].cwiseAbs().maxCoeff());
+                ++checked;
+            }
+        }
+        ASSERT_GT(checked, 100) << "step " << step;
+        EXPECT_GT(largest, 1e-3 * scale) << "step " << step << ": the objects change the light";
+        EXPECT_LE(worst, 1e-9 * scale) << "step " << step << ": pulled differences";
+    }
+}
+
 // The ball rolling across the table in 5 mm steps (the cube still): each move answers again only
 // what its old and new bounds reach (the elements' other answers stand), and the state equals a
 // fresh solve: rebuilt from nothing, and a full update of a second estimator (B~, the index and the
