@@ -463,6 +463,7 @@ struct VirtualInfluence::Impl {
     Eigen::Vector3d value(int leaf) const;
     void addUnshot(int element, const Eigen::Vector3d& delta);
     Eigen::Vector3d pushDown(int element, const Eigen::Vector3d& irradiance);
+    Eigen::Vector3d pushDownIn(const Element* els, int element, const Eigen::Vector3d& irradiance, double tau, double dirty);
     void propagateUp(int element, Eigen::Vector3d delta);
     void pullSubtree(int element);
     void propagate(InfluenceStats& stats);

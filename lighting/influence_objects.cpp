@@ -183,7 +183,7 @@ double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, 
     // (RayScene::occludedRealMany()), then the virtual rays of those the real scene leaves open.
     constexpr int kBatch = 16;
     std::array<PreparedSegment, kBatch> segments;
-    std::array<Eigen::Vector3d, kBatch> from, to;
+    const VirtualSet set = rays.virtualSet(mask);
     int valid = 0, open = 0;
     for (int k0 = 0; k0 < pairs; k0 += kBatch) {
         int batch = 0;
@@ -199,16 +199,15 @@ double VirtualInfluence::Impl::clusterVisibility(int o, int element, int pairs, 
             const Eigen::Vector3d y = discPointFacing(s.ball, s.radius, x, u.second);
             if (g.normal.dot(y - x) <= 0.0) continue;
             const auto i = static_cast<std::size_t>(batch++);
-            from[i] = x;
-            to[i] = y;
             segments[i] = rays.prepareSegment(x, g.normal, y, Eigen::Vector3d::Zero());
         }
         valid += batch;
         const std::uint64_t real_blocked = rays.occludedRealMany(segments.data(), batch);
+        // The virtual rays through the same prepared segments (occludedVirtual(segment, set) ==
+        // occludedVirtual(x, normal, y, 0, mask): the same segment, lifted once).
         for (int i = 0; i < batch; ++i) {
             if ((real_blocked >> i) & 1u) continue;
-            const auto k = static_cast<std::size_t>(i);
-            if (rays.occludedVirtual(from[k], g.normal, to[k], Eigen::Vector3d::Zero(), mask)) continue;
+            if (rays.occludedVirtual(segments[static_cast<std::size_t>(i)], set)) continue;
             ++open;
         }
     }

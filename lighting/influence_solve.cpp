@@ -52,33 +52,60 @@ void VirtualInfluence::Impl::addUnshot(int element, const Eigen::Vector3d& delta
 // Adds irradiance to everything an element gathers: every leaf under it changes by rho / pi of it;
 // returns the element's pulled change (its parents' are the caller's: propagateUp()).
 Eigen::Vector3d VirtualInfluence::Impl::pushDown(int element, const Eigen::Vector3d& irradiance) {
-    const Hierarchy& h = self.radiosity_.hierarchy();
-    const Element& el = h[element];
+    const Element* els = self.radiosity_.hierarchy().elements().data();
+    return pushDownIn(els, element, irradiance, self.options_.residual * scale, 1e-6 * scale);
+}
+
+// pushDown() with the elements and the two bounds found once for the whole subtree (the same
+// arithmetic in the same order).
+Eigen::Vector3d VirtualInfluence::Impl::pushDownIn(const Element* els, int element, const Eigen::Vector3d& irradiance, double tau,
+                                                   double dirty) {
+    const Element& el = els[element];
     const auto e = static_cast<std::size_t>(element);
     if (el.buried) return Eigen::Vector3d::Zero();
     Eigen::Vector3d delta = Eigen::Vector3d::Zero();
     if (el.child_count == 0) {
         delta = self.rho_[e].cwiseProduct(irradiance) / kPi;
     } else {
-        for (int c = 0; c < el.child_count; ++c) {
-            delta += up[static_cast<std::size_t>(el.first_child + c)] * pushDown(el.first_child + c, irradiance);
-        }
+        const int first = el.first_child, count = el.child_count;
+        for (int c = 0; c < count; ++c) delta += up[static_cast<std::size_t>(first + c)] * pushDownIn(els, first + c, irradiance, tau, dirty);
     }
     self.d_[e] += delta;
-    if (delta.cwiseAbs().maxCoeff() > 1e-6 * scale) face_dirty[static_cast<std::size_t>(el.face)] = 1;
-    addUnshotWith(*this, element, delta, self.options_.residual * scale);
+    if (delta.cwiseAbs().maxCoeff() > dirty) face_dirty[static_cast<std::size_t>(el.face)] = 1;
+    addUnshotWith(*this, element, delta, tau);
     return delta;
 }
 
 void VirtualInfluence::Impl::propagateUp(int element, Eigen::Vector3d delta) {
-    const Hierarchy& h = self.radiosity_.hierarchy();
     if (delta.isZero()) return;
+    // (The arrays read through local pointers and the change kept in registers: the same
+    // products and sums, without reloading each array at every level.)
+    const Element* els = self.radiosity_.hierarchy().elements().data();
+    const double* w = up.data();
+    Eigen::Vector3d* d = self.d_.data();
+    Eigen::Vector3d* unshot = U.data();
+    const char* made_here = sub.data();
+    char* in_list = queued.data();
     const double tau = self.options_.residual * scale;
-    for (int e = element; h[e].parent >= 0; e = h[e].parent) {
-        delta *= up[static_cast<std::size_t>(e)];
-        const int p = h[e].parent;
-        self.d_[static_cast<std::size_t>(p)] += delta;
-        addUnshotWith(*this, p, delta, tau);
+    double x = delta.x(), y = delta.y(), z = delta.z();
+    for (int e = element, p = els[element].parent; p >= 0; e = p, p = els[p].parent) {
+        const double f = w[e];
+        x *= f;
+        y *= f;
+        z *= f;
+        const auto i = static_cast<std::size_t>(p);
+        d[i].x() += x;
+        d[i].y() += y;
+        d[i].z() += z;
+        if (made_here[i]) continue;  // (addUnshot(): its difference goes up to its base leaf)
+        Eigen::Vector3d& u = unshot[i];
+        u.x() += x;
+        u.y() += y;
+        u.z() += z;
+        if (!in_list[i] && u.cwiseAbs().maxCoeff() > tau) {
+            in_list[i] = 1;
+            worklist.push_back(p);
+        }
     }
 }
 

@@ -675,15 +675,8 @@ VirtualSet RayScene::virtualSet(std::uint32_t mask) const {
     return set;
 }
 
-bool RayScene::occludedVirtual(const PreparedSegment& segment, const VirtualSet& set) const {
-    if (set.general) return occludedVirtual(segment, set.mask);
-    if (!(segment.tfar > 0.0)) return false;
-    for (int i = 0; i < set.spheres; ++i) {
-        const auto k = static_cast<std::size_t>(i);
-        if (Impl::segmentMeetsSphere(segment.origin, segment.direction, segment.tfar, set.sphere_centre[k], set.sphere_radius[k])) return true;
-    }
+bool RayScene::occludedVirtualMeshes(const PreparedSegment& segment, const VirtualSet& set) const {
     std::uint32_t rest = set.mesh_bits;
-    if (rest == 0u) return false;
     for (int i = 0; i < set.meshes; ++i) {
         const auto k = static_cast<std::size_t>(i);
         if ((set.mesh_bit[k] & rest) != 0u &&

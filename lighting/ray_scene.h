@@ -13,6 +13,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -105,6 +106,8 @@ public:
     std::uint64_t occludedRealMany(const PreparedSegment* segments, int count) const;
     // The objects of `mask` gathered for many segments (VirtualSet), and the answer with them.
     VirtualSet virtualSet(std::uint32_t mask) const;
+    // (Inline, below: the spheres' closed form without a call for each of a link's or a texel's
+    // rays; the meshes through occludedVirtualMeshes().)
     bool occludedVirtual(const PreparedSegment& segment, const VirtualSet& set) const;
     static std::uint32_t virtualBit(int index) { return std::uint32_t{1} << (static_cast<unsigned>(index) % 32u); }
     // Same for a ray towards infinity along `direction` (unit): distant lights.
@@ -151,6 +154,20 @@ public:
     bool virtualBall(int index, Eigen::Vector3d& centre, double& radius) const;
 
 private:
+    // occludedVirtual(segment, set)'s meshes (set.mesh_bits != 0): their balls, then Embree.
+    bool occludedVirtualMeshes(const PreparedSegment& segment, const VirtualSet& set) const;
+    // Whether the segment origin + t direction (unit), 0 <= t <= tfar, meets the sphere's surface
+    // (as Embree's sphere does: from inside, its far side).
+    static bool preparedMeetsSphere(const PreparedSegment& s, const Eigen::Vector3d& centre, double radius) {
+        const Eigen::Vector3d oc = s.origin - centre;
+        const double b = s.direction.dot(oc);
+        const double c = oc.squaredNorm() - radius * radius;
+        const double disc = b * b - c;
+        if (!(disc >= 0.0)) return false;
+        const double root = std::sqrt(disc);
+        const double t0 = -b - root, t1 = -b + root;
+        return (t0 >= 0.0 && t0 <= s.tfar) || (t1 >= 0.0 && t1 <= s.tfar);
+    }
     bool occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
                          const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal, std::uint32_t mask) const;
 
@@ -159,5 +176,15 @@ private:
     std::unique_ptr<Impl> impl_;
     double epsilon_;
 };
+
+inline bool RayScene::occludedVirtual(const PreparedSegment& segment, const VirtualSet& set) const {
+    if (set.general) return occludedVirtual(segment, set.mask);
+    if (!(segment.tfar > 0.0)) return false;
+    for (int i = 0; i < set.spheres; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        if (preparedMeetsSphere(segment, set.sphere_centre[k], set.sphere_radius[k])) return true;
+    }
+    return set.mesh_bits != 0u && occludedVirtualMeshes(segment, set);
+}
 
 }  // namespace commonlight::lighting

@@ -382,6 +382,54 @@ TEST(Influence, ManyRandomMovesKeepTheElementCountBounded) {
     EXPECT_LE(inc->stats().influence.stored, stored_half * 5 / 4) << "retired elements are reused";
 }
 
+// Random moves of both objects: after every move each real element above the leaves holds the
+// pulled mean of its children's differences (its children's area times exposure as weights), as
+// the propagation's pushes and pulls up (pushDown(), propagateUp()) keep it, up to rounding.
+TEST(Influence, EveryElementAboveTheLeavesHoldsItsChildrensPulledDifference) {
+    const Scene scene = parse(kScene);
+    auto inc = make(scene);
+    Config config = sceneConfig(scene);
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    for (int step = 0; step < 24; ++step) {
+        Rigid3d& p = config.poses[static_cast<std::size_t>(step % 2)];
+        p.translation = Eigen::Vector3d(0.35 * u(rng), 0.25 * u(rng), 0.56);
+        if (step % 6 == 5) config.emission[0] = step % 12 == 5 ? std::optional<Eigen::Vector3d>(Eigen::Vector3d(30, 25, 20)) : std::nullopt;
+        ASSERT_TRUE(apply(*inc, config));
+        const Radiosity& rad = inc->radiosity();
+        const Hierarchy& h = rad.hierarchy();
+        const std::vector<Eigen::Vector3d>& d = inc->influence().difference();
+        const double scale = scaleOf(*inc);
+        double worst = 0.0, largest = 0.0;
+        int checked = 0;
+        for (std::size_t f = 0; f < rad.realFaceCount(); ++f) {
+            std::vector<int> stack{h.root(static_cast<int>(f))};
+            while (!stack.empty()) {
+                const int e = stack.back();
+                stack.pop_back();
+                const Element& el = h[e];
+                if (el.child_count == 0 || el.buried) continue;
+                double total = 0.0;
+                for (int c = 0; c < el.child_count; ++c) {
+                    if (!h[el.first_child + c].buried) total += h[el.first_child + c].area * rad.exposure(el.first_child + c);
+                }
+                Eigen::Vector3d pulled = Eigen::Vector3d::Zero();
+                for (int c = 0; c < el.child_count; ++c) {
+                    const int k = el.first_child + c;
+                    if (!h[k].buried && total > 0.0) pulled += h[k].area * rad.exposure(k) / total * d[static_cast<std::size_t>(k)];
+                    stack.push_back(k);
+                }
+                worst = std::max(worst, (pulled - d[static_cast<std::size_t>(e)]).cwiseAbs().maxCoeff());
+                largest = std::max(largest, d[static_cast<std::size_t>(e)].cwiseAbs().maxCoeff());
+                ++checked;
+            }
+        }
+        ASSERT_GT(checked, 100) << "step " << step;
+        EXPECT_GT(largest, 1e-3 * scale) << "step " << step << ": the objects change the light";
+        EXPECT_LE(worst, 1e-9 * scale) << "step " << step << ": pulled differences";
+    }
+}
+
 // The ball rolling across the table in 5 mm steps (the cube still): each move answers again only
 // what its old and new bounds reach (the elements' other answers stand), and the state equals a
 // fresh solve: rebuilt from nothing, and a full update of a second estimator (B~, the index and the
@@ -529,6 +577,53 @@ lighting: {max_elements: 3000}
         }
     }
     EXPECT_GT(lit, 0) << "partly hidden floor leaves lit by the ball";
+}
+
+// A glowing ball above a small crate on the floor, a lamp far to the side (the crate's shadow of
+// it falls on the other side): the crate hides the ball from the floor under it, so that floor
+// gets none of the ball's own light (clusterVisibility()'s virtual rays, through the other objects
+// of the mask), while the floor beside the crate gets it.
+TEST(Influence, ObjectsLightIsHiddenByTheOtherObjects) {
+    const Scene scene = parse(R"(
+real:
+  - {name: floor, plane: {size: [2, 2]}, albedo: [0.5, 0.5, 0.5]}
+lights:
+  - {name: panel, area: {size: [0.4, 0.4]}, world_from_object: {t: [1.5, 0, 1.6], rpy_deg: [180, 0, 0]}, radiance: [20, 20, 20]}
+virtual:
+  - {name: glow, sphere: {radius: 0.04}, material: {albedo: [0.5, 0.5, 0.5]}, world_from_object: {t: [0, 0, 0.3]}}
+  - {name: crate, box: {size: [0.14, 0.14, 0.1]}, material: {albedo: [0.5, 0.5, 0.5]}, world_from_object: {t: [0, 0, 0.15]}}
+lighting: {max_elements: 3000}
+)");
+    auto est = make(scene);
+    Config config = sceneConfig(scene);
+    config.emission[0] = Eigen::Vector3d::Constant(200.0);
+    for (int step = 0; step < 3; ++step) {
+        config.poses[0].translation = Eigen::Vector3d(0.002 * step, 0, 0.3);
+        ASSERT_TRUE(apply(*est, config));
+        // The difference on the floor (x > 0: the lamp's side) under the crate and in a ring beside it.
+        const Radiosity& rad = est->radiosity();
+        double under = 0.0, beside = 1e300;
+        int n_under = 0, n_beside = 0;
+        for (int e : rad.leaves(Mode::kReal)) {
+            const Element& el = rad.hierarchy()[e];
+            const Eigen::Vector3d c = rad.geometry(e).centroid;
+            if (std::abs(c.z()) > 1e-6 || c.x() <= 0.0) continue;
+            const Eigen::Vector3d d = est->influence().difference()[static_cast<std::size_t>(e)];
+            const double reach = std::max(std::abs(c.x()), std::abs(c.y())) + 0.5 * std::max(el.size_s, el.size_t_);
+            const double r = std::hypot(c.x(), c.y());
+            if (reach <= 0.07) {
+                under = std::max(under, d.cwiseAbs().maxCoeff());
+                ++n_under;
+            } else if (r > 0.3 && r < 0.4) {
+                beside = std::min(beside, d.minCoeff());
+                ++n_beside;
+            }
+        }
+        ASSERT_GT(n_under, 0) << "step " << step;
+        ASSERT_GT(n_beside, 0) << "step " << step;
+        EXPECT_GT(beside, 0.0) << "step " << step << ": the floor beside the crate is lit by the ball";
+        EXPECT_LT(under, 0.05 * beside) << "step " << step << ": the crate hides the ball from the floor under it";
+    }
 }
 
 }  // namespace

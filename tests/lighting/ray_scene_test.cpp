@@ -243,6 +243,43 @@ TEST(RayScene, VirtualSetKeepsTheAnswerWithManyObjects) {
     EXPECT_GT(gathered, 400);
 }
 
+// The spheres of a VirtualSet answered inline (RayScene::occludedVirtual(segment, set)) against
+// the plain answer: four spheres and a cube, every mask of the five, segments starting or ending
+// inside a sphere, passing at about its radius, or short of it.
+TEST(RayScene, InlineSpheresOfAVirtualSetKeepTheAnswer) {
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.2;
+    std::vector<VirtualShape> shapes{sphere, sphere, cube(), sphere, sphere};
+    auto built = RayScene::build(floorFace(), {}, shapes);
+    ASSERT_TRUE(built) << built.error().message;
+    RayScene& rays = **built;
+    const Eigen::Vector3d at[5] = {{0, 0, 0}, {0.7, 0, 0}, {0, 0.7, 0}, {0.7, 0.7, 0.2}, {-0.5, 0.3, -0.2}};
+    for (int v = 0; v < 5; ++v) rays.setVirtualPose(v, Rigid3d(Eigen::Quaterniond::Identity(), at[v]));
+    ASSERT_TRUE(rays.commitVirtual());
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    int blocked = 0, open = 0, inside = 0;
+    for (int k = 0; k < 12000; ++k) {
+        const int v = k % 5, w = (k / 5) % 5;
+        const Eigen::Vector3d n = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+        // From inside a sphere, on it, or about its radius away; to another object or near this one.
+        const double r = k % 3 == 0 ? 0.15 * std::abs(u(rng)) : 0.2 + 0.05 * u(rng);
+        const Eigen::Vector3d a = at[v] + r * n;
+        const Eigen::Vector3d b = k % 4 == 0 ? Eigen::Vector3d(a + 0.1 * Eigen::Vector3d(u(rng), u(rng), u(rng)))
+                                             : Eigen::Vector3d(at[w] + 0.25 * Eigen::Vector3d(u(rng), u(rng), u(rng)));
+        const Eigen::Vector3d na = k % 2 == 0 ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : n;
+        const std::uint32_t mask = 1u + static_cast<std::uint32_t>(k % 31);
+        const bool expected = rays.occludedVirtual(a, na, b, Eigen::Vector3d::Zero(), mask);
+        const PreparedSegment s = rays.prepareSegment(a, na, b, Eigen::Vector3d::Zero());
+        ASSERT_EQ(rays.occludedVirtual(s, rays.virtualSet(mask)), expected) << "segment " << k << " mask " << mask;
+        (expected ? blocked : open)++;
+        inside += r < 0.2 ? 1 : 0;
+    }
+    EXPECT_GT(blocked, 3000);
+    EXPECT_GT(open, 3000);
+    EXPECT_GT(inside, 3000);
+}
+
 // Real rays as packets (occludedRealMany()) give occludedReal()'s answers: segments between the
 // faces of a closed box room with a lamp in its ceiling and a pillar, grazing ones along the walls,
 // ones ending on the lamp, short ones, in batches of 1 to 16.
