@@ -192,25 +192,11 @@ struct RayScene::Impl {
         return (oc - t * direction).squaredNorm() <= radius * radius;
     }
 
-    // Whether the ray origin + t direction (unit), 0 <= t <= tfar, meets the sphere's surface (as
-    // Embree's sphere does: from inside, its far side).
-    static bool segmentMeetsSphere(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar,
-                                   const Eigen::Vector3d& centre, double radius) {
-        const Eigen::Vector3d oc = origin - centre;
-        const double b = direction.dot(oc);
-        const double c = oc.squaredNorm() - radius * radius;
-        const double disc = b * b - c;
-        if (!(disc >= 0.0)) return false;
-        const double root = std::sqrt(disc);
-        const double t0 = -b - root, t1 = -b + root;
-        return (t0 >= 0.0 && t0 <= tfar) || (t1 >= 0.0 && t1 <= tfar);
-    }
-
     // The virtual objects in `mask`: spheres in closed form, the rest through Embree.
     bool occludedVirtual(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar, std::uint32_t mask) const {
         if (!(tfar > 0.0)) return false;
         for (std::size_t v = 0; v < sphere_bit.size(); ++v) {
-            if ((sphere_bit[v] & mask) != 0u && segmentMeetsSphere(origin, direction, tfar, sphere_centre[v], sphere_radius[v])) return true;
+            if ((sphere_bit[v] & mask) != 0u && RayScene::segmentMeetsSphere(origin, direction, tfar, sphere_centre[v], sphere_radius[v])) return true;
         }
         std::uint32_t rest = mask & mesh_bits;
         if (rest == 0u) return false;

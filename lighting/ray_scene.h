@@ -157,16 +157,18 @@ private:
     // occludedVirtual(segment, set)'s meshes (set.mesh_bits != 0): their balls, then Embree.
     bool occludedVirtualMeshes(const PreparedSegment& segment, const VirtualSet& set) const;
     // Whether the segment origin + t direction (unit), 0 <= t <= tfar, meets the sphere's surface
-    // (as Embree's sphere does: from inside, its far side).
-    static bool preparedMeetsSphere(const PreparedSegment& s, const Eigen::Vector3d& centre, double radius) {
-        const Eigen::Vector3d oc = s.origin - centre;
-        const double b = s.direction.dot(oc);
+    // (as Embree's sphere does: from inside, its far side). Inline for occludedVirtual(segment,
+    // set); Impl's mask path calls it too.
+    static bool segmentMeetsSphere(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar,
+                                   const Eigen::Vector3d& centre, double radius) {
+        const Eigen::Vector3d oc = origin - centre;
+        const double b = direction.dot(oc);
         const double c = oc.squaredNorm() - radius * radius;
         const double disc = b * b - c;
         if (!(disc >= 0.0)) return false;
         const double root = std::sqrt(disc);
         const double t0 = -b - root, t1 = -b + root;
-        return (t0 >= 0.0 && t0 <= s.tfar) || (t1 >= 0.0 && t1 <= s.tfar);
+        return (t0 >= 0.0 && t0 <= tfar) || (t1 >= 0.0 && t1 <= tfar);
     }
     bool occludedSegment(bool virtual_scene, const Eigen::Vector3d& from, const Eigen::Vector3d& from_normal,
                          const Eigen::Vector3d& to, const Eigen::Vector3d& to_normal, std::uint32_t mask) const;
@@ -182,7 +184,9 @@ inline bool RayScene::occludedVirtual(const PreparedSegment& segment, const Virt
     if (!(segment.tfar > 0.0)) return false;
     for (int i = 0; i < set.spheres; ++i) {
         const auto k = static_cast<std::size_t>(i);
-        if (preparedMeetsSphere(segment, set.sphere_centre[k], set.sphere_radius[k])) return true;
+        if (segmentMeetsSphere(segment.origin, segment.direction, segment.tfar, set.sphere_centre[k], set.sphere_radius[k])) {
+            return true;
+        }
     }
     return set.mesh_bits != 0u && occludedVirtualMeshes(segment, set);
 }
