@@ -78,34 +78,15 @@ Eigen::Vector3d VirtualInfluence::Impl::pushDownIn(const Element* els, int eleme
 
 void VirtualInfluence::Impl::propagateUp(int element, Eigen::Vector3d delta) {
     if (delta.isZero()) return;
-    // (The arrays read through local pointers and the change kept in registers: the same
-    // products and sums, without reloading each array at every level.)
+    // (The elements and the differences read through local pointers, not reloaded at every level.)
     const Element* els = self.radiosity_.hierarchy().elements().data();
     const double* w = up.data();
     Eigen::Vector3d* d = self.d_.data();
-    Eigen::Vector3d* unshot = U.data();
-    const char* made_here = sub.data();
-    char* in_list = queued.data();
     const double tau = self.options_.residual * scale;
-    double x = delta.x(), y = delta.y(), z = delta.z();
     for (int e = element, p = els[element].parent; p >= 0; e = p, p = els[p].parent) {
-        const double f = w[e];
-        x *= f;
-        y *= f;
-        z *= f;
-        const auto i = static_cast<std::size_t>(p);
-        d[i].x() += x;
-        d[i].y() += y;
-        d[i].z() += z;
-        if (made_here[i]) continue;  // (addUnshot(): its difference goes up to its base leaf)
-        Eigen::Vector3d& u = unshot[i];
-        u.x() += x;
-        u.y() += y;
-        u.z() += z;
-        if (!in_list[i] && u.cwiseAbs().maxCoeff() > tau) {
-            in_list[i] = 1;
-            worklist.push_back(p);
-        }
+        delta *= w[e];
+        d[static_cast<std::size_t>(p)] += delta;
+        addUnshotWith(*this, p, delta, tau);
     }
 }
 
