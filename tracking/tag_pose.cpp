@@ -302,15 +302,22 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
         if (!duplicate) candidates.push_back(c);
     };
     // Corners from the prediction itself (start_at_prediction): LM from the prediction, without
-    // IPPE, where the prediction is unambiguous and the refined pose stays near it.
+    // IPPE, where the refined pose stays near the prediction and, nearly head-on, its own mirror
+    // (the other side, approximately) is at least twice as far from the prediction.
+    // A prediction nearly head-on (its mirror within twice the gate) is refined alone as well: its
+    // corners are the prediction's moved by the template's shift, so they cannot tell its two sides
+    // apart, and the prediction chooses (docs/tracking.md, "Speed (issue 13)", change 21).
     bool from_prediction = false;
-    if (options.start_at_prediction && predicted && predicted->translation.z() > 0 &&
-        rotationErrorDeg(planarMirror(*predicted), *predicted) > 2.0 * options.prediction_gate_deg) {
+    if (options.start_at_prediction && predicted && predicted->translation.z() > 0) {
         refineStart(*predicted);
-        if (candidates.size() == 1 &&
-            rotationErrorDeg(candidates[0].cam_from_tag, *predicted) < 0.5 * options.prediction_gate_deg) {
+        const double gate = options.prediction_gate_deg;
+        bool near = candidates.size() == 1;
+        const double d_refined = near ? rotationErrorDeg(candidates[0].cam_from_tag, *predicted) : 0.0;
+        near = near && d_refined < 0.5 * gate;
+        const Rigid3d mirror = near ? planarMirror(candidates[0].cam_from_tag) : Rigid3d();
+        if (near && (rotationErrorDeg(planarMirror(*predicted), *predicted) > 2.0 * gate ||
+                     2.0 * d_refined < rotationErrorDeg(mirror, *predicted))) {
             from_prediction = true;
-            const Rigid3d mirror = planarMirror(candidates[0].cam_from_tag);
             const double rms = tagReprojectionRms(corners, size, camera, mirror);
             if (mirror.isValid() && std::isfinite(rms) && mirror.translation.z() > 0) {
                 candidates.push_back({mirror, rms});
