@@ -302,15 +302,26 @@ Result<TagPose> solveTagPose(int id, const std::array<Eigen::Vector2d, 4>& corne
         if (!duplicate) candidates.push_back(c);
     };
     // Corners from the prediction itself (start_at_prediction): LM from the prediction, without
-    // IPPE, where the prediction is unambiguous and the refined pose stays near it.
+    // IPPE, where the refined pose stays near the prediction. A prediction nearly head-on (its
+    // mirror within twice the gate) is refined alone as well, since corners made from it cannot
+    // tell its two sides apart and it chooses (docs/tracking.md, "Speed (issue 13)", change 21),
+    // unless its mirror is within half the gate (the two sides one flat valley, where LM from the
+    // prediction stops elsewhere than from IPPE's starts: up to 0.04 degrees on `tiny`) or the
+    // refined pose's own mirror (the other side, approximately) is less than twice as far from
+    // the prediction as the refined pose (LM crossed over: the prediction would choose the mirror).
     bool from_prediction = false;
-    if (options.start_at_prediction && predicted && predicted->translation.z() > 0 &&
-        rotationErrorDeg(planarMirror(*predicted), *predicted) > 2.0 * options.prediction_gate_deg) {
+    const double gate = options.prediction_gate_deg;
+    const double mirror_gap = options.start_at_prediction && predicted && predicted->translation.z() > 0
+                                  ? rotationErrorDeg(planarMirror(*predicted), *predicted)
+                                  : 0.0;
+    if (mirror_gap > 0.5 * gate) {
         refineStart(*predicted);
-        if (candidates.size() == 1 &&
-            rotationErrorDeg(candidates[0].cam_from_tag, *predicted) < 0.5 * options.prediction_gate_deg) {
+        bool near = candidates.size() == 1;
+        const double d_refined = near ? rotationErrorDeg(candidates[0].cam_from_tag, *predicted) : 0.0;
+        near = near && d_refined < 0.5 * gate;
+        const Rigid3d mirror = near ? planarMirror(candidates[0].cam_from_tag) : Rigid3d();
+        if (near && (mirror_gap > 2.0 * gate || 2.0 * d_refined < rotationErrorDeg(mirror, *predicted))) {
             from_prediction = true;
-            const Rigid3d mirror = planarMirror(candidates[0].cam_from_tag);
             const double rms = tagReprojectionRms(corners, size, camera, mirror);
             if (mirror.isValid() && std::isfinite(rms) && mirror.translation.z() > 0) {
                 candidates.push_back({mirror, rms});

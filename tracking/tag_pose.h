@@ -51,12 +51,15 @@ struct TagPoseOptions {
     // and solves again with this on when its own refinement fails.
     bool refine_predicted_start = true;
     // For corners that came from the prediction itself (the tracker's verified tags: the
-    // predicted corners moved by the template's best shift, within a pixel or so): when the
-    // prediction is unambiguous (its planar mirror beyond twice the gate from it, as for the
-    // shortcut above), Levenberg-Marquardt starts at the prediction and IPPE is not run. The
-    // refined pose must stay within half the gate of the prediction (else the solve is done as
-    // without this); the alternative is its planar mirror, unrefined, with its corner residual,
-    // as IPPE's far start stays unrefined in the shortcut (docs/tracking.md, "Speed (issue 13)").
+    // predicted corners moved by the template's best shift, within a pixel or so):
+    // Levenberg-Marquardt starts at the prediction and IPPE is not run, unless the prediction's
+    // planar mirror is within half the gate of it. The refined pose must stay within half the gate
+    // of the prediction and, when the prediction is nearly head-on (its mirror within twice the
+    // gate), at most half as far from it as the refined pose's own mirror is (else the solve is
+    // done as without this); the alternative is that mirror,
+    // unrefined, with its corner residual, as IPPE's far start stays unrefined in the shortcut:
+    // corners made from the prediction cannot tell its two sides apart (docs/tracking.md,
+    // "Speed (issue 13)", changes 18 and 21).
     bool start_at_prediction = false;
     Result<void> validate() const;
 };
