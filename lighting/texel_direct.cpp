@@ -140,6 +140,23 @@ bool TexelDirectCache::takeForgotten(int face, std::vector<std::uint32_t>& texel
     return listed;
 }
 
+const TexelDirectCache::Balls& TexelDirectCache::virtualBalls() {
+    const std::uint64_t stamp = rays_.virtualStamp();
+    if (balls_stamp_.load(std::memory_order_acquire) == stamp) return balls_;
+    const std::lock_guard lock(balls_lock_);
+    if (balls_stamp_.load(std::memory_order_relaxed) == stamp) return balls_;
+    balls_.count = 0;
+    for (std::size_t v = 0; v < rays_.virtualCount() && balls_.count < balls_.balls.size(); ++v) {
+        Ball b;
+        if (!rays_.virtualBall(static_cast<int>(v), b.centre, b.radius)) continue;
+        b.radius += 2.0 * rays_.epsilon() + 1e-6 * (1.0 + b.radius);
+        balls_.balls[balls_.count++] = b;
+    }
+    balls_.all = rays_.virtualCount() <= balls_.balls.size();
+    balls_stamp_.store(stamp, std::memory_order_release);
+    return balls_;
+}
+
 void TexelDirectCache::at(int face, std::size_t texel, int width, int height, const Eigen::Vector3d& x, const Eigen::Vector3d& normal,
                           Eigen::Vector3d& without, Eigen::Vector3d& with) {
     FaceState& f = faces_[static_cast<std::size_t>(face)];
@@ -177,15 +194,10 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
     // The virtual objects' balls, widened by both ends' lift and a margin for round-off: a light
     // whose cone from x (every segment from x to a point of its ball) meets none of them has
     // every pair open to them, so `with` takes the real answer (the same sum in the same order).
-    std::array<Ball, 32> balls;
-    std::size_t ball_count = 0;
-    for (std::size_t v = 0; v < rays_.virtualCount() && ball_count < balls.size(); ++v) {
-        Ball b;
-        if (!rays_.virtualBall(static_cast<int>(v), b.centre, b.radius)) continue;
-        b.radius += 2.0 * rays_.epsilon() + 1e-6 * (1.0 + b.radius);
-        balls[ball_count++] = b;
-    }
-    const bool all_balls = rays_.virtualCount() <= balls.size();
+    const Balls& known = virtualBalls();
+    const std::array<Ball, 32>& balls = known.balls;
+    const std::size_t ball_count = known.count;
+    const bool all_balls = known.all;
     std::optional<VirtualSet> set;  // occludedVirtual()'s objects, gathered at the first virtual ray
     if (!same_point) without.setZero();
     with.setZero();

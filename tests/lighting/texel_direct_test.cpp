@@ -647,6 +647,21 @@ TEST(TexelDirect, PairsMissingEveryBallAnswerAsThePlainSum) {
     }
     EXPECT_GT(shaded[0], 20) << "the first ball shades the floor";
     EXPECT_GT(shaded[1], 20) << "the second ball shades the floor";
+    // at() makes the balls once per commit: a commit with no forget(), then a new layout (every
+    // texel new), answers with the balls where the commit put them.
+    scene.setVirtualPose(1, Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.0, 0.05, 0.12)));
+    ASSERT_TRUE(scene.commitVirtual());
+    int shaded_after = 0;
+    constexpr int kNew = kSide + 1;
+    for (std::size_t k = 0; k < std::size_t{kNew * kNew}; ++k) {
+        const Eigen::Vector3d x = floor.point((static_cast<int>(k) % kNew + 0.5) / kNew, (static_cast<int>(k) / kNew + 0.5) / kNew);
+        Eigen::Vector3d d0, d1, e0, e1;
+        cache.at(0, k, kNew, kNew, x, floor.normal, d0, d1);
+        plain(k, x, e0, e1);
+        ASSERT_EQ(d1, e1) << "after a commit, texel " << k;
+        if (d1 != d0) ++shaded_after;
+    }
+    EXPECT_GT(shaded_after, 20);
 }
 
 // at() takes its pairs' grid side once (stratifiedSide()) for all its samples: the side is the
