@@ -161,8 +161,10 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
                           Eigen::Vector3d& without, Eigen::Vector3d& with) {
     FaceState& f = faces_[static_cast<std::size_t>(face)];
     const std::size_t nl = lights_.size();
-    {
-        const std::lock_guard lock(locks_[static_cast<std::size_t>(face)]);
+    FaceLock& face_lock = locks_[static_cast<std::size_t>(face)];
+    const std::uint64_t layout = static_cast<std::uint64_t>(static_cast<std::uint32_t>(width)) << 32 | static_cast<std::uint32_t>(height);
+    if (face_lock.layout.load(std::memory_order_acquire) != layout) {
+        const std::lock_guard lock(face_lock.lock);
         if (f.width != width || f.height != height) {
             f.width = width;
             f.height = height;
@@ -171,6 +173,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             f.gone.clear();
             f.all_gone = true;
         }
+        face_lock.layout.store(layout, std::memory_order_release);
     }
     Entry& e = f.entries[texel];
     const bool same_point = e.real && (e.x - x).squaredNorm() < 1e-18;

@@ -107,7 +107,13 @@ private:
     std::vector<Light> lights_;
     std::vector<double> light_radius_;  // a ball about each light polygon's centre holding it
     std::vector<FaceState> faces_;
-    std::deque<std::mutex> locks_;  // by face: a change of layout
+    // By face: a change of layout, under `lock`; `layout` (width << 32 | height, 0: none) the
+    // layout `entries` has, read first without the lock (calls at the same time ask one layout).
+    struct FaceLock {
+        std::mutex lock;
+        std::atomic<std::uint64_t> layout{0};
+    };
+    std::deque<FaceLock> locks_;
     std::atomic<long> traced_{0};
     std::uint32_t round_ = 1;  // forget() calls since the last reset(), plus one
     std::atomic<long> prefetched_{0}, prefetch_used_{0};

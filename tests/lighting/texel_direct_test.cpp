@@ -664,6 +664,27 @@ TEST(TexelDirect, PairsMissingEveryBallAnswerAsThePlainSum) {
     EXPECT_GT(shaded_after, 20);
 }
 
+// A new layout of a face (the third pass: only its height) drops every answer of the face, kept
+// or listed, with the layout checked first without the lock (kept() is asked before at()).
+TEST(TexelDirect, ANewLayoutDropsEveryAnswerOfTheFace) {
+    const Face floor = squareFloor(0.3);
+    auto rays = RayScene::build({floor}, {}, {});
+    ASSERT_TRUE(rays) << rays.error().message;
+    const LightGeometry lamp = squareLamp({0.0, 0.0, 0.6}, 0.2);
+    TexelDirectCache cache(**rays, 16);
+    cache.reset({{&lamp, Eigen::Vector3d(5.0, 4.0, 3.0)}}, {floor});
+    Eigen::Vector3d d0, d1;
+    for (int pass = 0; pass < 3; ++pass) {
+        const int height = pass < 2 ? 9 : 8;
+        for (std::size_t k = 0; k < 8 * static_cast<std::size_t>(height); ++k) {
+            EXPECT_EQ(cache.kept(0, k), pass > 0 && (pass == 1 || k == 0)) << pass << " " << k;
+            cache.at(0, k, 8, height, floor.point((static_cast<double>(k % 8) + 0.5) / 8, (static_cast<double>(k / 8) + 0.5) / height), floor.normal, d0, d1);
+        }
+        std::vector<std::uint32_t> gone;
+        EXPECT_EQ(cache.takeForgotten(0, gone), pass == 1) << "listed within a layout after a first take; " << pass;
+    }
+}
+
 // at() takes its pairs' grid side once (stratifiedSide()) for all its samples: the side is the
 // smallest m with m * m >= n, and the samples on it are stratified2d()'s, each in its own cell.
 TEST(TexelDirect, StratifiedSamplesOnTheirSideAreThoseOfTheirCount) {
