@@ -4,8 +4,11 @@
 #include <array>
 #include <bit>
 #include <cmath>
+#include <cstddef>
+#include <memory>
+#include <new>
 #include <numbers>
-#include <optional>
+#include <type_traits>
 #include <utility>
 
 #include <tbb/blocked_range.h>
@@ -15,6 +18,20 @@
 #include "lighting/sampling.h"
 
 namespace commonlight::lighting {
+
+namespace {
+
+// Room for `n` objects of T that are made (std::construct_at) before they are read: at()'s arrays
+// by pair, not initialised (zeroing 64 segments a light cost more than most of their traces).
+template <class T, std::size_t n>
+    requires std::is_trivially_destructible_v<T>
+struct Slots {
+    alignas(T) std::byte bytes[n * sizeof(T)];
+    T* data() noexcept { return std::launder(reinterpret_cast<T*>(bytes)); }
+    T& operator[](std::size_t i) noexcept { return data()[i]; }
+};
+
+}  // namespace
 
 void TexelDirectCache::reset(std::vector<Light> lights, std::vector<Face> faces) {
     lights_ = std::move(lights);
@@ -140,12 +157,31 @@ bool TexelDirectCache::takeForgotten(int face, std::vector<std::uint32_t>& texel
     return listed;
 }
 
+const TexelDirectCache::Balls& TexelDirectCache::virtualBalls() {
+    const std::uint64_t stamp = rays_.virtualStamp();
+    if (balls_stamp_.load(std::memory_order_acquire) == stamp) return balls_;
+    const std::lock_guard lock(balls_lock_);
+    if (balls_stamp_.load(std::memory_order_relaxed) == stamp) return balls_;
+    balls_.count = 0;
+    for (std::size_t v = 0; v < rays_.virtualCount() && balls_.count < balls_.balls.size(); ++v) {
+        Ball b;
+        if (!rays_.virtualBall(static_cast<int>(v), b.centre, b.radius)) continue;
+        b.radius += 2.0 * rays_.epsilon() + 1e-6 * (1.0 + b.radius);
+        balls_.balls[balls_.count++] = b;
+    }
+    balls_.all = rays_.virtualCount() <= balls_.balls.size();
+    balls_stamp_.store(stamp, std::memory_order_release);
+    return balls_;
+}
+
 void TexelDirectCache::at(int face, std::size_t texel, int width, int height, const Eigen::Vector3d& x, const Eigen::Vector3d& normal,
                           Eigen::Vector3d& without, Eigen::Vector3d& with) {
     FaceState& f = faces_[static_cast<std::size_t>(face)];
     const std::size_t nl = lights_.size();
-    {
-        const std::lock_guard lock(locks_[static_cast<std::size_t>(face)]);
+    FaceLock& face_lock = locks_[static_cast<std::size_t>(face)];
+    const std::uint64_t layout = static_cast<std::uint64_t>(static_cast<std::uint32_t>(width)) << 32 | static_cast<std::uint32_t>(height);
+    if (face_lock.layout.load(std::memory_order_acquire) != layout) {
+        const std::lock_guard lock(face_lock.lock);
         if (f.width != width || f.height != height) {
             f.width = width;
             f.height = height;
@@ -154,6 +190,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             f.gone.clear();
             f.all_gone = true;
         }
+        face_lock.layout.store(layout, std::memory_order_release);
     }
     Entry& e = f.entries[texel];
     const bool same_point = e.real && (e.x - x).squaredNorm() < 1e-18;
@@ -177,16 +214,12 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
     // The virtual objects' balls, widened by both ends' lift and a margin for round-off: a light
     // whose cone from x (every segment from x to a point of its ball) meets none of them has
     // every pair open to them, so `with` takes the real answer (the same sum in the same order).
-    std::array<Ball, 32> balls;
-    std::size_t ball_count = 0;
-    for (std::size_t v = 0; v < rays_.virtualCount() && ball_count < balls.size(); ++v) {
-        Ball b;
-        if (!rays_.virtualBall(static_cast<int>(v), b.centre, b.radius)) continue;
-        b.radius += 2.0 * rays_.epsilon() + 1e-6 * (1.0 + b.radius);
-        balls[ball_count++] = b;
-    }
-    const bool all_balls = rays_.virtualCount() <= balls.size();
-    std::optional<VirtualSet> set;  // occludedVirtual()'s objects, gathered at the first virtual ray
+    const Balls& known = virtualBalls();
+    const std::array<Ball, 32>& balls = known.balls;
+    const std::size_t ball_count = known.count;
+    const bool all_balls = known.all;
+    Slots<VirtualSet, 1> set;  // occludedVirtual()'s objects, gathered at the first virtual ray
+    bool set_made = false;
     if (!same_point) without.setZero();
     with.setZero();
     for (std::size_t k = 0; k < nl; ++k) {
@@ -212,8 +245,9 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
         // A pair whose segment meets none of the widened balls is open to the virtual objects (the
         // cone's rule above, segment by segment): `near` holds the others (every pair when the balls
         // are not all known), and only they are prepared for and traced against the objects.
-        std::array<PreparedSegment, 64> segments;
-        std::array<double, 64> weight{};
+        // (By pair j: `weight` made for the pairs of `todo`, `segments` for those prepared.)
+        Slots<PreparedSegment, 64> segments;
+        Slots<double, 64> weight;
         const std::uint64_t every = pairs == 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << pairs) - 1;
         const std::uint64_t todo = same_point ? every & ~part.blocked : every;
         std::uint64_t weighed = 0;  // pairs with weight > 0, of `todo`
@@ -224,7 +258,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             const Eigen::Vector3d dv = q - x;
             const double d2 = dv.squaredNorm();
             const double w = d2 > 0.0 ? std::max(0.0, normal.dot(dv)) * std::max(0.0, -light.normal.dot(dv)) / (d2 * d2) : 0.0;
-            weight[static_cast<std::size_t>(j)] = w;
+            std::construct_at(weight.data() + j, w);
             if (!(w > 0.0)) continue;
             const std::uint64_t bit = std::uint64_t{1} << j;
             weighed |= bit;
@@ -235,17 +269,17 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
                 })) {
                 near |= bit;
             }
-            if (!same_point || (!clear && (near & bit) != 0)) segments[static_cast<std::size_t>(j)] = rays_.prepareSegment(x, normal, q, light.normal);
+            if (!same_point || (!clear && (near & bit) != 0)) std::construct_at(segments.data() + j, rays_.prepareSegment(x, normal, q, light.normal));
         }
         std::uint64_t blocked_real = 0;  // of `weighed` (a new point)
         if (!same_point && weighed != 0) {
-            std::array<PreparedSegment, 64> packed;
-            std::array<int, 64> index{};
+            Slots<PreparedSegment, 64> packed;
+            Slots<int, 64> index;
             int n = 0;
             for (std::uint64_t rest = weighed; rest != 0; rest &= rest - 1) {
                 const int j = std::countr_zero(rest);
-                index[static_cast<std::size_t>(n)] = j;
-                packed[static_cast<std::size_t>(n++)] = segments[static_cast<std::size_t>(j)];
+                std::construct_at(index.data() + n, j);
+                std::construct_at(packed.data() + n++, segments[static_cast<std::size_t>(j)]);
             }
             const std::uint64_t hit = rays_.occludedRealMany(packed.data(), n);
             for (int i = 0; i < n; ++i) {
@@ -270,8 +304,11 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
                 open_both += w;
                 continue;
             }
-            if (!set) set = rays_.virtualSet(~0u);
-            if (!rays_.occludedVirtual(segments[static_cast<std::size_t>(j)], *set)) open_both += w;
+            if (!set_made) {
+                std::construct_at(set.data(), rays_.virtualSet(~0u));
+                set_made = true;
+            }
+            if (!rays_.occludedVirtual(segments[static_cast<std::size_t>(j)], set[0])) open_both += w;
         }
         if (!same_point) part.open = open_real;
         if (!(part.all > 0.0)) continue;

@@ -11,6 +11,7 @@
 // pairs the real scene blocks are kept (the real scene does not change between full updates). Lighting thread only; at() is called in parallel for distinct texels.
 #pragma once
 
+#include <array>
 #include <atomic>
 #include <cstdint>
 #include <deque>
@@ -89,12 +90,30 @@ private:
         std::vector<std::uint32_t> gone;  // texels forgotten since the last takeForgotten()
         bool all_gone = true;             // ... or any (a reset() since)
     };
+    // The virtual objects' balls as at() widens them (RayScene::virtualBall()), made once per
+    // commit of the scene (its virtualStamp()), not at every call.
+    struct Balls {
+        std::array<Ball, 32> balls;
+        std::size_t count = 0;
+        bool all = true;  // every object's ball is in `balls`
+    };
+    const Balls& virtualBalls();
+
     const RayScene& rays_;
     int pairs_;
+    Balls balls_;
+    std::atomic<std::uint64_t> balls_stamp_{0};  // the scene's stamp `balls_` was made at (0: none; stamps start at 1)
+    std::mutex balls_lock_;
     std::vector<Light> lights_;
     std::vector<double> light_radius_;  // a ball about each light polygon's centre holding it
     std::vector<FaceState> faces_;
-    std::deque<std::mutex> locks_;  // by face: a change of layout
+    // By face: a change of layout, under `lock`; `layout` (width << 32 | height, 0: none) the
+    // layout `entries` has, read first without the lock (calls at the same time ask one layout).
+    struct FaceLock {
+        std::mutex lock;
+        std::atomic<std::uint64_t> layout{0};
+    };
+    std::deque<FaceLock> locks_;
     std::atomic<long> traced_{0};
     std::uint32_t round_ = 1;  // forget() calls since the last reset(), plus one
     std::atomic<long> prefetched_{0}, prefetch_used_{0};

@@ -647,6 +647,42 @@ TEST(TexelDirect, PairsMissingEveryBallAnswerAsThePlainSum) {
     }
     EXPECT_GT(shaded[0], 20) << "the first ball shades the floor";
     EXPECT_GT(shaded[1], 20) << "the second ball shades the floor";
+    // at() makes the balls once per commit: a commit with no forget(), then a new layout (every
+    // texel new), answers with the balls where the commit put them.
+    scene.setVirtualPose(1, Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.0, 0.05, 0.12)));
+    ASSERT_TRUE(scene.commitVirtual());
+    int shaded_after = 0;
+    constexpr int kNew = kSide + 1;
+    for (std::size_t k = 0; k < std::size_t{kNew * kNew}; ++k) {
+        const Eigen::Vector3d x = floor.point((static_cast<int>(k) % kNew + 0.5) / kNew, (static_cast<int>(k) / kNew + 0.5) / kNew);
+        Eigen::Vector3d d0, d1, e0, e1;
+        cache.at(0, k, kNew, kNew, x, floor.normal, d0, d1);
+        plain(k, x, e0, e1);
+        ASSERT_EQ(d1, e1) << "after a commit, texel " << k;
+        if (d1 != d0) ++shaded_after;
+    }
+    EXPECT_GT(shaded_after, 20);
+}
+
+// A new layout of a face (the third pass: only its height) drops every answer of the face, kept
+// or listed, with the layout checked first without the lock (kept() is asked before at()).
+TEST(TexelDirect, ANewLayoutDropsEveryAnswerOfTheFace) {
+    const Face floor = squareFloor(0.3);
+    auto rays = RayScene::build({floor}, {}, {});
+    ASSERT_TRUE(rays) << rays.error().message;
+    const LightGeometry lamp = squareLamp({0.0, 0.0, 0.6}, 0.2);
+    TexelDirectCache cache(**rays, 16);
+    cache.reset({{&lamp, Eigen::Vector3d(5.0, 4.0, 3.0)}}, {floor});
+    Eigen::Vector3d d0, d1;
+    for (int pass = 0; pass < 3; ++pass) {
+        const int height = pass < 2 ? 9 : 8;
+        for (std::size_t k = 0; k < 8 * static_cast<std::size_t>(height); ++k) {
+            EXPECT_EQ(cache.kept(0, k), pass > 0 && (pass == 1 || k == 0)) << pass << " " << k;
+            cache.at(0, k, 8, height, floor.point((static_cast<double>(k % 8) + 0.5) / 8, (static_cast<double>(k / 8) + 0.5) / height), floor.normal, d0, d1);
+        }
+        std::vector<std::uint32_t> gone;
+        EXPECT_EQ(cache.takeForgotten(0, gone), pass == 1) << "listed within a layout after a first take; " << pass;
+    }
 }
 
 // at() takes its pairs' grid side once (stratifiedSide()) for all its samples: the side is the
