@@ -229,13 +229,9 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
             }
         }
     } else {
-        // (Kept in ascending position: the pairs woken now sorted and merged in, so that the pairs
-        // kept below come in cache_pairs' order, by base leaf then link, with no sort of their own.)
-        const std::size_t stayed = awake.size();
-        asleep.wake(travel, awake);
-        const auto middle = awake.begin() + static_cast<std::ptrdiff_t>(stayed);
-        std::sort(middle, awake.end());
-        std::inplace_merge(awake.begin(), middle, awake.end());
+        // (Kept in ascending position: the pairs woken now put in order among them, so that the
+        // pairs kept below come in cache_pairs' order, by base leaf then link, with no sort of their own.)
+        asleep.wakeInOrder(travel, awake);
     }
     std::vector<std::pair<int, double>> sums;       // base leaf, significance (by base leaf)
     std::vector<std::pair<int, int>> link_entries;  // base leaf, link (sorted)

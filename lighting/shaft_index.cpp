@@ -360,6 +360,26 @@ void SleepQueue::wake(double travel, std::vector<int>& out) {
     bucket.swap(spread);  // (its storage kept)
 }
 
+void SleepQueue::wakeInOrder(double travel, std::vector<int>& awake) {
+    const std::size_t stayed = awake.size();
+    wake(travel, awake);
+    if (awake.size() == stayed) return;
+    int most = 0;
+    for (const int v : awake) most = std::max(most, v);
+    const std::size_t words = static_cast<std::size_t>(most) / 64 + 1;
+    if (marks_.size() < words) marks_.resize(words, 0);
+    for (const int v : awake) marks_[static_cast<std::size_t>(v) / 64] |= std::uint64_t{1} << (static_cast<unsigned>(v) % 64);
+    std::size_t k = 0;
+    for (std::size_t w = 0; w < words; ++w) {
+        std::uint64_t word = marks_[w];
+        marks_[w] = 0;
+        while (word != 0) {
+            awake[k++] = static_cast<int>(64 * w + static_cast<std::size_t>(std::countr_zero(word)));
+            word &= word - 1;
+        }
+    }
+}
+
 namespace {
 
 // One node of the hierarchy, in memory of the BVH's allocator (freed with it). Inner nodes have

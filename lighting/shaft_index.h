@@ -154,6 +154,9 @@ public:
     // in no particular order, and takes them out. `travel` below the last wake's (or NaN): every
     // entry compared.
     void wake(double travel, std::vector<int>& out);
+    // wake() into `awake`, ascending and of distinct values none of which is asleep, kept ascending:
+    // the values marked in a bit set and read back in order (no sort, no merge).
+    void wakeInOrder(double travel, std::vector<int>& awake);
     std::size_t size() const noexcept { return size_; }
 
 private:
@@ -163,6 +166,7 @@ private:
     std::array<std::vector<std::pair<double, int>>, 65> buckets_;
     double last_ = 0.0;
     std::size_t size_ = 0;
+    std::vector<std::uint64_t> marks_;  // wakeInOrder()'s bit set, all zero between calls
 };
 
 class ShaftIndex {

@@ -451,6 +451,45 @@ TEST(SleepQueue, WakesExactlyTheEntriesTheTravelHasReached) {
     EXPECT_TRUE(none.empty());
 }
 
+// wakeInOrder() leaves the awake list ascending, the woken values put among those that stayed
+// awake (what a sort of the woken and a merge give): values over many 64-bit words, a list that
+// grows and shrinks, moves that wake nothing.
+TEST(SleepQueue, WakeInOrderKeepsTheAwakeListAscending) {
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    SleepQueue queue;
+    queue.reset(0.0);
+    std::vector<int> awake;
+    double travel = 0.0;
+    for (int step = 0; step < 300; ++step) {
+        // Some awake values go to sleep (the others stay), at keys ahead of the travel.
+        std::vector<int> stay;
+        for (const int v : awake) {
+            if (unit(rng) < 0.4) {
+                queue.push(travel + 0.02 * unit(rng) + 1e-9, v);
+            } else {
+                stay.push_back(v);
+            }
+        }
+        awake = stay;
+        if (step % 10 == 0) {
+            for (int n = 0; n < 30; ++n) queue.push(travel + 0.05 * unit(rng) + 1e-9, 5000 * step / 10 + 97 * n + step % 7);
+        }
+        const std::vector<int> before = awake;
+        travel += step % 5 == 4 ? 0.0 : 0.004;
+        std::vector<int> woken;
+        SleepQueue copy = queue;
+        copy.wake(travel, woken);
+        queue.wakeInOrder(travel, awake);
+        std::vector<int> expected = before;
+        expected.insert(expected.end(), woken.begin(), woken.end());
+        std::sort(expected.begin(), expected.end());
+        ASSERT_EQ(awake, expected) << "step " << step;
+        ASSERT_EQ(queue.size(), copy.size()) << "step " << step;
+    }
+    EXPECT_GT(awake.size(), 20u);
+}
+
 TEST(Hierarchy, CollapseRetiresAndSubdivideBringsTheSameChildrenBack) {
     Face f;
     f.edge_s = Eigen::Vector3d(1, 0, 0);
