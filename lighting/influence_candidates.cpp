@@ -215,33 +215,23 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     // (A pair's answer below is what it would be if every pair were looked at: a pair left out is
     // one the loop would skip, by its share or by `travel < cache_idle`.)
     std::vector<int>& awake = obj.cache_awake;
-    auto& asleep = obj.cache_asleep;
-    const auto later = [](const std::pair<double, int>& x, const std::pair<double, int>& y) { return x.first > y.first; };
+    SleepQueue& asleep = obj.cache_asleep;
     if (refreshed || !track) {
         awake.clear();
-        asleep.clear();
+        asleep.reset(travel);
         for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
             const auto& parts = obj.cache_sig[i];
             if (parts[1] >= 0.0 && std::max(parts[0], 0.0) < item) continue;
             if (obj.cache_idle[i] > travel) {
-                asleep.emplace_back(obj.cache_idle[i], static_cast<int>(i));
+                asleep.push(obj.cache_idle[i], static_cast<int>(i));
             } else {
                 awake.push_back(static_cast<int>(i));
             }
         }
-        std::make_heap(asleep.begin(), asleep.end(), later);
     } else {
-        // (Kept in ascending position: the pairs woken now sorted and merged in, so that the pairs
-        // kept below come in cache_pairs' order, by base leaf then link, with no sort of their own.)
-        const std::size_t stayed = awake.size();
-        while (!asleep.empty() && !(travel < asleep.front().first)) {
-            awake.push_back(asleep.front().second);
-            std::pop_heap(asleep.begin(), asleep.end(), later);
-            asleep.pop_back();
-        }
-        const auto middle = awake.begin() + static_cast<std::ptrdiff_t>(stayed);
-        std::sort(middle, awake.end());
-        std::inplace_merge(awake.begin(), middle, awake.end());
+        // (Kept in ascending position: the pairs woken now put in order among them, so that the
+        // pairs kept below come in cache_pairs' order, by base leaf then link, with no sort of their own.)
+        asleep.wakeInOrder(travel, awake);
     }
     std::vector<std::pair<int, double>> sums;       // base leaf, significance (by base leaf)
     std::vector<std::pair<int, int>> link_entries;  // base leaf, link (sorted)
@@ -337,10 +327,7 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
     for (std::size_t k = 0; k < awake.size(); ++k) {
         const int i = awake[k];
         if (next[k] == 0) awake[stay++] = i;
-        if (next[k] == 1) {
-            asleep.emplace_back(obj.cache_idle[static_cast<std::size_t>(i)], i);
-            std::push_heap(asleep.begin(), asleep.end(), later);
-        }
+        if (next[k] == 1) asleep.push(obj.cache_idle[static_cast<std::size_t>(i)], i);
         if (!(kept[k] >= 0.0)) continue;
         const auto [b, what] = obj.cache_pairs[static_cast<std::size_t>(i)];
         sums.emplace_back(b, kept[k]);

@@ -268,12 +268,12 @@ struct ObjectState {
     Ball travel_ball;  // the ball at the last move (its radius: a change starts again)
     std::vector<double> cache_idle, cache_meets;
     // Which cached pairs the next move looks at, so that a move costs the pairs it may change, not
-    // the whole cache: `cache_awake`, positions in cache_pairs; `cache_asleep`, a min-heap of
-    // (cache_idle, position) of the pairs left alone until `travel` reaches their cache_idle. A pair
+    // the whole cache: `cache_awake`, positions in cache_pairs; `cache_asleep`, the positions (keyed
+    // by their cache_idle) of the pairs left alone until `travel` reaches their cache_idle. A pair
     // in neither is never significant (its share below the item threshold: it does not depend on
     // where the object is). Made again from cache_idle when the cache is made or `travel` restarts.
     std::vector<int> cache_awake;
-    std::vector<std::pair<double, int>> cache_asleep;
+    SleepQueue cache_asleep;
     // Per cache pair, whether the ball the pairs were collected with (`cache_query`: cache_ball,
     // or the object's ball for a scan) meets the hull of its two ends: 0 not tested yet, 1 yes, 2
     // no (then the pair is not one of the cache's: never kept). Tested at the first move that asks

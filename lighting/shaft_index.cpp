@@ -310,6 +310,76 @@ HullPlanes HullPlanes::of(std::span<const Eigen::Vector3d> a, std::span<const Ei
     return out;
 }
 
+void SleepQueue::wake(double travel, std::vector<int>& out) {
+    if (size_ == 0) {
+        if (!std::isnan(travel)) last_ = travel;
+        return;
+    }
+    if (!(travel >= last_)) {
+        // (Not a travel that grew: every entry compared, those left bucketed again from this one.)
+        std::vector<std::pair<double, int>> all;
+        for (auto& bucket : buckets_) {
+            all.insert(all.end(), bucket.begin(), bucket.end());
+            bucket.clear();
+        }
+        if (!std::isnan(travel)) last_ = travel;
+        size_ = 0;
+        for (const auto& [key, value] : all) {
+            if (!(travel < key)) {
+                out.push_back(value);
+            } else {
+                push(key, value);
+            }
+        }
+        return;
+    }
+    const int top = bucketOf(bitsOf(travel), bitsOf(last_));
+    // Below `top` (and bucket 0, keys equal to the last travel): every key below the travel.
+    for (int b = 0; b < top; ++b) {
+        auto& bucket = buckets_[static_cast<std::size_t>(b)];
+        for (const auto& entry : bucket) out.push_back(entry.second);
+        size_ -= bucket.size();
+        bucket.clear();
+    }
+    last_ = travel;
+    if (top == 0) return;
+    // Its keys agree with the travel above bit top - 1 and have that bit set as it has: each
+    // compared, those above it into the buckets below (they differ from it lower down).
+    auto& bucket = buckets_[static_cast<std::size_t>(top)];
+    std::vector<std::pair<double, int>> spread;
+    spread.swap(bucket);
+    for (const auto& [key, value] : spread) {
+        if (!(travel < key)) {
+            out.push_back(value);
+            --size_;
+        } else {
+            buckets_[static_cast<std::size_t>(bucketOf(bitsOf(key), bitsOf(travel)))].emplace_back(key, value);
+        }
+    }
+    spread.clear();
+    bucket.swap(spread);  // (its storage kept)
+}
+
+void SleepQueue::wakeInOrder(double travel, std::vector<int>& awake) {
+    const std::size_t stayed = awake.size();
+    wake(travel, awake);
+    if (awake.size() == stayed) return;
+    int most = 0;
+    for (const int v : awake) most = std::max(most, v);
+    const std::size_t words = static_cast<std::size_t>(most) / 64 + 1;
+    if (marks_.size() < words) marks_.resize(words, 0);
+    for (const int v : awake) marks_[static_cast<std::size_t>(v) / 64] |= std::uint64_t{1} << (static_cast<unsigned>(v) % 64);
+    std::size_t k = 0;
+    for (std::size_t w = 0; w < words; ++w) {
+        std::uint64_t word = marks_[w];
+        marks_[w] = 0;
+        while (word != 0) {
+            awake[k++] = static_cast<int>(64 * w + static_cast<std::size_t>(std::countr_zero(word)));
+            word &= word - 1;
+        }
+    }
+}
+
 namespace {
 
 // One node of the hierarchy, in memory of the BVH's allocator (freed with it). Inner nodes have

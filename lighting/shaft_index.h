@@ -16,6 +16,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -126,6 +127,46 @@ struct CachedHull {
     // (Both ends of at most kMaxEnds vertices.)
     static CachedHull of(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b);
     bool meets(const Ball& ball) const;
+};
+
+// Values left asleep until a travel that only grows reaches their keys (an object's cached pairs
+// left alone: VirtualInfluence's candidates): a radix heap over the keys' bit patterns (those of
+// non-negative doubles order as the numbers do). An entry lies in the bucket of the highest bit in
+// which its key differs from `last`, the travel of the last wake(): a wake to travel T takes every
+// bucket below the highest bit in which T differs from last (their keys are below T), compares the
+// keys of that bit's bucket alone, and spreads those still above T over the lower buckets; the
+// buckets above it stay (their keys are above T). An entry moves down at most once per bit, so a
+// push and its wake cost a few operations instead of a binary heap's two passes over its depth.
+class SleepQueue {
+public:
+    // Empty, with `travel` (>= 0) as the last wake's.
+    void reset(double travel) {
+        for (auto& bucket : buckets_) bucket.clear();
+        last_ = travel;
+        size_ = 0;
+    }
+    // Asleep until a wake to a travel >= key (a key not above the last wake's travel: at the next).
+    void push(double key, int value) {
+        buckets_[key > last_ ? bucketOf(bitsOf(key), bitsOf(last_)) : 0].emplace_back(key, value);
+        ++size_;
+    }
+    // Appends to `out` the value of every entry whose key the travel has reached (!(travel < key)),
+    // in no particular order, and takes them out. `travel` below the last wake's (or NaN): every
+    // entry compared.
+    void wake(double travel, std::vector<int>& out);
+    // wake() into `awake`, ascending and of distinct values none of which is asleep, kept ascending:
+    // the values marked in a bit set and read back in order (no sort, no merge).
+    void wakeInOrder(double travel, std::vector<int>& awake);
+    std::size_t size() const noexcept { return size_; }
+
+private:
+    static std::uint64_t bitsOf(double x) { return std::bit_cast<std::uint64_t>(x + 0.0); }  // (-0 as +0)
+    // 0 for equal patterns, else one more than the highest bit in which they differ.
+    static int bucketOf(std::uint64_t key, std::uint64_t last) { return 64 - std::countl_zero(key ^ last); }
+    std::array<std::vector<std::pair<double, int>>, 65> buckets_;
+    double last_ = 0.0;
+    std::size_t size_ = 0;
+    std::vector<std::uint64_t> marks_;  // wakeInOrder()'s bit set, all zero between calls
 };
 
 class ShaftIndex {

@@ -392,6 +392,104 @@ TEST(ShaftIndex, ClearancesBoundHowFarABallMayMove) {
     EXPECT_GT(deep, 200);
 }
 
+// The sleeping cached pairs' queue (VirtualInfluence's candidates) wakes at every travel exactly
+// the entries a scan of every key would: keys spread over many binary orders, keys equal to a
+// later travel, keys not above the last travel, small steps and jumps of the travel, and a travel
+// that goes back (every entry compared).
+TEST(SleepQueue, WakesExactlyTheEntriesTheTravelHasReached) {
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    SleepQueue queue;
+    std::vector<std::pair<double, int>> plain;  // (key, value) of every entry asleep
+    double travel = 0.0;
+    queue.reset(travel);
+    int next = 0;
+    long woken_total = 0;
+    for (int step = 0; step < 400; ++step) {
+        // New entries: most a little ahead, some far ahead, some exactly at a coming travel, a few not
+        // ahead at all (woken by the next wake).
+        for (int n = 0; n < 40; ++n) {
+            double key = travel + std::pow(10.0, -6.0 + 7.0 * unit(rng));
+            if (n % 13 == 0) key = travel;
+            if (n % 17 == 0) key = 1e300;
+            if (n % 7 == 0) key = travel + 0.004 * static_cast<double>(1 + n % 3);
+            queue.push(key, next);
+            plain.emplace_back(key, next);
+            ++next;
+        }
+        ASSERT_EQ(queue.size(), plain.size());
+        if (step == 250) {
+            travel *= 0.5;  // back
+        } else if (step % 50 == 49) {
+            travel += 3.0 * unit(rng);  // a jump
+        } else {
+            travel += 0.004 * static_cast<double>(1 + step % 3);  // keys set above land here exactly
+        }
+        std::vector<int> woken;
+        queue.wake(travel, woken);
+        std::vector<int> expected;
+        std::vector<std::pair<double, int>> left;
+        for (const auto& [key, value] : plain) {
+            if (!(travel < key)) {
+                expected.push_back(value);
+            } else {
+                left.emplace_back(key, value);
+            }
+        }
+        plain.swap(left);
+        std::sort(woken.begin(), woken.end());
+        ASSERT_EQ(woken, expected) << "step " << step << ", travel " << travel;
+        ASSERT_EQ(queue.size(), plain.size()) << "step " << step;
+        woken_total += static_cast<long>(woken.size());
+    }
+    EXPECT_GT(woken_total, 4000);
+    EXPECT_GT(plain.size(), 400u);  // the far keys stay asleep
+    queue.reset(0.0);
+    EXPECT_EQ(queue.size(), 0u);
+    std::vector<int> none;
+    queue.wake(1e301, none);
+    EXPECT_TRUE(none.empty());
+}
+
+// wakeInOrder() leaves the awake list ascending, the woken values put among those that stayed
+// awake (what a sort of the woken and a merge give): values over many 64-bit words, a list that
+// grows and shrinks, moves that wake nothing.
+TEST(SleepQueue, WakeInOrderKeepsTheAwakeListAscending) {
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    SleepQueue queue;
+    queue.reset(0.0);
+    std::vector<int> awake;
+    double travel = 0.0;
+    for (int step = 0; step < 300; ++step) {
+        // Some awake values go to sleep (the others stay), at keys ahead of the travel.
+        std::vector<int> stay;
+        for (const int v : awake) {
+            if (unit(rng) < 0.4) {
+                queue.push(travel + 0.02 * unit(rng) + 1e-9, v);
+            } else {
+                stay.push_back(v);
+            }
+        }
+        awake = stay;
+        if (step % 10 == 0) {
+            for (int n = 0; n < 30; ++n) queue.push(travel + 0.05 * unit(rng) + 1e-9, 5000 * step / 10 + 97 * n + step % 7);
+        }
+        const std::vector<int> before = awake;
+        travel += step % 5 == 4 ? 0.0 : 0.004;
+        std::vector<int> woken;
+        SleepQueue copy = queue;
+        copy.wake(travel, woken);
+        queue.wakeInOrder(travel, awake);
+        std::vector<int> expected = before;
+        expected.insert(expected.end(), woken.begin(), woken.end());
+        std::sort(expected.begin(), expected.end());
+        ASSERT_EQ(awake, expected) << "step " << step;
+        ASSERT_EQ(queue.size(), copy.size()) << "step " << step;
+    }
+    EXPECT_GT(awake.size(), 20u);
+}
+
 TEST(Hierarchy, CollapseRetiresAndSubdivideBringsTheSameChildrenBack) {
     Face f;
     f.edge_s = Eigen::Vector3d(1, 0, 0);
