@@ -334,8 +334,9 @@ void SleepQueue::wake(double travel, std::vector<int>& out) {
         return;
     }
     const int top = bucketOf(bitsOf(travel), bitsOf(last_));
-    // Below `top` (and bucket 0, keys equal to the last travel): every key below the travel.
-    for (int b = 0; b < top; ++b) {
+    // Below `top`, and bucket 0 (keys not above the last travel) even when the travel is the last
+    // one again: every key below the travel.
+    for (int b = 0; b < std::max(top, 1); ++b) {
         auto& bucket = buckets_[static_cast<std::size_t>(b)];
         for (const auto& entry : bucket) out.push_back(entry.second);
         size_ -= bucket.size();

@@ -145,7 +145,7 @@ public:
         last_ = travel;
         size_ = 0;
     }
-    // Asleep until a wake to a travel >= key (a key not above the last wake's travel: at the next).
+    // Asleep until a wake to a travel >= key (a key not above the last wake's travel: the next wake).
     void push(double key, int value) {
         buckets_[key > last_ ? bucketOf(bitsOf(key), bitsOf(last_)) : 0].emplace_back(key, value);
         ++size_;

@@ -449,6 +449,16 @@ TEST(SleepQueue, WakesExactlyTheEntriesTheTravelHasReached) {
     std::vector<int> none;
     queue.wake(1e301, none);
     EXPECT_TRUE(none.empty());
+    // A wake to the same travel again takes the keys pushed at or below it since (bucket 0).
+    queue.reset(2.0);
+    queue.push(2.0, 7);
+    queue.push(1.5, 8);
+    queue.push(2.5, 9);
+    std::vector<int> again;
+    queue.wake(2.0, again);
+    std::sort(again.begin(), again.end());
+    EXPECT_EQ(again, (std::vector<int>{7, 8}));
+    EXPECT_EQ(queue.size(), 1u);
 }
 
 // wakeInOrder() leaves the awake list ascending, the woken values put among those that stayed
