@@ -343,6 +343,20 @@ const T* findAnswer(const std::vector<T>& list, int key, int T::*field) {
 
 bool contains(const std::vector<int>& sorted, int key) { return std::binary_search(sorted.begin(), sorted.end(), key); }
 
+// Each thread's answer lists under construction (computeTerms(), computeLinks()): once made, a list
+// is swapped into the element's Answers and the element's old list becomes the thread's room for
+// the next element (no allocation once the lists have grown).
+struct AnswerScratch {
+    std::vector<LightAnswer> lights;
+    std::vector<LinkAnswer> links;
+    std::vector<ClusterAnswer> clusters;
+};
+
+AnswerScratch& answerScratch() {
+    thread_local AnswerScratch scratch;
+    return scratch;
+}
+
 }  // namespace
 
 // Element c under base leaf b: its terms (transmissions of the selected lights, the objects' light
@@ -368,9 +382,10 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
     };
     Answers& ans = answers[static_cast<std::size_t>(c)];
     const bool have = ans.valid;
+    AnswerScratch& scratch = answerScratch();
     // Step 1: direct light the objects block.
-    std::vector<LightAnswer> lights;
-    lights.reserve(sel.lights.size());
+    std::vector<LightAnswer>& lights = scratch.lights;
+    lights.clear();
     for (int k : sel.lights) {
         const InfluenceLight& l = base.lights[static_cast<std::size_t>(k)];
         const double col = l.column->real[static_cast<std::size_t>(c)];
@@ -424,8 +439,8 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
     }
     // Step 2: light from the objects that reach b at leaf level (an object that moved or changed
     // its emission: always again).
-    std::vector<ClusterAnswer> clusters;
-    clusters.reserve(sel.objects.size());
+    std::vector<ClusterAnswer>& clusters = scratch.clusters;
+    clusters.clear();
     for (int o : sel.objects) {
         const ObjectState& obj = objects[static_cast<std::size_t>(o)];
         const ElementShape& es = shape[static_cast<std::size_t>(c)];
@@ -447,8 +462,8 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
         t.cluster += a.irradiance;
         out.variation += a.variation;
     }
-    ans.lights = std::move(lights);
-    ans.clusters = std::move(clusters);
+    ans.lights.swap(lights);
+    ans.clusters.swap(clusters);
     ans.valid = true;
     return out;
 }
@@ -489,8 +504,8 @@ double VirtualInfluence::Impl::computeLinks(int c, int b, const Reach& met, Leaf
     const std::uint32_t mask = objectMask(b);
     const Hierarchy& h = self.radiosity_.hierarchy();
     Answers& ans = answers[static_cast<std::size_t>(c)];
-    std::vector<LinkAnswer> fresh;
-    fresh.reserve(sel.links.size());
+    std::vector<LinkAnswer>& fresh = answerScratch().links;
+    fresh.clear();
     double variation = 0.0;
     for (int li : sel.links) {
         const Link& l = links[static_cast<std::size_t>(li)];
@@ -529,7 +544,7 @@ double VirtualInfluence::Impl::computeLinks(int c, int b, const Reach& met, Leaf
         if (a.transmission < 1.0) t.corrections.push_back(Correction{l.source, w * (a.transmission - 1.0)});
         if (a.mixed) variation += lumaOf(rho) / kPi * w * lumaOf(base.radiance[static_cast<std::size_t>(l.source)]) / den;
     }
-    ans.links = std::move(fresh);
+    ans.links.swap(fresh);
     ans.links_valid = true;
     return variation;
 }
