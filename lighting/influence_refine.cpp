@@ -569,14 +569,18 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
     tbb::parallel_for(std::size_t{0}, touched.size(), [&](std::size_t i) { select(touched[i]); });
     // Step 2: level by level. `links_open`: no element above has the corrections yet; they go to
     // the first element no larger than the link size, or to a leaf larger than that. `reach`: the
-    // selected items whose shaft at the parent met a moved object's bounds (at a base leaf: all).
+    // selected items whose shaft at the parent met a moved object's bounds (at a base leaf: all):
+    // element i's is reach[reach_of[i]], its parent's `met` (shared by the siblings, not copied).
+    // `met` is made in the lists of the level before last (cleared: no allocation once grown).
     std::vector<int> frontier = touched;
     std::vector<int> base_of(frontier.begin(), frontier.end());
     std::vector<char> links_open(frontier.size(), 1);
-    std::vector<Reach> reach(frontier.size());
+    std::vector<Reach> reach(frontier.size()), met;
+    std::vector<std::size_t> reach_of(frontier.size());
     for (std::size_t i = 0; i < touched.size(); ++i) {
         const Selection& sel = selection[static_cast<std::size_t>(touched[i])];
         reach[i] = Reach{sel.lights, sel.links, sel.objects};
+        reach_of[i] = i;
     }
     std::vector<int> done;  // elements whose terms stand (leaves and link-level elements)
     evaluated = link_evaluated = 0;
@@ -584,7 +588,12 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
     while (!frontier.empty()) {
         evaluated += static_cast<int>(frontier.size());
         std::vector<LeafResult> results(frontier.size());
-        std::vector<Reach> met(frontier.size());
+        met.resize(frontier.size());
+        for (Reach& r : met) {
+            r.lights.clear();
+            r.links.clear();
+            r.objects.clear();
+        }
         tbb::parallel_for(std::size_t{0}, frontier.size(), [&](std::size_t i) {
             const int c = frontier[i];
             if (h[c].buried) {
@@ -592,7 +601,7 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
                 return;
             }
             const int b = base_of[i];
-            results[i] = computeTerms(c, b, links_open[i] != 0, reach[i], met[i]);
+            results[i] = computeTerms(c, b, links_open[i] != 0, reach[reach_of[i]], met[i]);
             // The corrections where they stay: at the link level, or on an element larger than
             // that which its direct light and the objects' light do not split (where the blocked
             // links' own variation may still split it).
@@ -611,7 +620,7 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
         }
         std::vector<int> next, next_base, made, made_base;  // (an element made before the base reads as base: not baseLeafOf())
         std::vector<char> next_open;
-        std::vector<Reach> next_reach;
+        std::vector<std::size_t> next_reach_of;
         std::vector<std::size_t> stays;  // elements that stay leaves with full estimates to finish
         // The leaf budget counts as if the touched base leaves had been collapsed and made again
         // level by level (what a fresh solve sees): the leaves under this level's elements that
@@ -654,7 +663,7 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
                     next.push_back(parent.first_child + k);
                     next_base.push_back(b);
                     next_open.push_back(links_open[i] && !link_level ? 1 : 0);
-                    next_reach.push_back(met[i]);
+                    next_reach_of.push_back(i);
                     if (!had_children) {
                         made.push_back(parent.first_child + k);
                         made_base.push_back(b);
@@ -711,7 +720,8 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
         frontier = std::move(next);
         base_of = std::move(next_base);
         links_open = std::move(next_open);
-        reach = std::move(next_reach);
+        reach.swap(met);
+        reach_of = std::move(next_reach_of);
     }
     // Step 3: the corrections' current sums, the leaves' values, pulled up to each base leaf.
     for (int c : done) {
