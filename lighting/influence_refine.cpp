@@ -10,6 +10,7 @@
 #include <bit>
 #include <cmath>
 #include <numbers>
+#include <optional>
 
 #include "lighting/direct.h"
 #include "lighting/influence_impl.h"
@@ -203,23 +204,25 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         const std::uint32_t still = near & ~rays.virtualChangedLast();
         const bool reuse = lp.keptHold(still, rays);
         const std::uint32_t traced = near & ~still;
-        // (The objects gathered once for all the pairs: RayScene::VirtualSet.)
-        const VirtualSet set = rays.virtualSet(traced);
-        const VirtualSet still_set = reuse ? VirtualSet{} : rays.virtualSet(still);
+        // (The objects gathered once for all the pairs, RayScene::VirtualSet: only those traced.)
+        std::optional<VirtualSet> set, still_set;
+        if (traced != 0u) set.emplace(rays.virtualSet(traced));
+        if (!reuse && still != 0u) still_set.emplace(rays.virtualSet(still));
         std::uint64_t kept_blocked = reuse ? lp.kept_blocked : 0;
-        double open_real = 0.0, open_all = 0.0;
+        // (The open pairs' weights summed in their order when they were kept: LinkPoints::open_real.)
+        const double open_real = lp.open_real;
+        double open_all = 0.0;
         bool any_blocked = false, any_open = false;
         for (std::size_t i = 0; i < lp.pairs.size(); ++i) {
             const LinkPoints::Pair& p = lp.pairs[i];
-            open_real += p.w;
             bool blocked;
             if (reuse) {
                 blocked = ((kept_blocked >> i) & 1u) != 0;
             } else {
-                blocked = still != 0u && rays.occludedVirtual(p.ray, still_set);
+                blocked = still_set && rays.occludedVirtual(p.ray, *still_set);
                 if (blocked) kept_blocked |= std::uint64_t{1} << i;
             }
-            if (!blocked) blocked = traced != 0u && rays.occludedVirtual(p.ray, set);
+            if (!blocked) blocked = set && rays.occludedVirtual(p.ray, *set);
             if (blocked) {
                 any_blocked = true;
             } else {
@@ -258,8 +261,9 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         double w = 0.0;
         Eigen::Vector3d xr, xs;
     };
-    std::array<Candidate, 64> cand;
-    std::array<PreparedSegment, 64> segments;
+    // (Each thread's, made once: only the first `count` are written and read.)
+    thread_local std::array<Candidate, 64> cand;
+    thread_local std::array<PreparedSegment, 64> segments;
     int count = 0;
     for (int k = 0; k < n; ++k) {
         if ((skip >> k) & 1u) continue;
@@ -321,6 +325,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     }
     if (keep_points) {
         boundRays(*points);
+        points->open_real = open_real;
         m.points = std::move(points);
         m.have = static_cast<std::uint8_t>(m.have | 4u);
     }
