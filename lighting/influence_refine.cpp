@@ -204,9 +204,10 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         const std::uint32_t still = near & ~rays.virtualChangedLast();
         const bool reuse = lp.keptHold(still, rays);
         const std::uint32_t traced = near & ~still;
-        // (The objects gathered once for all the pairs, RayScene::VirtualSet: only those traced.)
-        std::optional<VirtualSet> set, still_set;
-        if (traced != 0u) set.emplace(rays.virtualSet(traced));
+        // (The objects gathered once for all the pairs: RayScene::VirtualSet; the still ones' only
+        // when traced.)
+        const VirtualSet set = rays.virtualSet(traced);
+        std::optional<VirtualSet> still_set;
         if (!reuse && still != 0u) still_set.emplace(rays.virtualSet(still));
         std::uint64_t kept_blocked = reuse ? lp.kept_blocked : 0;
         // (The open pairs' weights summed in their order when they were kept: LinkPoints::open_real.)
@@ -222,7 +223,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
                 blocked = still_set && rays.occludedVirtual(p.ray, *still_set);
                 if (blocked) kept_blocked |= std::uint64_t{1} << i;
             }
-            if (!blocked) blocked = set && rays.occludedVirtual(p.ray, *set);
+            if (!blocked) blocked = traced != 0u && rays.occludedVirtual(p.ray, set);
             if (blocked) {
                 any_blocked = true;
             } else {
@@ -261,9 +262,8 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         double w = 0.0;
         Eigen::Vector3d xr, xs;
     };
-    // (Each thread's, made once: only the first `count` are written and read.)
-    thread_local std::array<Candidate, 64> cand;
-    thread_local std::array<PreparedSegment, 64> segments;
+    std::array<Candidate, 64> cand;
+    std::array<PreparedSegment, 64> segments;
     int count = 0;
     for (int k = 0; k < n; ++k) {
         if ((skip >> k) & 1u) continue;
