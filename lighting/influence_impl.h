@@ -98,6 +98,7 @@ struct LinkPoints {
     std::vector<Pair> pairs;
     Eigen::Vector3d centre = Eigen::Vector3d::Zero();  // the rays' ball
     double radius = 0.0;
+    double open_real = 0.0;  // the pairs' weights summed in their order (an answer's denominator)
     // The pairs the objects `kept_objects` (virtual bits: objects near the rays that did not move
     // at the latest commit) block, bit i for pairs[i], kept at RayScene::virtualStamp() `kept_at`:
     // while none of those objects changes, a re-answer traces the other objects' rays alone

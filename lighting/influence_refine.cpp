@@ -10,6 +10,7 @@
 #include <bit>
 #include <cmath>
 #include <numbers>
+#include <optional>
 
 #include "lighting/direct.h"
 #include "lighting/influence_impl.h"
@@ -203,20 +204,23 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
         const std::uint32_t still = near & ~rays.virtualChangedLast();
         const bool reuse = lp.keptHold(still, rays);
         const std::uint32_t traced = near & ~still;
-        // (The objects gathered once for all the pairs: RayScene::VirtualSet.)
+        // (The objects gathered once for all the pairs: RayScene::VirtualSet; the still ones' only
+        // when traced.)
         const VirtualSet set = rays.virtualSet(traced);
-        const VirtualSet still_set = reuse ? VirtualSet{} : rays.virtualSet(still);
+        std::optional<VirtualSet> still_set;
+        if (!reuse && still != 0u) still_set.emplace(rays.virtualSet(still));
         std::uint64_t kept_blocked = reuse ? lp.kept_blocked : 0;
-        double open_real = 0.0, open_all = 0.0;
+        // (The open pairs' weights summed in their order when they were kept: LinkPoints::open_real.)
+        const double open_real = lp.open_real;
+        double open_all = 0.0;
         bool any_blocked = false, any_open = false;
         for (std::size_t i = 0; i < lp.pairs.size(); ++i) {
             const LinkPoints::Pair& p = lp.pairs[i];
-            open_real += p.w;
             bool blocked;
             if (reuse) {
                 blocked = ((kept_blocked >> i) & 1u) != 0;
             } else {
-                blocked = still != 0u && rays.occludedVirtual(p.ray, still_set);
+                blocked = still_set && rays.occludedVirtual(p.ray, *still_set);
                 if (blocked) kept_blocked |= std::uint64_t{1} << i;
             }
             if (!blocked) blocked = traced != 0u && rays.occludedVirtual(p.ray, set);
@@ -321,6 +325,7 @@ double VirtualInfluence::Impl::transmissionToSource(int c, int s, bool& mixed, s
     }
     if (keep_points) {
         boundRays(*points);
+        points->open_real = open_real;
         m.points = std::move(points);
         m.have = static_cast<std::uint8_t>(m.have | 4u);
     }
@@ -342,6 +347,20 @@ const T* findAnswer(const std::vector<T>& list, int key, int T::*field) {
 }
 
 bool contains(const std::vector<int>& sorted, int key) { return std::binary_search(sorted.begin(), sorted.end(), key); }
+
+// Each thread's answer lists under construction (computeTerms(), computeLinks()): once made, a list
+// is swapped into the element's Answers and the element's old list becomes the thread's room for
+// the next element (no allocation once the lists have grown).
+struct AnswerScratch {
+    std::vector<LightAnswer> lights;
+    std::vector<LinkAnswer> links;
+    std::vector<ClusterAnswer> clusters;
+};
+
+AnswerScratch& answerScratch() {
+    thread_local AnswerScratch scratch;
+    return scratch;
+}
 
 }  // namespace
 
@@ -368,9 +387,10 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
     };
     Answers& ans = answers[static_cast<std::size_t>(c)];
     const bool have = ans.valid;
+    AnswerScratch& scratch = answerScratch();
     // Step 1: direct light the objects block.
-    std::vector<LightAnswer> lights;
-    lights.reserve(sel.lights.size());
+    std::vector<LightAnswer>& lights = scratch.lights;
+    lights.clear();
     for (int k : sel.lights) {
         const InfluenceLight& l = base.lights[static_cast<std::size_t>(k)];
         const double col = l.column->real[static_cast<std::size_t>(c)];
@@ -424,8 +444,8 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
     }
     // Step 2: light from the objects that reach b at leaf level (an object that moved or changed
     // its emission: always again).
-    std::vector<ClusterAnswer> clusters;
-    clusters.reserve(sel.objects.size());
+    std::vector<ClusterAnswer>& clusters = scratch.clusters;
+    clusters.clear();
     for (int o : sel.objects) {
         const ObjectState& obj = objects[static_cast<std::size_t>(o)];
         const ElementShape& es = shape[static_cast<std::size_t>(c)];
@@ -447,8 +467,8 @@ VirtualInfluence::Impl::LeafResult VirtualInfluence::Impl::computeTerms(int c, i
         t.cluster += a.irradiance;
         out.variation += a.variation;
     }
-    ans.lights = std::move(lights);
-    ans.clusters = std::move(clusters);
+    ans.lights.swap(lights);
+    ans.clusters.swap(clusters);
     ans.valid = true;
     return out;
 }
@@ -489,8 +509,8 @@ double VirtualInfluence::Impl::computeLinks(int c, int b, const Reach& met, Leaf
     const std::uint32_t mask = objectMask(b);
     const Hierarchy& h = self.radiosity_.hierarchy();
     Answers& ans = answers[static_cast<std::size_t>(c)];
-    std::vector<LinkAnswer> fresh;
-    fresh.reserve(sel.links.size());
+    std::vector<LinkAnswer>& fresh = answerScratch().links;
+    fresh.clear();
     double variation = 0.0;
     for (int li : sel.links) {
         const Link& l = links[static_cast<std::size_t>(li)];
@@ -529,7 +549,7 @@ double VirtualInfluence::Impl::computeLinks(int c, int b, const Reach& met, Leaf
         if (a.transmission < 1.0) t.corrections.push_back(Correction{l.source, w * (a.transmission - 1.0)});
         if (a.mixed) variation += lumaOf(rho) / kPi * w * lumaOf(base.radiance[static_cast<std::size_t>(l.source)]) / den;
     }
-    ans.links = std::move(fresh);
+    ans.links.swap(fresh);
     ans.links_valid = true;
     return variation;
 }
@@ -554,14 +574,18 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
     tbb::parallel_for(std::size_t{0}, touched.size(), [&](std::size_t i) { select(touched[i]); });
     // Step 2: level by level. `links_open`: no element above has the corrections yet; they go to
     // the first element no larger than the link size, or to a leaf larger than that. `reach`: the
-    // selected items whose shaft at the parent met a moved object's bounds (at a base leaf: all).
+    // selected items whose shaft at the parent met a moved object's bounds (at a base leaf: all):
+    // element i's is reach[reach_of[i]], its parent's `met` (shared by the siblings, not copied).
+    // `met` is made in the lists of the level before last (cleared: no allocation once grown).
     std::vector<int> frontier = touched;
     std::vector<int> base_of(frontier.begin(), frontier.end());
     std::vector<char> links_open(frontier.size(), 1);
-    std::vector<Reach> reach(frontier.size());
+    std::vector<Reach> reach(frontier.size()), met;
+    std::vector<std::size_t> reach_of(frontier.size());
     for (std::size_t i = 0; i < touched.size(); ++i) {
         const Selection& sel = selection[static_cast<std::size_t>(touched[i])];
         reach[i] = Reach{sel.lights, sel.links, sel.objects};
+        reach_of[i] = i;
     }
     std::vector<int> done;  // elements whose terms stand (leaves and link-level elements)
     evaluated = link_evaluated = 0;
@@ -569,7 +593,12 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
     while (!frontier.empty()) {
         evaluated += static_cast<int>(frontier.size());
         std::vector<LeafResult> results(frontier.size());
-        std::vector<Reach> met(frontier.size());
+        met.resize(frontier.size());
+        for (Reach& r : met) {
+            r.lights.clear();
+            r.links.clear();
+            r.objects.clear();
+        }
         tbb::parallel_for(std::size_t{0}, frontier.size(), [&](std::size_t i) {
             const int c = frontier[i];
             if (h[c].buried) {
@@ -577,7 +606,7 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
                 return;
             }
             const int b = base_of[i];
-            results[i] = computeTerms(c, b, links_open[i] != 0, reach[i], met[i]);
+            results[i] = computeTerms(c, b, links_open[i] != 0, reach[reach_of[i]], met[i]);
             // The corrections where they stay: at the link level, or on an element larger than
             // that which its direct light and the objects' light do not split (where the blocked
             // links' own variation may still split it).
@@ -596,7 +625,7 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
         }
         std::vector<int> next, next_base, made, made_base;  // (an element made before the base reads as base: not baseLeafOf())
         std::vector<char> next_open;
-        std::vector<Reach> next_reach;
+        std::vector<std::size_t> next_reach_of;
         std::vector<std::size_t> stays;  // elements that stay leaves with full estimates to finish
         // The leaf budget counts as if the touched base leaves had been collapsed and made again
         // level by level (what a fresh solve sees): the leaves under this level's elements that
@@ -639,7 +668,7 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
                     next.push_back(parent.first_child + k);
                     next_base.push_back(b);
                     next_open.push_back(links_open[i] && !link_level ? 1 : 0);
-                    next_reach.push_back(met[i]);
+                    next_reach_of.push_back(i);
                     if (!had_children) {
                         made.push_back(parent.first_child + k);
                         made_base.push_back(b);
@@ -696,7 +725,8 @@ void VirtualInfluence::Impl::refine(const std::vector<int>& touched) {
         frontier = std::move(next);
         base_of = std::move(next_base);
         links_open = std::move(next_open);
-        reach = std::move(next_reach);
+        reach.swap(met);
+        reach_of = std::move(next_reach_of);
     }
     // Step 3: the corrections' current sums, the leaves' values, pulled up to each base leaf.
     for (int c : done) {

@@ -469,6 +469,39 @@ TEST(Influence, SmallMovesKeepTheAnswersTheyDoNotReach) {
     EXPECT_GT(3 * kept, computed) << computed << " answers computed, " << kept << " kept";
 }
 
+// An element's answer lists are made in its thread's reused lists and swapped in (computeTerms(),
+// computeLinks(): no allocation once grown). With a second estimator of another scene (other
+// lights, the elements drawing the direct light: other lists) updated between the moves on the same
+// threads, the ball's 5 mm moves keep exactly the answers and the difference of a twin updated
+// alone, and equal a fresh solve.
+TEST(Influence, AnswerListsReusedAcrossElementsKeepTheAnswers) {
+    const Scene scene = parse(kScene);
+    EstimatorOptions other_options = testOptions();
+    other_options.texel_direct_pairs = 0;
+    auto inc = make(scene);
+    auto twin = make(scene);
+    auto fresh = make(scene);
+    auto other = make(scene, other_options);
+    Config config = sceneConfig(scene), other_config = sceneConfig(scene);
+    for (int step = 0; step < 12; ++step) {
+        config.poses[0].translation = Eigen::Vector3d(-0.2 + 0.005 * step, 0.1 * std::sin(0.1 * step), 0.56);
+        other_config.poses[1].translation = Eigen::Vector3d(0.2 - 0.02 * step, -0.1, 0.54);
+        ASSERT_TRUE(apply(*twin, config));
+        ASSERT_TRUE(apply(*other, other_config));
+        ASSERT_TRUE(apply(*inc, config));
+        ASSERT_EQ(inc->stats().influence.answers_computed, twin->stats().influence.answers_computed) << "step " << step;
+        ASSERT_EQ(inc->stats().influence.answers_kept, twin->stats().influence.answers_kept) << "step " << step;
+        const std::map<Place, Eigen::Vector3d> a = differenceByPlace(*inc), b = differenceByPlace(*twin);
+        ASSERT_EQ(a.size(), b.size()) << "step " << step;
+        for (const auto& [place, d] : a) {
+            const auto it = b.find(place);
+            ASSERT_NE(it, b.end()) << "step " << step;
+            ASSERT_EQ(d, it->second) << "step " << step;
+        }
+        if (step % 4 == 3) expectEqualsFresh(*inc, *fresh, config, "step " + std::to_string(step));
+    }
+}
+
 // An object's cached pairs left alone while it cannot have come close enough to change them
 // (InfluenceOptions::idle_cached_pairs) give the candidates every pair tested at every move gives:
 // over 5 mm moves of the ball along a curve (past the cache's refreshes), the cube's moves beside
