@@ -79,12 +79,12 @@ struct RadiosityOptions {
     // direction pushed to each face by its own cosine. A link opens the cluster into its faces
     // when its receiver (or source) is closer than cluster_distance radii, or when the form
     // factor's variation over the cluster's extent, times the radiance, exceeds link_epsilon.
-    // cluster_min_faces = 0: no clustering (every face linked on its own). Off by default: with a
-    // 320-face proxy clustered a move of a virtual object (lighting/influence.h, clusterTransfers())
-    // still costs more than without (2.2% more instructions; 13-16% more CPU with two threads
-    // before its faces were grouped: docs/lighting.md, `cluster` case); 24 is the setting the
-    // tests and `bench lighting --cases cluster` use.
-    int cluster_min_faces = 0;
+    // cluster_min_faces = 0: no clustering (every face linked on its own). On by default (24, the
+    // setting the tests and `bench lighting --cases cluster` use): a detailed real mesh must not
+    // multiply the links (a 320-face proxy: 27x fewer, the setup halved), though a move of a
+    // virtual object beside a clustered proxy costs more than beside the same proxy unclustered
+    // (docs/lighting.md, `cluster` case); a box (6 faces) is not clustered by its faces.
+    int cluster_min_faces = 24;
     double cluster_small_radius = 0.0;
     double cluster_max_fraction = 0.25;
     double cluster_distance = 2.0;

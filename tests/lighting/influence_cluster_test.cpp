@@ -73,6 +73,7 @@ TEST(Influence, ClusteredRealMeshIsShadowedAsUnclustered) {
     // coarse to see the ball's indirect shadow on them).
     EstimatorOptions options;
     options.refine_unobserved = true;
+    options.radiosity.cluster_min_faces = 0;  // (unclustered; clustering is on by default)
     EstimatorOptions clustered = options;
     clustered.radiosity.cluster_min_faces = 24;
     auto inc = make(scene, clustered);
