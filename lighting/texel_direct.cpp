@@ -8,6 +8,7 @@
 #include <memory>
 #include <new>
 #include <numbers>
+#include <optional>
 #include <type_traits>
 #include <utility>
 
@@ -21,8 +22,9 @@ namespace commonlight::lighting {
 
 namespace {
 
-// Room for `n` objects of T that are made (std::construct_at) before they are read: at()'s arrays
-// by pair, not initialised (zeroing 64 segments a light cost more than most of their traces).
+// Room for `n` objects of T that are made (std::construct_at) before they are read: at()'s
+// segments by pair, not initialised (PreparedSegment zeroes its members; zeroing 64 segments a
+// light cost more than most of their traces).
 template <class T, std::size_t n>
     requires std::is_trivially_destructible_v<T>
 struct Slots {
@@ -218,8 +220,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
     const std::array<Ball, 32>& balls = known.balls;
     const std::size_t ball_count = known.count;
     const bool all_balls = known.all;
-    Slots<VirtualSet, 1> set;  // occludedVirtual()'s objects, gathered at the first virtual ray
-    bool set_made = false;
+    std::optional<VirtualSet> set;  // occludedVirtual()'s objects, gathered at the first virtual ray
     if (!same_point) without.setZero();
     with.setZero();
     for (std::size_t k = 0; k < nl; ++k) {
@@ -247,7 +248,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
         // are not all known), and only they are prepared for and traced against the objects.
         // (By pair j: `weight` made for the pairs of `todo`, `segments` for those prepared.)
         Slots<PreparedSegment, 64> segments;
-        Slots<double, 64> weight;
+        std::array<double, 64> weight;  // (not initialised: made for the pairs of `todo`)
         const std::uint64_t every = pairs == 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << pairs) - 1;
         const std::uint64_t todo = same_point ? every & ~part.blocked : every;
         std::uint64_t weighed = 0;  // pairs with weight > 0, of `todo`
@@ -258,7 +259,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             const Eigen::Vector3d dv = q - x;
             const double d2 = dv.squaredNorm();
             const double w = d2 > 0.0 ? std::max(0.0, normal.dot(dv)) * std::max(0.0, -light.normal.dot(dv)) / (d2 * d2) : 0.0;
-            std::construct_at(weight.data() + j, w);
+            weight[static_cast<std::size_t>(j)] = w;
             if (!(w > 0.0)) continue;
             const std::uint64_t bit = std::uint64_t{1} << j;
             weighed |= bit;
@@ -274,11 +275,11 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
         std::uint64_t blocked_real = 0;  // of `weighed` (a new point)
         if (!same_point && weighed != 0) {
             Slots<PreparedSegment, 64> packed;
-            Slots<int, 64> index;
+            std::array<int, 64> index;  // (not initialised: the first n made)
             int n = 0;
             for (std::uint64_t rest = weighed; rest != 0; rest &= rest - 1) {
                 const int j = std::countr_zero(rest);
-                std::construct_at(index.data() + n, j);
+                index[static_cast<std::size_t>(n)] = j;
                 std::construct_at(packed.data() + n++, segments[static_cast<std::size_t>(j)]);
             }
             const std::uint64_t hit = rays_.occludedRealMany(packed.data(), n);
@@ -304,11 +305,8 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
                 open_both += w;
                 continue;
             }
-            if (!set_made) {
-                std::construct_at(set.data(), rays_.virtualSet(~0u));
-                set_made = true;
-            }
-            if (!rays_.occludedVirtual(segments[static_cast<std::size_t>(j)], set[0])) open_both += w;
+            if (!set) set = rays_.virtualSet(~0u);
+            if (!rays_.occludedVirtual(segments[static_cast<std::size_t>(j)], *set)) open_both += w;
         }
         if (!same_point) part.open = open_real;
         if (!(part.all > 0.0)) continue;
