@@ -57,6 +57,7 @@ struct LiveOptions {
     double timeout_s = 5.0;
     bool edges = false;
     bool no_lighting = false;
+    int lighting_every = 2;
     bool full_frame = false;
     bool composite = false;    // --composite: headless runs composite offscreen too
     std::string screenshots;   // where key s writes (default: --out, else the current folder)
@@ -223,6 +224,7 @@ int runLive(const LiveOptions& options) {
     runner_options.tracker.edges = options.edges;
     runner_options.ground_truth = truth ? &*truth : nullptr;
     runner_options.lighting = !options.no_lighting;
+    runner_options.lighting_every = options.lighting_every;
     runner_options.tracker.tracking_mode = !options.full_frame;
     {
         const std::string spec = options.response.empty() ? (*camera)->responseSpec() : options.response;
@@ -385,6 +387,10 @@ void addLiveCommand(CLI::App& app, Runner& runner) {
         ->capture_default_str();
     sub->add_flag("--edges", options->edges, "Refine the pose with the edges of the scene's proxy geometry");
     sub->add_flag("--no-lighting", options->no_lighting, "Track only; no lighting thread");
+    sub->add_option("--lighting-every", options->lighting_every,
+                    "In real time, update the lighting for every N-th frame at most (1: as often as it can)")
+        ->check(CLI::Range(1, 1000))
+        ->capture_default_str();
     sub->add_flag("--full-frame", options->full_frame, "Detect tags over the whole of every frame (default: around the predicted tags, whole frame every 15)");
     sub->add_flag("--move-object", options->move_object,
                   "Move the first virtual object back and forth along world x (+-5 cm, 4 s period), e.g. headless soak tests");

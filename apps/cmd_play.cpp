@@ -41,6 +41,7 @@ struct PlayOptions {
     bool sync = false;
     bool no_track = false;
     bool no_lighting = false;
+    int lighting_every = 2;
     bool full_frame = false;
     std::string response;  // --response: overrides sensor.yaml's
     std::size_t slots = 4;
@@ -111,6 +112,7 @@ int runPlay(const PlayOptions& options) {
         pipeline::RunnerOptions runner_options;
         runner_options.sync = options.sync;
         runner_options.lighting = !options.no_lighting;
+        runner_options.lighting_every = options.lighting_every;
         runner_options.tracker.tracking_mode = !options.full_frame;
         runner_options.ground_truth = truth ? &*truth : nullptr;
         runner_options.sequence = &camera->sequence();
@@ -257,6 +259,10 @@ void addPlayCommand(CLI::App& app, Runner& runner) {
                   "Process every frame in order as fast as possible (deterministic), instead of at the recorded rate");
     sub->add_flag("--no-track", options->no_track, "Capture and convert only; no tracking (and so no lighting)");
     sub->add_flag("--no-lighting", options->no_lighting, "Track only; no lighting thread");
+    sub->add_option("--lighting-every", options->lighting_every,
+                    "In real time, update the lighting for every N-th frame at most (1: as often as it can)")
+        ->check(CLI::Range(1, 1000))
+        ->capture_default_str();
     sub->add_flag("--full-frame", options->full_frame, "Detect tags over the whole of every frame (default: around the predicted tags, whole frame every 15)");
     sub->add_option("--response", options->response,
                     "The camera's response: srgb, linear, gamma:G or a response file (default: sensor.yaml's)");

@@ -53,6 +53,7 @@ struct LightingEngine::Impl {
     EngineStats stats;
     std::int64_t started_ns = 0;
     std::int64_t last_update_ns = 0;
+    std::uint64_t last_update_ticket = 0;  // the observation the newest snapshot was solved for
     std::uint64_t version = 0;
 
     mutable std::mutex model_mutex;     // held by the thread during an update, and by ratioImage()
@@ -76,6 +77,10 @@ Result<std::unique_ptr<LightingEngine>> LightingEngine::create(const Scene& scen
     if (options.observation_stride < 1) {
         return fail(ErrorCode::kUsage, "lighting: observation_stride must be at least 1");
     }
+    if (options.update_every < 1) return fail(ErrorCode::kUsage, "lighting: update_every must be at least 1");
+    if (options.observation_interleave < 0) {
+        return fail(ErrorCode::kUsage, "lighting: observation_interleave must be 0 (automatic) or at least 1");
+    }
     if (options.radiance_scale && !(std::isfinite(*options.radiance_scale) && *options.radiance_scale > 0.0)) {
         return fail(ErrorCode::kBadInput, "lighting: radiance_scale must be positive and finite");
     }
@@ -87,6 +92,8 @@ Result<std::unique_ptr<LightingEngine>> LightingEngine::create(const Scene& scen
     model_options.response = options.response;
     model_options.radiance_scale = options.radiance_scale;
     model_options.observation_stride = options.observation_stride;
+    model_options.observation_interleave =
+        options.observation_interleave > 0 ? options.observation_interleave : (options.sync ? 1 : 2);
     CL_TRY(impl->model, SceneLighting::create(impl->scene, camera, model_options));
     impl->virtual_poses = SceneLighting::scenePoses(impl->scene, 0.0);
     auto first = std::make_shared<LightingSnapshot>();
@@ -259,9 +266,13 @@ Result<void> LightingEngine::Impl::process(OwnedObservation& observation, const 
         std::lock_guard lock(mutex);
         ++stats.processed;
     }
-    // Step 2: in real time, solve no more often than max_update_hz.
+    // Step 2: in real time, solve no more often than max_update_hz, and for every update_every-th
+    // submission at most.
     if (!options.sync && options.max_update_hz > 0.0 && last_update_ns != 0 &&
         static_cast<double>(start_ns - last_update_ns) < 1e9 / options.max_update_hz) {
+        return {};
+    }
+    if (!options.sync && last_update_ticket != 0 && observation.ticket - last_update_ticket < static_cast<std::uint64_t>(options.update_every)) {
         return {};
     }
     // Step 3: estimate and solve.
@@ -273,6 +284,7 @@ Result<void> LightingEngine::Impl::process(OwnedObservation& observation, const 
     next.solve.milliseconds = static_cast<double>(end_ns - start_ns) / 1e6;
     next.virtual_poses = poses;
     last_update_ns = end_ns;
+    last_update_ticket = observation.ticket;
     // Step 4: publish.
     {
         std::lock_guard lock(snapshot_mutex);

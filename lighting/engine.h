@@ -44,8 +44,18 @@ struct EngineOptions {
     // Solve at most this often in real-time mode (observations in between are still accumulated
     // when the engine is idle); 0: as often as it can.
     double max_update_hz = 0.0;
+    // In real-time mode, solve only for an observation submitted at least this many submissions
+    // after the one last solved for (1: every observation the thread takes). Observations in
+    // between are still accumulated when the thread is idle. With 2 at the camera's rate the thread
+    // updates every second frame and leaves the rest of the CPU to tracking and compositing.
+    int update_every = 1;
     // Observations are ray cast on every `observation_stride`-th pixel in x and y (1: all).
     int observation_stride = 2;
+    // Each observation casts one of k x k offsets of the lattice of every (k stride)-th pixel, in
+    // turn (lighting/observations.h): k x k observations sample what one samples at k = 1, for
+    // 1 / k^2 of the work. 0: 2 in real-time mode (where observations are a sample over time
+    // anyway: newest wins), 1 in sync mode.
+    int observation_interleave = 0;
 };
 
 // One frame as the lighting thread sees it.

@@ -111,7 +111,8 @@ Result<std::unique_ptr<Estimator>> Estimator::create(const Scene& scene, const C
     d.present.assign(scene.virtual_objects.size(), true);
     d.emission.assign(scene.virtual_objects.size(), std::nullopt);
     out->observations_ = std::make_unique<Observations>(d.real_faces, scene, camera, options.response,
-                                                        options.observation_stride, out->options_.observation_cell);
+                                                        options.observation_stride, out->options_.observation_cell,
+                                                        options.observation_interleave);
     d.poses = scenePoses(scene, 0.0);
 
     // Step 3: the light model's columns.

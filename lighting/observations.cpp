@@ -46,8 +46,8 @@ TagLayout tagLayout(std::string_view family) {
 }
 
 Observations::Observations(const std::vector<Face>& real_faces, const Scene& scene, const CameraModel& camera,
-                           const ResponseCurve& response, int stride, double cell_size)
-    : faces_(real_faces), camera_(camera), response_(response), stride_(std::max(1, stride)) {
+                           const ResponseCurve& response, int stride, double cell_size, int interleave)
+    : faces_(real_faces), camera_(camera), response_(response), stride_(std::max(1, stride)), interleave_(std::max(1, interleave)) {
     // Step 0a: a grid per face.
     for (const Face& f : faces_) {
         Grid g;
@@ -93,19 +93,31 @@ Observations::Observations(const std::vector<Face>& real_faces, const Scene& sce
         }
         tags_.push_back(std::move(ref));
     }
-    // Step 0c: the camera rays of the sample grid (the lens inverted once, not per frame).
-    samples_x_ = (camera_.width + stride_ - 1) / stride_;
-    samples_y_ = (camera_.height + stride_ - 1) / stride_;
-    rays_in_cam_.resize(static_cast<std::size_t>(samples_x_) * static_cast<std::size_t>(samples_y_));
-    for (int j = 0; j < samples_y_; ++j) {
-        for (int i = 0; i < samples_x_; ++i) {
-            const Eigen::Vector2d pixel(std::min(i * stride_ + stride_ / 2, camera_.width - 1),
-                                        std::min(j * stride_ + stride_ / 2, camera_.height - 1));
-            const auto ray = camera_.unproject(pixel);
-            rays_in_cam_[static_cast<std::size_t>(j) * samples_x_ + i] =
-                ray ? Eigen::Vector3f(ray->normalized().cast<float>()) : Eigen::Vector3f::Constant(std::nanf(""));
+    // Step 0c: the camera rays of the sample grids (the lens inverted once, not per frame).
+    const int step = stride_ * interleave_;
+    samples_x_ = (camera_.width + step - 1) / step;
+    samples_y_ = (camera_.height + step - 1) / step;
+    const std::size_t per_phase = static_cast<std::size_t>(samples_x_) * static_cast<std::size_t>(samples_y_);
+    const int phases = interleave_ * interleave_;
+    rays_in_cam_.resize(per_phase * static_cast<std::size_t>(phases));
+    for (int phase = 0; phase < phases; ++phase) {
+        for (int j = 0; j < samples_y_; ++j) {
+            for (int i = 0; i < samples_x_; ++i) {
+                const auto ray = camera_.unproject(samplePixel(phase, i, j).cast<double>());
+                rays_in_cam_[static_cast<std::size_t>(phase) * per_phase + static_cast<std::size_t>(j) * samples_x_ + i] =
+                    ray ? Eigen::Vector3f(ray->normalized().cast<float>()) : Eigen::Vector3f::Constant(std::nanf(""));
+            }
         }
     }
+}
+
+Eigen::Vector2i Observations::samplePixel(int phase, int i, int j) const {
+    // The offsets in an order that alternates the diagonals: (0, 0), (1, 1), (0, 1), (1, 0) for k = 2.
+    const int a = phase % interleave_;
+    const int b = (phase / interleave_ + a) % interleave_;
+    const int step = stride_ * interleave_;
+    return {std::min(i * step + a * stride_ + stride_ / 2, camera_.width - 1),
+            std::min(j * step + b * stride_ + stride_ / 2, camera_.height - 1)};
 }
 
 const RadianceStats& Observations::cell(int face, int i, int j) const {
@@ -153,17 +165,20 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
     const Eigen::Matrix3d rotation = world_from_cam.rotationMatrix();
     const Eigen::Vector3d origin = world_from_cam.translation;
     const double to_relative = 1.0 / (exposure_s * gain);
-    std::vector<Sample> samples(rays_in_cam_.size());
+    const std::size_t per_phase = static_cast<std::size_t>(samples_x_) * static_cast<std::size_t>(samples_y_);
+    const int phase = static_cast<int>(frames_ % static_cast<std::uint64_t>(interleave_ * interleave_));
+    const Eigen::Vector3f* rays_in_cam = rays_in_cam_.data() + static_cast<std::size_t>(phase) * per_phase;
+    std::vector<Sample> samples(per_phase);
 
     // Step 1: one ray per sample, in parallel; the per-pixel decisions that need no neighbour.
     tbb::parallel_for(0, samples_y_, [&](int j) {
         for (int i = 0; i < samples_x_; ++i) {
             const std::size_t k = static_cast<std::size_t>(j) * samples_x_ + i;
             Sample& s = samples[k];
-            const Eigen::Vector3f& d = rays_in_cam_[k];
+            const Eigen::Vector3f& d = rays_in_cam[k];
             if (!d.allFinite()) continue;
-            const int px = std::min(i * stride_ + stride_ / 2, camera_.width - 1);
-            const int py = std::min(j * stride_ + stride_ / 2, camera_.height - 1);
+            const Eigen::Vector2i pixel = samplePixel(phase, i, j);
+            const int px = pixel.x(), py = pixel.y();
             const std::uint8_t* c = rgb8.row(py) + 3 * px;
             const Eigen::Vector3d dir = rotation * d.cast<double>();
             const RayHit hit = rays.intersectAll(origin, dir);

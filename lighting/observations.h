@@ -16,6 +16,12 @@
 //           to its cell with weight cos(viewing angle): a frame that sees a surface face-on counts
 //           more than one that grazes it, and cells never seen again keep their value.
 //
+// Interleaving (`interleave` k > 1, the real-time lighting thread's default): each frame samples
+// one of k x k offsets of the lattice of every (k stride)-th pixel, the offsets taken in turn, so
+// k x k consecutive frames sample exactly the pixels one frame samples at `stride` alone, for
+// 1 / k^2 of the rays and work per frame. The neighbour tests of step 2 are then between samples
+// k stride pixels apart (the highlight test's block is 8 x 8 samples either way).
+//
 // Elements aggregate the cells whose centres they contain (aggregate()).
 #pragma once
 
@@ -96,8 +102,9 @@ struct FrameObservation {
 class Observations {
 public:
     // `cell_size`: target cell edge, metres (grids are powers of two per axis, at most 256).
+    // `interleave`: k (see above; 1: every frame samples every `stride`-th pixel).
     Observations(const std::vector<Face>& real_faces, const Scene& scene, const CameraModel& camera,
-                 const ResponseCurve& response, int stride, double cell_size = 0.01);
+                 const ResponseCurve& response, int stride, double cell_size = 0.01, int interleave = 1);
 
     // Adds one frame (RGB8, distorted, the camera's size). `illuminant` is the chromaticity-bearing
     // colour of the light (e.g. the estimated lights' mean emission; white when unknown).
@@ -151,8 +158,13 @@ private:
     CameraModel camera_;
     ResponseCurve response_;
     int stride_ = 2;
-    std::vector<Eigen::Vector3f> rays_in_cam_;  // unit, per sample (NaN where the lens has no ray)
-    int samples_x_ = 0, samples_y_ = 0;
+    int interleave_ = 1;
+    // Unit, per sample of each of the interleave^2 offsets in turn (NaN where the lens has no ray).
+    std::vector<Eigen::Vector3f> rays_in_cam_;
+    int samples_x_ = 0, samples_y_ = 0;  // per frame
+
+    // The pixel of sample (i, j) at the offset of `phase` (0 .. interleave^2 - 1).
+    Eigen::Vector2i samplePixel(int phase, int i, int j) const;
     std::uint64_t frames_ = 0;
     FrameObservation totals_;
 };

@@ -25,6 +25,7 @@ struct SceneLightingOptions {
     ResponseCurve response = ResponseCurve::srgb();
     std::optional<double> radiance_scale;  // relative radiance per W/(m^2 sr); nullopt: 1 assumed
     int observation_stride = 2;            // ray cast every n-th pixel in x and y
+    int observation_interleave = 1;        // k: each frame casts one of k x k offsets in turn (observations.h)
 };
 
 class SceneLighting {

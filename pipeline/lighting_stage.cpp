@@ -60,12 +60,13 @@ nlohmann::json RatioErrors::json() const {
 
 Result<std::unique_ptr<LightingStage>> LightingStage::create(const Scene& scene, const CameraModel& camera,
                                                              const ResponseCurve& response, std::optional<double> radiance_scale,
-                                                             bool sync, const Sequence* sequence) {
+                                                             bool sync, const Sequence* sequence, int update_every) {
     auto stage = std::unique_ptr<LightingStage>(new LightingStage());
     lighting::EngineOptions options;
     options.sync = sync;
     options.response = response;
     options.radiance_scale = radiance_scale;
+    options.update_every = update_every;
     CL_TRY(stage->engine_, lighting::LightingEngine::create(scene, camera, options));
     stage->scene_ = scene;
     stage->response_ = response;

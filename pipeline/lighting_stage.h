@@ -45,10 +45,11 @@ private:
 class LightingStage {
 public:
     // A lighting thread for the scene and camera (sync: every frame processed before the next).
-    // Ground truth is looked for in `sequence` when given.
+    // Ground truth is looked for in `sequence` when given. `update_every`: in real time, solve for
+    // every n-th frame at most (lighting::EngineOptions::update_every).
     static Result<std::unique_ptr<LightingStage>> create(const Scene& scene, const CameraModel& camera,
                                                          const ResponseCurve& response, std::optional<double> radiance_scale,
-                                                         bool sync, const Sequence* sequence);
+                                                         bool sync, const Sequence* sequence, int update_every = 1);
     ~LightingStage();
 
     // One frame: `rgb8` at the camera's size, its pose (nullopt: counted, contributes nothing), the

@@ -40,7 +40,7 @@ Result<std::unique_ptr<FrameRunner>> FrameRunner::create(const Scene& scene, con
     runner->tracking_.emplace(std::move(tracking));
     if (options.lighting && !scene.real_objects.empty()) {
         CL_TRY(runner->lighting_, LightingStage::create(runner->scene_, camera, options.response, options.radiance_scale,
-                                                        options.sync, options.sequence));
+                                                        options.sync, options.sequence, options.lighting_every));
     } else if (options.lighting) {
         log::info("lighting off: the scene has no real proxy geometry to light");
     }

@@ -51,6 +51,9 @@ struct RunnerOptions {
     // caller's thread, one after the other; for comparison in `bench pipeline`).
     bool pipeline_thread = true;
     bool lighting = true;   // run the lighting thread (needs real proxies in the scene)
+    // Real time: the lighting thread solves for every n-th frame at most (1: as often as it can).
+    // 2 leaves the cores to tracking and compositing at the camera's rate, lighting every second frame.
+    int lighting_every = 2;
     // The frames come in order (a recording or a camera): detect only around the predicted tags,
     // full frame every `redetect_every` frames (bench tracking, desk: 3.9 ms a frame against 16.2
     // at the same error). `play` and `live` take --full-frame to turn it off.

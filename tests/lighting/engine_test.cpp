@@ -168,6 +168,45 @@ TEST(LightingEngine, RealTimeProducerAt120HzNeverWaitsAndReaderSeesIncreasingVer
     RecordProperty("worst_submit_ms", std::to_string(worst_submit_ms));
 }
 
+// Real time with update_every 2: the thread solves for the first observation and then for one
+// submitted at least two after the last one solved; the others are accumulated only. Each
+// observation is submitted once the thread has taken the previous one (no skips), so the count is
+// exact: 7 observations, solved for tickets 1, 3, 5 and 7.
+TEST(LightingEngine, UpdateEverySecondObservationAccumulatesTheOthersOnly) {
+    for (const int every : {1, 2}) {
+        EngineOptions options;
+        options.update_every = every;
+        auto engine = LightingEngine::create(smallScene(), smallCamera(), options);
+        ASSERT_TRUE(engine) << engine.error().message;
+        LightingEngine& e = **engine;
+        e.start();
+        const Image frame = greyFrame(smallCamera(), 100);
+        for (int i = 0; i < 7; ++i) {
+            Observation obs;
+            obs.rgb8 = frame.view();
+            obs.timestamp_ns = 1000 + i;
+            obs.cam_from_world = lookingDown();
+            obs.exposure_us = 10000;
+            obs.analog_gain = 1;
+            ASSERT_TRUE(e.submit(obs));
+            const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+            while (e.stats().processed < static_cast<std::uint64_t>(i + 1) && std::chrono::steady_clock::now() < deadline) {
+                std::this_thread::sleep_for(std::chrono::milliseconds(1));
+            }
+        }
+        e.stop();
+        const EngineStats stats = e.stats();
+        EXPECT_EQ(stats.processed, 7u) << "every " << every;
+        EXPECT_EQ(stats.skipped, 0u) << "every " << every;
+        EXPECT_EQ(stats.updates, every == 1 ? 7u : 4u) << "every " << every;
+        EXPECT_EQ(e.latest()->frame_timestamp_ns, 1006) << "every " << every;
+        EXPECT_FALSE(e.lastError().has_value());
+    }
+    EngineOptions bad;
+    bad.update_every = 0;
+    EXPECT_FALSE(LightingEngine::create(smallScene(), smallCamera(), bad));
+}
+
 // Between full updates (when the observations double) the engine only brings the virtual
 // objects' influence up to date (lighting/influence.h): a ball moving across the floor in sync
 // mode gets a snapshot per frame, most of them incremental, and its shadow (the floor texel with

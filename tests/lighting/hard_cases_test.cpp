@@ -342,6 +342,60 @@ TEST(HardCases, SaturatedDarkAndHighlightPixelsNeverEnterTheCells) {
     }
 }
 
+// Interleaved observations (the real-time default): 2 x 2 frames at interleave 2 cast a quarter of
+// the rays each and together accumulate exactly the pixels one frame accumulates at stride 2 alone,
+// cell by cell. The frame's colour varies with the pixel's position (so a phase sampled twice, or
+// one left out, shows in the sums); a 4-pixel saturated margin makes the image border's samples
+// excluded in both (so the wider neighbour spacing changes nothing here).
+TEST(HardCases, InterleavedObservationsAccumulateWhatOneFullLatticeDoes) {
+    const Scene scene = parse("real: [{name: wall, plane: {size: [2, 2]}, albedo: estimate}]");
+    const CameraModel cam = camera(80, 60);
+    const Rigid3d cam_from_world = Rigid3d::fromRpyDeg(Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(180, 0, 0)).inverse();
+    const std::vector<Face> faces = *realFaces(scene);
+    auto rays = RayScene::build(faces, {}, {});
+    ASSERT_TRUE(rays);
+    Image frame(PixelFormat::kRgb8, cam.width, cam.height);
+    for (int y = 0; y < cam.height; ++y) {
+        for (int x = 0; x < cam.width; ++x) {
+            std::uint8_t* p = frame.mutableView().row(y) + 3 * x;
+            const bool margin = x < 4 || y < 4 || x >= cam.width - 4 || y >= cam.height - 4;
+            p[0] = margin ? 255 : static_cast<std::uint8_t>(110 + 4 * (x % 4) + 2 * (y % 4));
+            p[1] = margin ? 255 : static_cast<std::uint8_t>(60 + (x % 8));
+            p[2] = margin ? 255 : 40;
+        }
+    }
+    Observations whole(faces, scene, cam, ResponseCurve::srgb(), 2);
+    auto one = whole.add(frame.view(), cam_from_world, 0.01, 1.0, **rays);
+    ASSERT_TRUE(one) << one.error().message;
+    Observations interleaved(faces, scene, cam, ResponseCurve::srgb(), 2, 0.01, 2);
+    std::uint64_t used = 0;
+    for (int k = 0; k < 4; ++k) {
+        auto part = interleaved.add(frame.view(), cam_from_world, 0.01, 1.0, **rays);
+        ASSERT_TRUE(part) << part.error().message;
+        EXPECT_EQ(part->samples * 4, one->samples);
+        EXPECT_EQ(part->highlight, 0u);
+        used += part->used;
+    }
+    EXPECT_EQ(interleaved.frames(), 4u);
+    EXPECT_EQ(used, one->used);
+    EXPECT_GT(one->used, 500u);
+    ASSERT_EQ(interleaved.gridS(0), whole.gridS(0));
+    ASSERT_EQ(interleaved.gridT(0), whole.gridT(0));
+    int cells = 0;
+    for (int j = 0; j < whole.gridT(0); ++j) {
+        for (int i = 0; i < whole.gridS(0); ++i) {
+            const RadianceStats& a = whole.cell(0, i, j);
+            const RadianceStats& b = interleaved.cell(0, i, j);
+            EXPECT_EQ(a.pixels, b.pixels) << i << " " << j;
+            EXPECT_EQ(a.clipped, b.clipped) << i << " " << j;
+            EXPECT_NEAR(a.weight, b.weight, 1e-12 * (1.0 + a.weight));
+            for (int c = 0; c < 3; ++c) EXPECT_NEAR(a.sum[c], b.sum[c], 1e-12 * (1.0 + std::abs(a.sum[c])));
+            if (a.pixels > 0) ++cells;
+        }
+    }
+    EXPECT_GT(cells, 20);
+}
+
 // A frame whose pose is not finite is an error, not a crash, and adds nothing.
 TEST(HardCases, NonFinitePoseIsAnError) {
     const Scene scene = parse("real: [{name: wall, plane: {size: [2, 2]}, albedo: estimate}]");
