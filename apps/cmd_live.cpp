@@ -58,6 +58,7 @@ struct LiveOptions {
     bool edges = false;
     bool no_lighting = false;
     int lighting_every = 2;
+    bool fixed_quality = false;
     bool full_frame = false;
     bool composite = false;    // --composite: headless runs composite offscreen too
     std::string screenshots;   // where key s writes (default: --out, else the current folder)
@@ -225,6 +226,7 @@ int runLive(const LiveOptions& options) {
     runner_options.ground_truth = truth ? &*truth : nullptr;
     runner_options.lighting = !options.no_lighting;
     runner_options.lighting_every = options.lighting_every;
+    runner_options.adapt_quality = !options.fixed_quality;
     runner_options.tracker.tracking_mode = !options.full_frame;
     {
         const std::string spec = options.response.empty() ? (*camera)->responseSpec() : options.response;
@@ -391,6 +393,8 @@ void addLiveCommand(CLI::App& app, Runner& runner) {
                     "In real time, update the lighting for every N-th frame at most (1: as often as it can)")
         ->check(CLI::Range(1, 1000))
         ->capture_default_str();
+    sub->add_flag("--fixed-quality", options->fixed_quality,
+                  "Composite at full quality always (default: MSAA off, then fewer light samples, while compositing falls behind the camera)");
     sub->add_flag("--full-frame", options->full_frame, "Detect tags over the whole of every frame (default: around the predicted tags, whole frame every 15)");
     sub->add_flag("--move-object", options->move_object,
                   "Move the first virtual object back and forth along world x (+-5 cm, 4 s period), e.g. headless soak tests");

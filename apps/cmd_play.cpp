@@ -42,6 +42,7 @@ struct PlayOptions {
     bool no_track = false;
     bool no_lighting = false;
     int lighting_every = 2;
+    bool fixed_quality = false;
     bool full_frame = false;
     std::string response;  // --response: overrides sensor.yaml's
     std::size_t slots = 4;
@@ -113,6 +114,7 @@ int runPlay(const PlayOptions& options) {
         runner_options.sync = options.sync;
         runner_options.lighting = !options.no_lighting;
         runner_options.lighting_every = options.lighting_every;
+        runner_options.adapt_quality = !options.fixed_quality;
         runner_options.tracker.tracking_mode = !options.full_frame;
         runner_options.ground_truth = truth ? &*truth : nullptr;
         runner_options.sequence = &camera->sequence();
@@ -263,6 +265,8 @@ void addPlayCommand(CLI::App& app, Runner& runner) {
                     "In real time, update the lighting for every N-th frame at most (1: as often as it can)")
         ->check(CLI::Range(1, 1000))
         ->capture_default_str();
+    sub->add_flag("--fixed-quality", options->fixed_quality,
+                  "Composite at full quality always (default: MSAA off, then fewer light samples, while compositing falls behind the camera)");
     sub->add_flag("--full-frame", options->full_frame, "Detect tags over the whole of every frame (default: around the predicted tags, whole frame every 15)");
     sub->add_option("--response", options->response,
                     "The camera's response: srgb, linear, gamma:G or a response file (default: sensor.yaml's)");

@@ -53,6 +53,8 @@ Result<std::unique_ptr<FrameRunner>> FrameRunner::create(const Scene& scene, con
         CL_TRY(runner->context_, render::GlContext::create(context_options));
         CL_TRY(runner->compositor_, render::Compositor::create(*runner->context_, runner->scene_, camera, options.response,
                                                                options.compositor));
+        // The pipelined real-time loop adapts its quality (sync and one-thread loops draw as configured).
+        if (options.adapt_quality && !options.sync && options.pipeline_thread) runner->governor_.emplace(options.compositor);
         if (!options.side_by_side.empty()) CL_TRY_VOID(checkImagePath(options.side_by_side, "side-by-side picture"));
         if (!options.frames_dir.empty() || !options.video.empty()) {
             CL_TRY(runner->writer_, CompositeWriter::open(options.frames_dir, options.video, camera.width, camera.height, options.fps));
@@ -187,6 +189,7 @@ LoopStats FrameRunner::runPipelined(FrameSource& source, const LoopCallbacks& ca
             continue;
         }
         const std::int64_t started = monotonicNowNs();
+        const double period_ns = frame->frame_period_ns;
         if (Result<void> done = composite(*frame); !done) {
             stats.failure = done.error();
             break;
@@ -199,6 +202,13 @@ LoopStats FrameRunner::runPipelined(FrameSource& source, const LoopCallbacks& ca
         }
         const double took = static_cast<double>(monotonicNowNs() - started);
         busy_ns = busy_ns > 0.0 ? 0.8 * busy_ns + 0.2 * took : took;
+        if (governor_ && governor_->step(took, period_ns)) {
+            compositor_->setOptions(governor_->apply(compositor_->options()));
+            const QualityGovernor::Level& l = governor_->levels()[static_cast<std::size_t>(governor_->level())];
+            log::info("compositor: MSAA " + std::to_string(l.msaa_samples) + ", " + std::to_string(l.area_light_samples) +
+                      " light samples (a frame took " + std::to_string(static_cast<int>(took / 1e6)) + " ms of " +
+                      std::to_string(static_cast<int>(period_ns / 1e6)) + ")");
+        }
     }
     pipeline_thread.request_stop();
     pipeline_thread.join();
@@ -366,6 +376,7 @@ nlohmann::json FrameRunner::metricsJson() const {
                                                   : "one thread";
         if (loop_stats_) c["replaced"] = loop_stats_->replaced;
         c["msaa_samples"] = compositor_->options().msaa_samples;
+        if (governor_) c["quality"] = governor_->json();
         c["renderer"] = context_->renderer();
         if (lag_ms_.count() > 0) {
             const Percentiles lag = lag_ms_.percentiles();
@@ -389,6 +400,7 @@ std::string FrameRunner::summary() const {
     std::string text;
     if (tracking_->poseErrors().count() > 0) text += tracking_->poseErrors().summary() + "\n";
     if (lighting_) text += lighting_->summary() + "\n";
+    if (governor_ && processed_ > 0) text += "compositor quality: " + governor_->summary() + "\n";
     if (composite_errors_.frames() > 0) {
         const nlohmann::json e = composite_errors_.json();
         char line[256];

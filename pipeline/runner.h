@@ -39,6 +39,7 @@
 #include "pipeline/frame_loop.h"
 #include "pipeline/frame_pipeline.h"
 #include "pipeline/lighting_stage.h"
+#include "pipeline/quality_governor.h"
 #include "render/compositor.h"
 #include "render/gl_context.h"
 #include "tracking/tracker.h"
@@ -54,6 +55,9 @@ struct RunnerOptions {
     // Real time: the lighting thread solves for every n-th frame at most (1: as often as it can).
     // 2 leaves the cores to tracking and compositing at the camera's rate, lighting every second frame.
     int lighting_every = 2;
+    // Real time: step the compositor's quality down when compositing falls behind the camera, and
+    // back up when it has room (pipeline/quality_governor.h).
+    bool adapt_quality = true;
     // The frames come in order (a recording or a camera): detect only around the predicted tags,
     // full frame every `redetect_every` frames (bench tracking, desk: 3.9 ms a frame against 16.2
     // at the same error). `play` and `live` take --full-frame to turn it off.
@@ -159,6 +163,7 @@ private:
     capture::StageTimings timings_;
     std::optional<FramePipeline> tracking_;
     std::unique_ptr<LightingStage> lighting_;
+    std::optional<QualityGovernor> governor_;  // the real-time loop's, when adapt_quality
     capture::PixelConverter converter_;
     TrackedFrame sync_frame_;  // process()'s frame
     std::optional<std::int64_t> first_timestamp_;
