@@ -20,6 +20,8 @@
 #include "capture/capture_session.h"
 #include "capture/convert.h"
 #include "capture/stage_timings.h"
+#include "core/clock.h"
+#include "core/frame_file.h"
 #include "core/log.h"
 #include "core/scene_io.h"
 #include "mocks/replay_camera.h"
@@ -140,7 +142,29 @@ int runPlay(const PlayOptions& options) {
                                                                                       : "the scene places no tags"));
     }
     // The recording starts playing once everything is ready (the lighting setup and the GL
-    // context take a moment, and in real time the replay would run on meanwhile).
+    // context take a moment, and in real time the replay would run on meanwhile), in real time
+    // with the lighting thread's first update made from the first frame: the first full update
+    // takes about a second, a large part of a short recording.
+    if (runner && runner->lighting() && !options.sync) {
+        const Sequence& seq = camera->sequence();
+        Frame first;
+        FrameFileReader reader;
+        auto read = reader.read(seq.framePath(0), format.format, format.width, format.height, first.image);
+        if (read) {
+            first.meta.timestamp_ns = seq.frames[0].timestamp_ns;
+            first.meta.timestamp_source = TimestampSource::kRecording;
+            if (!seq.meta.empty() && seq.meta[0]) {
+                first.meta.exposure_us = seq.meta[0]->exposure_us;
+                first.meta.analog_gain = seq.meta[0]->analog_gain;
+            }
+            const std::int64_t warm_ns = monotonicNowNs();
+            auto warmed = runner->warmUp(first);
+            if (!warmed) return reportError(warmed.error());
+            if (*warmed) say("lighting: first update from the first frame in %.2f s, before playing\n", static_cast<double>(monotonicNowNs() - warm_ns) / 1e9);
+        } else {
+            log::warning(read.error().message + " (no lighting before the first frame)");
+        }
+    }
     if (auto started = (*session)->start(); !started) return reportError(started.error());
     capture::StageTimings convert_only({"convert"});
     capture::StageTimings& timings = runner ? runner->timings() : convert_only;

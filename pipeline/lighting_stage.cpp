@@ -1,3 +1,5 @@
+#include <thread>
+#include <chrono>
 #include "pipeline/lighting_stage.h"
 
 #include <opencv2/imgcodecs.hpp>
@@ -98,6 +100,28 @@ Result<void> LightingStage::process(const ImageView& rgb8, const FrameMetadata& 
     CL_TRY_VOID(engine_->submit(obs));
     ++frames_;
     if (have_truth_ && cam_from_world && (frames_ - 1) % 5 == 0) return measure(rgb8, meta, *cam_from_world);
+    return {};
+}
+
+Result<void> LightingStage::warmUp(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world,
+                                   const std::vector<Rigid3d>& virtual_poses, double timeout_s) {
+    engine_->setVirtualPoses(virtual_poses);
+    lighting::Observation obs;
+    obs.rgb8 = rgb8;
+    obs.timestamp_ns = meta.timestamp_ns;
+    obs.cam_from_world = cam_from_world;
+    obs.exposure_us = meta.exposure_us;
+    obs.analog_gain = meta.analog_gain;
+    const std::uint64_t before = engine_->stats().updates;
+    CL_TRY_VOID(engine_->submit(obs));
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    while (engine_->stats().updates == before) {
+        if (std::optional<Error> error = engine_->lastError()) return fail(std::move(*error));
+        if (std::chrono::steady_clock::now() > deadline) {
+            return fail(ErrorCode::kTimeout, "lighting: no first update within " + std::to_string(timeout_s) + " s");
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
     return {};
 }
 

@@ -58,6 +58,12 @@ public:
     Result<void> process(const ImageView& rgb8, const FrameMetadata& meta, const std::optional<Rigid3d>& cam_from_world,
                          const std::vector<Rigid3d>& virtual_poses);
     void stop();
+    // Real time, before the first frame: the lighting thread's first update from this frame, waited
+    // for (at most `timeout_s`), so the frames that follow are drawn lit instead of waiting for the
+    // first full update (about a second on the sample). Not counted among the frames processed.
+    // Errors: the update's (kBadInput ...), kTimeout.
+    Result<void> warmUp(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world,
+                        const std::vector<Rigid3d>& virtual_poses, double timeout_s);
 
     lighting::SnapshotPtr latest() const { return engine_->latest(); }
     nlohmann::json metricsJson() const;

@@ -41,8 +41,8 @@ bool QualityGovernor::step(double composite_ns, double period_ns) {
     return true;
 }
 
-render::CompositorOptions QualityGovernor::apply(render::CompositorOptions options) const {
-    const Level& l = levels_[static_cast<std::size_t>(level_)];
+render::CompositorOptions QualityGovernor::applyLevel(render::CompositorOptions options, int level) const {
+    const Level& l = levels_[static_cast<std::size_t>(std::clamp(level, 0, static_cast<int>(levels_.size()) - 1))];
     options.msaa_samples = l.msaa_samples;
     options.area_light_samples = l.area_light_samples;
     return options;

@@ -3,7 +3,7 @@
 //
 // After each composite the loop reports how long the frame took on its thread against the
 // camera's frame period. When that load, smoothed, stays above kStepDownLoad for kStepDownFrames
-// frames (half a second at 30 fps: one slow frame is not enough) the compositor steps down one level; when it stays below kStepUpLoad for kStepUpFrames frames it steps back up. The
+// frames (a quarter of a second at 30 fps: one slow frame is not enough) the compositor steps down one level; when it stays below kStepUpLoad for kStepUpFrames frames it steps back up. The
 // levels, from the configured options: as configured; no MSAA (llvmpipe shades every sample, so
 // 4 samples cost most where the virtual objects are); then also half the shadow maps per area
 // light. The gap between the two thresholds is wider than one level's cost ratio (measured 1.2 to
@@ -16,6 +16,7 @@
 
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -28,7 +29,7 @@ class QualityGovernor {
 public:
     static constexpr double kStepDownLoad = 0.9;  // smoothed composite time / frame period
     static constexpr double kStepUpLoad = 0.6;
-    static constexpr int kStepDownFrames = 15;   // consecutive frames above kStepDownLoad before stepping down
+    static constexpr int kStepDownFrames = 8;    // consecutive frames above kStepDownLoad before stepping down
     static constexpr int kStepUpFrames = 90;     // ... below kStepUpLoad before stepping up
 
     struct Level {
@@ -45,7 +46,9 @@ public:
     int level() const noexcept { return level_; }
     const std::vector<Level>& levels() const noexcept { return levels_; }
     // The compositor's options at the current level (everything else as in `options`).
-    render::CompositorOptions apply(render::CompositorOptions options) const;
+    render::CompositorOptions apply(render::CompositorOptions options) const { return applyLevel(std::move(options), level_); }
+    // The same at another level (0 .. levels() - 1; clamped).
+    render::CompositorOptions applyLevel(render::CompositorOptions options, int level) const;
 
     // For the metrics: frames composited at each level, the number of changes, the current level.
     nlohmann::json json() const;

@@ -267,6 +267,38 @@ Result<void> FrameRunner::track(const Frame& frame, TrackedFrame& out) {
     return {};
 }
 
+Result<bool> FrameRunner::warmUp(const Frame& first, double timeout_s) {
+    if (!lighting_ || options_.sync) return false;
+    CL_TRY(tracking::Tracker tracker, tracking::Tracker::create(camera_, scene_.tags, &scene_, options_.tracker));
+    capture::PixelConverter converter;
+    Image gray, rgb;
+    CL_TRY_VOID(converter.convert(first.image.view(), PixelFormat::kGray8, gray));
+    TrackedFrame frame;
+    CL_TRY(frame.track, tracker.process(gray.view(), first.meta));
+    if (!frame.track.cam_from_world) return false;
+    CL_TRY_VOID(converter.convert(first.image.view(), PixelFormat::kRgb8, frame.rgb));
+    frame.meta = first.meta;
+    frame.virtual_poses = virtualPoses(0.0);
+    std::vector<Rigid3d> poses;
+    for (const auto& pose : frame.virtual_poses) poses.push_back(pose.value_or(Rigid3d::identity()));
+    CL_TRY_VOID(lighting_->warmUp(frame.rgb.view(), first.meta, *frame.track.cam_from_world, poses, timeout_s));
+    // The compositor draws the frame lit once at each of the governor's levels: llvmpipe compiles
+    // a program the first time it draws with it (100-170 ms), which would otherwise fall on the
+    // first frames played and on the first frame after a change of level. Not counted.
+    if (compositor_) {
+        const PixelFormat format = first.image.view().format;
+        if (format == PixelFormat::kYuyv || format == PixelFormat::kNv12) frame.raw = Image::copyOf(first.image.view());
+        const render::CompositorOptions configured = compositor_->options();
+        const int levels = governor_ ? static_cast<int>(governor_->levels().size()) : 1;
+        for (int level = levels - 1; level >= 0; --level) {
+            if (governor_) compositor_->setOptions(governor_->applyLevel(configured, level));
+            CL_TRY_VOID(draw(frame, frame.virtual_poses, nullptr));
+        }
+        compositor_->setOptions(configured);
+    }
+    return true;
+}
+
 Result<tracking::FrameTrack> FrameRunner::process(const Frame& frame) {
     CL_TRY_VOID(track(frame, sync_frame_));
     CL_TRY_VOID(composite(sync_frame_));

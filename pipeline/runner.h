@@ -110,6 +110,11 @@ public:
     Result<void> redraw(const TrackedFrame& frame);
     // track() then composite() on the caller's thread.
     Result<tracking::FrameTrack> process(const Frame& frame);
+    // Real time with lighting, before run(): tracks `first` (a throwaway tracker: nothing is
+    // counted) and waits for the lighting thread's first update from it
+    // (LightingStage::warmUp), so playback starts lit. False when there is nothing to do (sync,
+    // no lighting) or no pose in the frame.
+    Result<bool> warmUp(const Frame& first, double timeout_s = 60.0);
 
     // The figures of the last composite (main thread), for the window's overlay.
     struct CompositeInfo {

@@ -54,6 +54,47 @@ TEST(FrameRunnerRunGl, TheMainThreadCompositesWhatThePipelineThreadTracked) {
     EXPECT_TRUE(metrics["compositor"].contains("latency_ms"));
 }
 
+// play's warm-up: the first frame goes to the lighting thread before run(), which waits for its
+// first update, so the very first frame composited is drawn lit; nothing of it is counted (no
+// frame tracked or composited, no stage time). In sync mode there is nothing to warm up.
+TEST(FrameRunnerRunGl, WarmUpMakesTheFirstCompositedFrameLitAndCountsNothing) {
+    skipWithoutGl();
+    auto sync = makeRunner(/*sync=*/true, /*lighting=*/true, /*composite=*/true);
+    ASSERT_TRUE(sync);
+    auto sync_warmed = sync->warmUp(sample().frames[0]);
+    ASSERT_TRUE(sync_warmed) << sync_warmed.error().message;
+    EXPECT_FALSE(*sync_warmed);
+    sync->stop();
+
+    auto runner = makeRunner(/*sync=*/false, /*lighting=*/true, /*composite=*/true);
+    ASSERT_TRUE(runner);
+    auto warmed = runner->warmUp(sample().frames[0]);
+    ASSERT_TRUE(warmed) << warmed.error().message;
+    EXPECT_TRUE(*warmed);
+    EXPECT_GE(runner->lighting()->latest()->version, 1u);
+    EXPECT_EQ(runner->timings().percentiles(runner->timings().id("composite")).count, 0u);
+    EXPECT_EQ(runner->timings().percentiles(runner->timings().id("track")).count, 0u);
+    SampleSource source(5);
+    std::uint64_t first_version = 0;
+    bool first = true;
+    LoopCallbacks callbacks;
+    callbacks.on_frame = [&](const TrackedFrame&) {
+        if (first) first_version = runner->lastComposite().lighting_version;
+        first = false;
+        return true;
+    };
+    const LoopStats stats = runner->run(source, callbacks, std::stop_token());
+    runner->stop();
+    ASSERT_FALSE(stats.failure) << stats.failure->message;
+    EXPECT_EQ(stats.tracked, 5u);
+    EXPECT_GE(first_version, 1u);
+    EXPECT_EQ(runner->metricsJson()["compositor"]["frames"].get<std::uint64_t>(), stats.composited);
+    EXPECT_EQ(runner->metricsJson()["compositor"]["quality"]["levels"][0]["frames"].get<std::uint64_t>() +
+                  runner->metricsJson()["compositor"]["quality"]["levels"][1]["frames"].get<std::uint64_t>() +
+                  runner->metricsJson()["compositor"]["quality"]["levels"][2]["frames"].get<std::uint64_t>(),
+              stats.composited);
+}
+
 TEST(FrameRunnerRunGl, RedrawShowsAMovedObjectWithoutCountingAFrame) {
     skipWithoutGl();
     auto runner = makeRunner(/*sync=*/true, /*lighting=*/false, /*composite=*/true);
