@@ -36,6 +36,8 @@ void addPlotCommand(CLI::App& app, Runner& runner);
 
 // Prints "commonlight: error: <message>" and returns the exit code for the error.
 int reportError(const Error& error);
+// play's and live's real-time options: --lighting-every N and --fixed-quality.
+void addRealTimeOptions(CLI::App& sub, int& lighting_every, bool& fixed_quality);
 
 // Every camera backend this build has (hardware and mocks).
 hal::CameraRegistry makeCameraRegistry();

@@ -389,12 +389,7 @@ void addLiveCommand(CLI::App& app, Runner& runner) {
         ->capture_default_str();
     sub->add_flag("--edges", options->edges, "Refine the pose with the edges of the scene's proxy geometry");
     sub->add_flag("--no-lighting", options->no_lighting, "Track only; no lighting thread");
-    sub->add_option("--lighting-every", options->lighting_every,
-                    "In real time, update the lighting for every N-th frame at most (1: as often as it can)")
-        ->check(CLI::Range(1, 1000))
-        ->capture_default_str();
-    sub->add_flag("--fixed-quality", options->fixed_quality,
-                  "Composite at full quality always (default: MSAA off, then fewer light samples, while compositing falls behind the camera)");
+    addRealTimeOptions(*sub, options->lighting_every, options->fixed_quality);
     sub->add_flag("--full-frame", options->full_frame, "Detect tags over the whole of every frame (default: around the predicted tags, whole frame every 15)");
     sub->add_flag("--move-object", options->move_object,
                   "Move the first virtual object back and forth along world x (+-5 cm, 4 s period), e.g. headless soak tests");

@@ -285,12 +285,7 @@ void addPlayCommand(CLI::App& app, Runner& runner) {
                   "Process every frame in order as fast as possible (deterministic), instead of at the recorded rate");
     sub->add_flag("--no-track", options->no_track, "Capture and convert only; no tracking (and so no lighting)");
     sub->add_flag("--no-lighting", options->no_lighting, "Track only; no lighting thread");
-    sub->add_option("--lighting-every", options->lighting_every,
-                    "In real time, update the lighting for every N-th frame at most (1: as often as it can)")
-        ->check(CLI::Range(1, 1000))
-        ->capture_default_str();
-    sub->add_flag("--fixed-quality", options->fixed_quality,
-                  "Composite at full quality always (default: MSAA off, then fewer light samples, while compositing falls behind the camera)");
+    addRealTimeOptions(*sub, options->lighting_every, options->fixed_quality);
     sub->add_flag("--full-frame", options->full_frame, "Detect tags over the whole of every frame (default: around the predicted tags, whole frame every 15)");
     sub->add_option("--response", options->response,
                     "The camera's response: srgb, linear, gamma:G or a response file (default: sensor.yaml's)");

@@ -87,9 +87,8 @@ LightingStage::~LightingStage() {
 
 void LightingStage::stop() { engine_->stop(); }
 
-Result<void> LightingStage::process(const ImageView& rgb8, const FrameMetadata& meta,
-                                    const std::optional<Rigid3d>& cam_from_world,
-                                    const std::vector<Rigid3d>& virtual_poses) {
+Result<void> LightingStage::submit(const ImageView& rgb8, const FrameMetadata& meta, const std::optional<Rigid3d>& cam_from_world,
+                                   const std::vector<Rigid3d>& virtual_poses) {
     engine_->setVirtualPoses(virtual_poses);
     lighting::Observation obs;
     obs.rgb8 = rgb8;
@@ -97,7 +96,13 @@ Result<void> LightingStage::process(const ImageView& rgb8, const FrameMetadata& 
     obs.cam_from_world = cam_from_world;
     obs.exposure_us = meta.exposure_us;
     obs.analog_gain = meta.analog_gain;
-    CL_TRY_VOID(engine_->submit(obs));
+    return engine_->submit(obs);
+}
+
+Result<void> LightingStage::process(const ImageView& rgb8, const FrameMetadata& meta,
+                                    const std::optional<Rigid3d>& cam_from_world,
+                                    const std::vector<Rigid3d>& virtual_poses) {
+    CL_TRY_VOID(submit(rgb8, meta, cam_from_world, virtual_poses));
     ++frames_;
     if (have_truth_ && cam_from_world && (frames_ - 1) % 5 == 0) return measure(rgb8, meta, *cam_from_world);
     return {};
@@ -105,15 +110,8 @@ Result<void> LightingStage::process(const ImageView& rgb8, const FrameMetadata& 
 
 Result<void> LightingStage::warmUp(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world,
                                    const std::vector<Rigid3d>& virtual_poses, double timeout_s) {
-    engine_->setVirtualPoses(virtual_poses);
-    lighting::Observation obs;
-    obs.rgb8 = rgb8;
-    obs.timestamp_ns = meta.timestamp_ns;
-    obs.cam_from_world = cam_from_world;
-    obs.exposure_us = meta.exposure_us;
-    obs.analog_gain = meta.analog_gain;
     const std::uint64_t before = engine_->stats().updates;
-    CL_TRY_VOID(engine_->submit(obs));
+    CL_TRY_VOID(submit(rgb8, meta, cam_from_world, virtual_poses));
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
     while (engine_->stats().updates == before) {
         if (std::optional<Error> error = engine_->lastError()) return fail(std::move(*error));

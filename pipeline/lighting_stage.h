@@ -73,6 +73,9 @@ public:
 private:
     LightingStage() = default;
     Result<void> measure(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world);
+    // The frame and the objects' poses to the engine (no count, no measurement).
+    Result<void> submit(const ImageView& rgb8, const FrameMetadata& meta, const std::optional<Rigid3d>& cam_from_world,
+                        const std::vector<Rigid3d>& virtual_poses);
 
     std::unique_ptr<lighting::LightingEngine> engine_;
     Scene scene_;

@@ -54,6 +54,17 @@ Image greyFrame(const CameraModel& camera, std::uint8_t value) {
     return image;
 }
 
+// A frame seen from lookingDown() at 10 ms exposure, unit gain.
+Observation seenFromAbove(const Image& frame, std::int64_t timestamp_ns) {
+    Observation obs;
+    obs.rgb8 = frame.view();
+    obs.timestamp_ns = timestamp_ns;
+    obs.cam_from_world = lookingDown();
+    obs.exposure_us = 10000;
+    obs.analog_gain = 1;
+    return obs;
+}
+
 TEST(LightingEngine, FirstSnapshotIsVersionZeroAndNeverNull) {
     auto engine = LightingEngine::create(smallScene(), smallCamera(), {});
     ASSERT_TRUE(engine) << engine.error().message;
@@ -71,12 +82,7 @@ TEST(LightingEngine, SyncModeProcessesEveryObservationInOrder) {
     (*engine)->start();
     const Image frame = greyFrame(smallCamera(), 128);
     for (int i = 0; i < 5; ++i) {
-        Observation obs;
-        obs.rgb8 = frame.view();
-        obs.timestamp_ns = 1000 + i;
-        obs.cam_from_world = lookingDown();
-        obs.exposure_us = 10000;
-        obs.analog_gain = 1;
+        const Observation obs = seenFromAbove(frame, 1000 + i);
         ASSERT_TRUE((*engine)->submit(obs));
         // Sync: the snapshot of this very frame is published when submit returns.
         EXPECT_EQ((*engine)->latest()->version, static_cast<std::uint64_t>(i + 1));
@@ -139,12 +145,7 @@ TEST(LightingEngine, RealTimeProducerAt120HzNeverWaitsAndReaderSeesIncreasingVer
     auto next = std::chrono::steady_clock::now();
     double worst_submit_ms = 0.0;
     for (int i = 0; i < 120; ++i) {
-        Observation obs;
-        obs.rgb8 = frame.view();
-        obs.timestamp_ns = i * 8333333LL;
-        obs.cam_from_world = lookingDown();
-        obs.exposure_us = 10000;
-        obs.analog_gain = 1;
+        const Observation obs = seenFromAbove(frame, i * 8333333LL);
         std::vector<Rigid3d> poses{Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.001 * i, 0, 0.1))};
         e.setVirtualPoses(poses);
         const auto t0 = std::chrono::steady_clock::now();
@@ -182,12 +183,7 @@ TEST(LightingEngine, UpdateEverySecondObservationAccumulatesTheOthersOnly) {
         e.start();
         const Image frame = greyFrame(smallCamera(), 100);
         for (int i = 0; i < 7; ++i) {
-            Observation obs;
-            obs.rgb8 = frame.view();
-            obs.timestamp_ns = 1000 + i;
-            obs.cam_from_world = lookingDown();
-            obs.exposure_us = 10000;
-            obs.analog_gain = 1;
+            const Observation obs = seenFromAbove(frame, 1000 + i);
             ASSERT_TRUE(e.submit(obs));
             const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
             while (e.stats().processed < static_cast<std::uint64_t>(i + 1) && std::chrono::steady_clock::now() < deadline) {
@@ -222,12 +218,7 @@ TEST(LightingEngine, MovingObjectUpdatesIncrementallyAndItsShadowFollows) {
     for (int i = 0; i < 12; ++i) {
         const double x = -0.3 + 0.05 * i;
         e.setVirtualPoses({Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(x, 0.2, 0.1))});
-        Observation obs;
-        obs.rgb8 = frame.view();
-        obs.timestamp_ns = i * 33333333LL;
-        obs.cam_from_world = lookingDown();
-        obs.exposure_us = 10000;
-        obs.analog_gain = 1;
+        const Observation obs = seenFromAbove(frame, i * 33333333LL);
         ASSERT_TRUE(e.submit(obs));
         const SnapshotPtr s = e.latest();
         ASSERT_EQ(s->version, static_cast<std::uint64_t>(i + 1));

@@ -280,20 +280,24 @@ virtual:
     EXPECT_TRUE(lit_by_virtual);
 }
 
+// A 2 m wall (the plane at z = 0 facing +z) filling the view of an 80 x 60 camera 1 m in front of it.
+struct WallView {
+    Scene scene = parse("real: [{name: wall, plane: {size: [2, 2]}, albedo: estimate}]");
+    CameraModel cam = camera(80, 60);
+    Rigid3d cam_from_world = Rigid3d::fromRpyDeg(Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(180, 0, 0)).inverse();
+    std::vector<Face> faces = *realFaces(scene);
+    Result<std::unique_ptr<RayScene>> rays = RayScene::build(faces, {}, {});
+};
+
 // Observations: saturated and near-black pixels never enter a cell; a highlight (brighter, and
 // towards the illuminant's colour) is left out, a brighter patch of the surface's own colour is not.
 TEST(HardCases, SaturatedDarkAndHighlightPixelsNeverEnterTheCells) {
-    const Scene scene = parse("real: [{name: wall, plane: {size: [2, 2]}, albedo: estimate}]");
-    const CameraModel cam = camera(80, 60);
-    // Camera 1 m in front of the wall (the plane at z = 0 facing +z), looking at it.
-    const Rigid3d cam_from_world = Rigid3d::fromRpyDeg(Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(180, 0, 0)).inverse();
-    const std::vector<Face> faces = *realFaces(scene);
-    auto rays = RayScene::build(faces, {}, {});
-    ASSERT_TRUE(rays);
-    Observations obs(faces, scene, cam, ResponseCurve::srgb(), 1);
-    Image frame(PixelFormat::kRgb8, cam.width, cam.height);
-    for (int y = 0; y < cam.height; ++y) {
-        for (int x = 0; x < cam.width; ++x) {
+    const WallView w;
+    ASSERT_TRUE(w.rays);
+    Observations obs(w.faces, w.scene, w.cam, ResponseCurve::srgb(), 1);
+    Image frame(PixelFormat::kRgb8, w.cam.width, w.cam.height);
+    for (int y = 0; y < w.cam.height; ++y) {
+        for (int x = 0; x < w.cam.width; ++x) {
             std::uint8_t* p = frame.mutableView().row(y) + 3 * x;
             const std::uint8_t red[3] = {150, 40, 30};
             for (int c = 0; c < 3; ++c) p[c] = red[c];
@@ -311,16 +315,16 @@ TEST(HardCases, SaturatedDarkAndHighlightPixelsNeverEnterTheCells) {
             }
         }
     }
-    auto added = obs.add(frame.view(), cam_from_world, 0.01, 1.0, **rays);
+    auto added = obs.add(frame.view(), w.cam_from_world, 0.01, 1.0, **w.rays);
     ASSERT_TRUE(added) << added.error().message;
     // The wall fills the view: every sample of the first ten columns is saturated, of the next ten dark.
-    EXPECT_EQ(added->saturated, 10u * static_cast<unsigned>(cam.height));
-    EXPECT_EQ(added->dark, 10u * static_cast<unsigned>(cam.height));
+    EXPECT_EQ(added->saturated, 10u * static_cast<unsigned>(w.cam.height));
+    EXPECT_EQ(added->dark, 10u * static_cast<unsigned>(w.cam.height));
     EXPECT_EQ(added->highlight, 9u);
     // The cells those pixels fell on say so: a surface with clipped pixels is not measured by the
     // mean of the others (a censored mean: the brightest or darkest of it missing).
-    const Element whole = Hierarchy(faces)[0];
-    EXPECT_EQ(obs.aggregate(whole).clipped, 20u * static_cast<unsigned>(cam.height));
+    const Element whole = Hierarchy(w.faces)[0];
+    EXPECT_EQ(obs.aggregate(whole).clipped, 20u * static_cast<unsigned>(w.cam.height));
     // The half of the wall away from those columns is measured cleanly.
     Element first_half = whole, second_half = whole;
     first_half.ds = second_half.ds = Eigen::Vector2d(0.5, 0.0);
@@ -348,29 +352,25 @@ TEST(HardCases, SaturatedDarkAndHighlightPixelsNeverEnterTheCells) {
 // one left out, shows in the sums); a 4-pixel saturated margin makes the image border's samples
 // excluded in both (so the wider neighbour spacing changes nothing here).
 TEST(HardCases, InterleavedObservationsAccumulateWhatOneFullLatticeDoes) {
-    const Scene scene = parse("real: [{name: wall, plane: {size: [2, 2]}, albedo: estimate}]");
-    const CameraModel cam = camera(80, 60);
-    const Rigid3d cam_from_world = Rigid3d::fromRpyDeg(Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(180, 0, 0)).inverse();
-    const std::vector<Face> faces = *realFaces(scene);
-    auto rays = RayScene::build(faces, {}, {});
-    ASSERT_TRUE(rays);
-    Image frame(PixelFormat::kRgb8, cam.width, cam.height);
-    for (int y = 0; y < cam.height; ++y) {
-        for (int x = 0; x < cam.width; ++x) {
+    const WallView w;
+    ASSERT_TRUE(w.rays);
+    Image frame(PixelFormat::kRgb8, w.cam.width, w.cam.height);
+    for (int y = 0; y < w.cam.height; ++y) {
+        for (int x = 0; x < w.cam.width; ++x) {
             std::uint8_t* p = frame.mutableView().row(y) + 3 * x;
-            const bool margin = x < 4 || y < 4 || x >= cam.width - 4 || y >= cam.height - 4;
+            const bool margin = x < 4 || y < 4 || x >= w.cam.width - 4 || y >= w.cam.height - 4;
             p[0] = margin ? 255 : static_cast<std::uint8_t>(110 + 4 * (x % 4) + 2 * (y % 4));
             p[1] = margin ? 255 : static_cast<std::uint8_t>(60 + (x % 8));
             p[2] = margin ? 255 : 40;
         }
     }
-    Observations whole(faces, scene, cam, ResponseCurve::srgb(), 2);
-    auto one = whole.add(frame.view(), cam_from_world, 0.01, 1.0, **rays);
+    Observations whole(w.faces, w.scene, w.cam, ResponseCurve::srgb(), 2);
+    auto one = whole.add(frame.view(), w.cam_from_world, 0.01, 1.0, **w.rays);
     ASSERT_TRUE(one) << one.error().message;
-    Observations interleaved(faces, scene, cam, ResponseCurve::srgb(), 2, 0.01, 2);
+    Observations interleaved(w.faces, w.scene, w.cam, ResponseCurve::srgb(), 2, 0.01, 2);
     std::uint64_t used = 0;
     for (int k = 0; k < 4; ++k) {
-        auto part = interleaved.add(frame.view(), cam_from_world, 0.01, 1.0, **rays);
+        auto part = interleaved.add(frame.view(), w.cam_from_world, 0.01, 1.0, **w.rays);
         ASSERT_TRUE(part) << part.error().message;
         EXPECT_EQ(part->samples * 4, one->samples);
         EXPECT_EQ(part->highlight, 0u);
