@@ -446,7 +446,8 @@ int runBenchPipeline(const BenchPipelineOptions& options) {
 
     // Case realtime: playback at the recorded rate, looped for --seconds, with the pipeline
     // thread (tracking of frame n+1 overlaps compositing of frame n) and, for comparison, with
-    // both stages on one thread one after the other (as before the pipeline thread).
+    // both stages on one thread one after the other (as before the pipeline thread), both at
+    // MSAA 4; then the pipeline thread with the quality governor (play's and live's default).
     if (wanted("realtime")) {
         const double period_ms = l.sequence.sensor.rate_hz > 0 ? 1000.0 / l.sequence.sensor.rate_hz : 1000.0 / 30.0;
         std::printf("== realtime (%.0f s at the recorded rate, %dx%d, lighting on, MSAA 4; a frame is %.1f ms)\n", options.seconds,
@@ -454,17 +455,20 @@ int runBenchPipeline(const BenchPipelineOptions& options) {
         std::printf("  %-34s %9s %9s %15s %15s %17s %8s\n", "threads", "fps", "tracked", "latency p50 ms", "latency p95 ms",
                     "lighting lag p50", "replaced");
         nlohmann::json realtime = nlohmann::json::array();
-        for (const bool pipeline_thread : {true, false}) {
+        for (const auto& [pipeline_thread, adapt] : {std::pair{true, false}, std::pair{false, false}, std::pair{true, true}}) {
             pipeline::RunnerOptions r;
             r.composite = true;
             r.pipeline_thread = pipeline_thread;
+            r.adapt_quality = adapt;
             auto m = playThrough(l, r, false, nullptr, options.seconds);
             if (!m) return reportError(m.error());
             const nlohmann::json c = (*m)["compositor"];
             const auto p = [&](const char* key, const char* q) {
                 return c.contains(key) ? c[key][q].get<double>() : 0.0;
             };
-            const char* name = pipeline_thread ? "pipeline thread + main thread" : "one thread (track, then composite)";
+            const char* name = !pipeline_thread ? "one thread (track, then composite)"
+                               : adapt          ? "pipeline thread, quality governor"
+                                                : "pipeline thread + main thread";
             std::printf("  %-34s %9.1f %9.1f %8.1f (%.1f f) %8.1f (%.1f f) %10.1f frames %8llu\n", name,
                         (*m)["processed_fps"].get<double>(), (*m)["tracked_fps"].get<double>(), p("latency_ms", "p50"),
                         p("latency_ms", "p50") / period_ms, p("latency_ms", "p95"), p("latency_ms", "p95") / period_ms,
