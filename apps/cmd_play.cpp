@@ -159,8 +159,9 @@ int runPlay(const PlayOptions& options) {
             }
             const std::int64_t warm_ns = monotonicNowNs();
             auto warmed = runner->warmUp(first);
-            if (!warmed) return reportError(warmed.error());
-            if (*warmed) say("lighting: first update from the first frame in %.2f s, before playing\n", static_cast<double>(monotonicNowNs() - warm_ns) / 1e9);
+            // A failed first update is the lighting thread's to report and retry: playback goes on.
+            if (!warmed) log::warning(warmed.error().message + " (playing without lighting until the thread's first update)");
+            if (warmed && *warmed) say("lighting: first update from the first frame in %.2f s, before playing\n", static_cast<double>(monotonicNowNs() - warm_ns) / 1e9);
         } else {
             log::warning(read.error().message + " (no lighting before the first frame)");
         }

@@ -1,13 +1,13 @@
-#include <thread>
-#include <chrono>
 #include "pipeline/lighting_stage.h"
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <thread>
 
 #include "core/log.h"
 #include "lighting/scene_lighting.h"

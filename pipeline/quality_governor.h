@@ -3,15 +3,17 @@
 //
 // After each composite the loop reports how long the frame took on its thread against the
 // camera's frame period. When that load, smoothed, stays above kStepDownLoad for kStepDownFrames
-// frames (a quarter of a second at 30 fps: one slow frame is not enough) the compositor steps down one level; when it stays below kStepUpLoad for kStepUpFrames frames it steps back up. The
-// levels, from the configured options: as configured; no MSAA (llvmpipe shades every sample, so
-// 4 samples cost most where the virtual objects are); then also half the shadow maps per area
-// light. The gap between the two thresholds is wider than one level's cost ratio (measured 1.2 to
-// 1.4 on the sample), so the governor does not oscillate between two levels.
+// frames (a quarter of a second at 30 fps: one slow frame is not enough) the compositor steps down
+// one level; when it stays below kStepUpLoad for kStepUpFrames frames it steps back up. The levels,
+// from the configured options: as configured; no MSAA (llvmpipe shades every sample, so 4 samples
+// cost most where the virtual objects are); then also half the shadow maps per area light. The gap
+// between the two thresholds is wider than one level's cost ratio (measured 1.2 to 1.4 on the
+// sample), so the governor does not oscillate between two levels.
 //
-// Only the real-time loop uses it (sync playback and the benchmarks draw at the configured
-// quality); `play` and `live` take --fixed-quality to turn it off. Pure logic, no GL: the caller
-// applies apply() to the compositor's options when step() says the level changed.
+// Only the pipelined real-time loop uses it (sync playback, the one-thread loop and the
+// benchmarks' fixed cases draw at the configured quality); `play` and `live` take --fixed-quality
+// to turn it off. Pure logic, no GL: the caller applies apply() to the compositor's options when
+// step() says the level changed.
 #pragma once
 
 #include <cstdint>

@@ -271,7 +271,7 @@ Result<bool> FrameRunner::warmUp(const Frame& first, double timeout_s) {
     if (!lighting_ || options_.sync) return false;
     CL_TRY(tracking::Tracker tracker, tracking::Tracker::create(camera_, scene_.tags, &scene_, options_.tracker));
     capture::PixelConverter converter;
-    Image gray, rgb;
+    Image gray;
     CL_TRY_VOID(converter.convert(first.image.view(), PixelFormat::kGray8, gray));
     TrackedFrame frame;
     CL_TRY(frame.track, tracker.process(gray.view(), first.meta));
