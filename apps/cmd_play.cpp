@@ -21,7 +21,6 @@
 #include "capture/convert.h"
 #include "capture/stage_timings.h"
 #include "core/clock.h"
-#include "core/frame_file.h"
 #include "core/log.h"
 #include "core/scene_io.h"
 #include "mocks/replay_camera.h"
@@ -146,17 +145,8 @@ int runPlay(const PlayOptions& options) {
     // with the lighting thread's first update made from the first frame: the first full update
     // takes about a second, a large part of a short recording.
     if (runner && runner->lighting() && !options.sync) {
-        const Sequence& seq = camera->sequence();
         Frame first;
-        FrameFileReader reader;
-        auto read = reader.read(seq.framePath(0), format.format, format.width, format.height, first.image);
-        if (read) {
-            first.meta.timestamp_ns = seq.frames[0].timestamp_ns;
-            first.meta.timestamp_source = TimestampSource::kRecording;
-            if (!seq.meta.empty() && seq.meta[0]) {
-                first.meta.exposure_us = seq.meta[0]->exposure_us;
-                first.meta.analog_gain = seq.meta[0]->analog_gain;
-            }
+        if (auto read = camera->readFrame(0, first); read) {
             const std::int64_t warm_ns = monotonicNowNs();
             auto warmed = runner->warmUp(first);
             // A failed first update is the lighting thread's to report and retry: playback goes on.

@@ -123,7 +123,19 @@ void ReplayCamera::emitOne(std::size_t index, std::int64_t timestamp_ns, std::ui
     FrameHandle frame = acquireFrame();
     if (!frame) return;  // no free slot: the base class counted it, the recording goes on
     FrameMetadata& meta = frame->meta;
-    meta = FrameMetadata{};
+    meta = recordedMeta(index, timestamp_ns, sequence_offset);
+    if (auto read = reader_.read(paths_[index], format_.format, format_.width, format_.height, frame->image); !read) {
+        frame->image.clear();
+        meta.status = FrameStatus::kCorrupt;
+        corrupt_frames_.fetch_add(1, std::memory_order_relaxed);
+        log::warning(id() + ": frame " + std::to_string(index) + " delivered as corrupt: " + read.error().message);
+    }
+    meta.arrival_ns = clock().nowNs();
+    emitFrame(std::move(frame));
+}
+
+FrameMetadata ReplayCamera::recordedMeta(std::size_t index, std::int64_t timestamp_ns, std::uint64_t sequence_offset) const {
+    FrameMetadata meta;
     meta.sequence = sequence_numbers_[index] + sequence_offset;
     meta.timestamp_ns = timestamp_ns;
     meta.timestamp_source = TimestampSource::kRecording;
@@ -133,14 +145,16 @@ void ReplayCamera::emitOne(std::size_t index, std::int64_t timestamp_ns, std::ui
         meta.analog_gain = recorded.analog_gain;
         meta.status = recorded.status;
     }
-    if (auto read = reader_.read(paths_[index], format_.format, format_.width, format_.height, frame->image); !read) {
-        frame->image.clear();
-        meta.status = FrameStatus::kCorrupt;
-        corrupt_frames_.fetch_add(1, std::memory_order_relaxed);
-        log::warning(id() + ": frame " + std::to_string(index) + " delivered as corrupt: " + read.error().message);
+    return meta;
+}
+
+Result<void> ReplayCamera::readFrame(std::size_t index, Frame& out) const {
+    if (index >= paths_.size()) {
+        return fail(ErrorCode::kUsage, id() + ": frame " + std::to_string(index) + " of " + std::to_string(paths_.size()));
     }
-    meta.arrival_ns = clock().nowNs();
-    emitFrame(std::move(frame));
+    out.meta = recordedMeta(index, sequence_.frames[index].timestamp_ns, 0);
+    FrameFileReader reader;
+    return reader.read(paths_[index], format_.format, format_.width, format_.height, out.image);
 }
 
 std::string ReplayCamera::doResponseSpec() const {

@@ -48,6 +48,10 @@ public:
     // Frames delivered with status kCorrupt because their file could not be read (counted on
     // the camera thread; read it from any thread).
     std::uint64_t corruptFrames() const noexcept { return corrupt_frames_.load(std::memory_order_relaxed); }
+    // Frame `index` as the camera delivers it on its first pass (the recorded timestamp and
+    // metadata), read on the caller's thread: e.g. to prepare the pipeline before playing. Errors:
+    // kUsage for an index past the end, the reader's (naming the file) for a bad file.
+    Result<void> readFrame(std::size_t index, Frame& out) const;
 
 private:
     ReplayCamera(std::string id, Sequence sequence, hal::StreamFormat format, PlaybackOptions options, Clock& clock);
@@ -63,6 +67,8 @@ private:
     // The camera thread: paces and emits every frame, pass after pass when looping.
     void run(std::stop_token stop) override;
     void emitOne(std::size_t index, std::int64_t timestamp_ns, std::uint64_t sequence_offset);
+    // The metadata frame `index` is delivered with (arrival_ns left 0).
+    FrameMetadata recordedMeta(std::size_t index, std::int64_t timestamp_ns, std::uint64_t sequence_offset) const;
 
     const Sequence sequence_;
     const std::vector<std::filesystem::path> paths_;     // one per frame, built once

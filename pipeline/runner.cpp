@@ -11,6 +11,15 @@ namespace commonlight::pipeline {
 
 namespace {
 
+// The lighting thread's poses of the virtual objects: every object has one (identity for an
+// object the scene cannot place now).
+std::vector<Rigid3d> lightingPoses(const std::vector<std::optional<Rigid3d>>& poses) {
+    std::vector<Rigid3d> out;
+    out.reserve(poses.size());
+    for (const auto& pose : poses) out.push_back(pose.value_or(Rigid3d::identity()));
+    return out;
+}
+
 // Exposure (s) x analog gain of a frame; 1 for what the metadata does not say.
 double exposureGain(const FrameMetadata& meta) {
     const double exposure_s = meta.exposure_us > 0.0 && std::isfinite(meta.exposure_us) ? meta.exposure_us * 1e-6 : 1.0;
@@ -258,9 +267,7 @@ Result<void> FrameRunner::track(const Frame& frame, TrackedFrame& out) {
     }
     // Step 4: the frame to the lighting thread (sync: its update is published before we go on).
     if (lighting_) {
-        std::vector<Rigid3d> lighting_poses;
-        lighting_poses.reserve(out.virtual_poses.size());
-        for (const auto& pose : out.virtual_poses) lighting_poses.push_back(pose.value_or(Rigid3d::identity()));
+        const std::vector<Rigid3d> lighting_poses = lightingPoses(out.virtual_poses);
         capture::StageTimer lighting_timer(timings_, timings_.id("lighting"));
         CL_TRY_VOID(lighting_->process(out.rgb.view(), frame.meta, out.track.cam_from_world, lighting_poses));
     }
@@ -279,9 +286,8 @@ Result<bool> FrameRunner::warmUp(const Frame& first, double timeout_s) {
     CL_TRY_VOID(converter.convert(first.image.view(), PixelFormat::kRgb8, frame.rgb));
     frame.meta = first.meta;
     frame.virtual_poses = virtualPoses(0.0);
-    std::vector<Rigid3d> poses;
-    for (const auto& pose : frame.virtual_poses) poses.push_back(pose.value_or(Rigid3d::identity()));
-    CL_TRY_VOID(lighting_->warmUp(frame.rgb.view(), first.meta, *frame.track.cam_from_world, poses, timeout_s));
+    CL_TRY_VOID(lighting_->warmUp(frame.rgb.view(), first.meta, *frame.track.cam_from_world, lightingPoses(frame.virtual_poses),
+                                  timeout_s));
     // The compositor draws the frame lit once at each of the governor's levels: llvmpipe compiles
     // a program the first time it draws with it (100-170 ms), which would otherwise fall on the
     // first frames played and on the first frame after a change of level. Not counted.
