@@ -96,7 +96,7 @@ struct Estimator::Impl {
     bool direction_fitted = false;  // a distant light's direction was (re)fitted this full update
     LightingSnapshot last;          // the last full update's snapshot (lights, warnings)
     std::vector<FaceBuild> face_builds;  // by real face: the textures and what their next build keeps
-    std::unique_ptr<TexelDirectCache> texels;               // the area lights' direct light per texel (null: off)
+    std::unique_ptr<TexelDirectCache> texels;               // the area lights' direct light per texel (null: off; renewed at a full update)
     // Per element, the area lights' direct light without the objects (finishUpdate(); made with
     // `texels`: the columns and the lights' emissions stand until the next full update), and the
     // largest channel of any of them.

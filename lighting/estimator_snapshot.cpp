@@ -219,6 +219,15 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     });
     const bool texels_on = options_.texel_direct_pairs > 0 && area_only && d.probe_lights.size() == d.sources.size();
     const bool texels_kept = texels_on && !all_faces && d.texels;
+    // A full update: the lights' polygons and the real faces stay, only the emissions change; the
+    // cache keeps its visibility and forgets what the objects reached since its last textures.
+    std::vector<TexelDirectCache::Light> lights;
+    std::vector<Face> real_faces;
+    if (texels_on && !texels_kept) {
+        for (std::size_t k = 0; k < d.sources.size(); ++k) lights.push_back({d.sources[k].direct.polygon, d.probe_lights[k].emission});
+        for (std::size_t f = 0; f < faces; ++f) real_faces.push_back(rad.face(static_cast<int>(f)));
+    }
+    const bool texels_renewed = texels_on && !texels_kept && d.texels && d.texels->sameGeometry(lights, real_faces);
     {
         ScopedMs timer(stats_.ms_influence);
         // Once the objects are committed at their new poses, the texels' answers a move reached go,
@@ -235,8 +244,8 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
             }
         } wait_ahead{ahead};
         const auto committed = [&] {
-            if (!texels_kept) return;
-            d.texels->forget(d.influence->movedBalls());
+            if (!texels_kept && !texels_renewed) return;
+            d.texels->forget(texels_kept ? d.influence->movedBalls() : d.texels->movedSinceSeen());
             ahead.run([&d] { d.texels->prefetch(); });
         };
         CL_TRY(stats_.influence, d.influence->update(objects, viewer, committed));
@@ -268,17 +277,15 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     long traced_before = 0;  // (TexelDirectCache::traced() before this update's textures)
     std::vector<Eigen::Vector3d> area_with;
     if (texels_on) {
-        if (!texels_kept) {
-            std::vector<TexelDirectCache::Light> lights;
-            for (std::size_t k = 0; k < d.sources.size(); ++k) lights.push_back({d.sources[k].direct.polygon, d.probe_lights[k].emission});
+        if (texels_renewed) {
+            d.texels->renew(std::move(lights));
+        } else if (!texels_kept) {
             d.texels = std::make_unique<TexelDirectCache>(*rays_, options_.texel_direct_pairs);
-            std::vector<Face> real_faces;
-            for (std::size_t f = 0; f < faces; ++f) real_faces.push_back(rad.face(static_cast<int>(f)));
             d.texels->reset(std::move(lights), std::move(real_faces));
         }
         // Per element: the lights' sum (its columns' direct light) and that plus the objects' share.
         // The sums depend on the element's number, the columns and the emissions alone, which stand
-        // until the next full update (a new cache): kept, and made only for elements added since
+        // until the next full update (new emissions: the cache renewed or made anew): kept, and made only for elements added since
         // (refinement appends them). In parallel (each element its own sums; the largest is a
         // maximum, the same in any order).
         const std::size_t n = rad.hierarchy().elements().size();
@@ -347,6 +354,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
                                  256, texel_direct ? &*texel_direct : nullptr);
         },
         [&] { probes = buildProbes(rad, d.scene, inf.radiance(), d.probe_lights, 256, &d.probe_memories); });
+    if (d.texels) d.texels->seen();
     stats_.texels_built = stats_.texels = 0;
     stats_.texels_traced = d.texels ? d.texels->traced() - traced_before : 0;
     for (int f : todo) {

@@ -465,9 +465,17 @@ bool RayScene::virtualBall(int index, Eigen::Vector3d& centre, double& radius) c
 
 void RayScene::setVirtualPose(int index, const Rigid3d& world_from_object) {
     const auto i = static_cast<std::size_t>(index);
-    impl_->pending_poses.at(i) = world_from_object.matrix().cast<float>();
+    const Eigen::Matrix4f pose = world_from_object.matrix().cast<float>();
+    const Eigen::Vector3d mesh_centre = world_from_object * impl_->mesh_centre_object[i];
+    // The pose the object has (nothing pending): no change, no new stamp (callers set every
+    // object's pose, moved or not).
+    if (!impl_->pose_dirty[i] && impl_->pending_poses.at(i) == pose && impl_->pending_centre[i] == world_from_object.translation &&
+        impl_->pending_mesh_centre[i] == mesh_centre) {
+        return;
+    }
+    impl_->pending_poses.at(i) = pose;
     impl_->pending_centre[i] = world_from_object.translation;
-    impl_->pending_mesh_centre[i] = world_from_object * impl_->mesh_centre_object[i];
+    impl_->pending_mesh_centre[i] = mesh_centre;
     impl_->pose_dirty[i] = true;
 }
 

@@ -78,7 +78,8 @@ public:
     RayScene(const RayScene&) = delete;
     RayScene& operator=(const RayScene&) = delete;
 
-    // Moves virtual object `index`; takes effect at the next commitVirtual(). Lighting thread only.
+    // Moves virtual object `index`; takes effect at the next commitVirtual() (the pose it has, with
+    // nothing pending: no change, no new stamp). Lighting thread only.
     void setVirtualPose(int index, const Rigid3d& world_from_object);
     // Takes virtual object `index` out of every scene (false) or puts it back (true); takes effect
     // at the next commitVirtual(). Lighting thread only.

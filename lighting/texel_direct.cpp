@@ -54,6 +54,70 @@ void TexelDirectCache::reset(std::vector<Light> lights, std::vector<Face> faces)
     prefetch_used_ = 0;
 }
 
+bool TexelDirectCache::sameGeometry(const std::vector<Light>& lights, const std::vector<Face>& faces) const {
+    // (The polygons are the estimator's, made once and never changed: the same pointers are the
+    // same lights.)
+    if (lights.size() != lights_.size() || faces.size() != faces_.size()) return false;
+    for (std::size_t k = 0; k < lights.size(); ++k) {
+        if (lights[k].polygon != lights_[k].polygon) return false;
+    }
+    for (std::size_t f = 0; f < faces.size(); ++f) {
+        const Face& a = faces[f];
+        const Face& b = faces_[f].geometry;
+        if (a.origin != b.origin || a.edge_s != b.edge_s || a.edge_t != b.edge_t || a.normal != b.normal || a.triangle != b.triangle) return false;
+    }
+    return true;
+}
+
+void TexelDirectCache::renew(std::vector<Light> lights) {
+    constexpr double kPi = std::numbers::pi;
+    lights_ = std::move(lights);
+    const std::size_t nl = lights_.size();
+    for (FaceState& f : faces_) {
+        f.gone.clear();
+        f.all_gone = false;
+        // at()'s sums (over the lights in order, each term as it adds it) from the kept fractions.
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, f.entries.size(), 1024), [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t t = r.begin(); t < r.end(); ++t) {
+                Entry& e = f.entries[t];
+                if (!e.real) continue;
+                Eigen::Vector3d without = Eigen::Vector3d::Zero(), with = Eigen::Vector3d::Zero();
+                for (std::size_t k = 0; k < nl; ++k) {
+                    const RealPart& part = f.parts[t * nl + k];
+                    if (!(part.form > 0.0) || !(part.all > 0.0)) continue;
+                    without += kPi * part.form * (part.open / part.all) * lights_[k].emission;
+                    with += kPi * part.form * (part.both / part.all) * lights_[k].emission;
+                }
+                e.without = without;
+                if (e.valid) e.with = with;
+            }
+        });
+    }
+}
+
+void TexelDirectCache::seen() {
+    seen_stamp_ = rays_.virtualStamp();
+    seen_balls_.assign(rays_.virtualCount(), std::nullopt);
+    for (std::size_t v = 0; v < seen_balls_.size(); ++v) {
+        Ball b;
+        if (rays_.virtualBall(static_cast<int>(v), b.centre, b.radius)) seen_balls_[v] = b;
+    }
+}
+
+std::vector<Ball> TexelDirectCache::movedSinceSeen() const {
+    // (Bits are by index modulo 32: with more objects, or before the first seen(), every object.)
+    const std::size_t count = rays_.virtualCount();
+    const std::uint32_t changed = seen_stamp_ != 0 && count <= 32 && seen_balls_.size() == count ? rays_.virtualChangedSince(seen_stamp_) : ~0u;
+    std::vector<Ball> out;
+    for (std::size_t v = 0; v < count; ++v) {
+        if ((changed & RayScene::virtualBit(static_cast<int>(v))) == 0) continue;
+        if (v < seen_balls_.size() && seen_balls_[v]) out.push_back(*seen_balls_[v]);
+        Ball now;
+        if (rays_.virtualBall(static_cast<int>(v), now.centre, now.radius)) out.push_back(now);
+    }
+    return out;
+}
+
 void TexelDirectCache::forget(const std::vector<Ball>& moved) {
     ++round_;
     if (moved.empty()) return;
@@ -236,6 +300,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
         const bool clear = all_balls && std::none_of(balls.begin(), balls.begin() + static_cast<std::ptrdiff_t>(ball_count),
                                                      [&](const Ball& b) { return shaftMeetsBall(cone, b); });
         if (same_point && clear) {
+            part.both = part.open;
             if (part.all > 0.0) with += kPi * part.form * (part.open / part.all) * lights_[k].emission;
             continue;
         }
@@ -309,6 +374,7 @@ void TexelDirectCache::at(int face, std::size_t texel, int width, int height, co
             if (!rays_.occludedVirtual(segments[static_cast<std::size_t>(j)], *set)) open_both += w;
         }
         if (!same_point) part.open = open_real;
+        part.both = open_both;
         if (!(part.all > 0.0)) continue;
         if (!same_point) without += kPi * part.form * (open_real / part.all) * lights_[k].emission;
         with += kPi * part.form * (open_both / part.all) * lights_[k].emission;

@@ -8,7 +8,8 @@
 // A texel's answer is kept while no object that moved had its old or new bounds in the shaft
 // between the texel's point and a light (the influence's rule, lighting/influence.h), so a move
 // traces the texels it reaches; and of those, only the virtual rays: the form factor and which
-// pairs the real scene blocks are kept (the real scene does not change between full updates). Lighting thread only; at() is called in parallel for distinct texels.
+// pairs the real scene blocks are kept (the real scene does not change), across full updates too:
+// their new emissions are applied to each texel's kept fractions (renew()). Lighting thread only; at() is called in parallel for distinct texels.
 #pragma once
 
 #include <array>
@@ -16,6 +17,7 @@
 #include <cstdint>
 #include <deque>
 #include <mutex>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -39,6 +41,20 @@ public:
     // at() takes its texels' points on (texel (i, j) of a w x h layout at s = (i + 0.5) / w,
     // t = (j + 0.5) / h: forget() bounds tiles of texels by them).
     void reset(std::vector<Light> lights, std::vector<Face> faces);
+    // Whether `lights` are the cache's polygons in its order and `faces` its faces: then a full
+    // update keeps the visibility (renew()) instead of tracing every texel again (reset()).
+    bool sameGeometry(const std::vector<Light>& lights, const std::vector<Face>& faces) const;
+    // A full update with sameGeometry() lights and new emissions: every answer is made again from
+    // its kept visibility, as at() would make it with these emissions (the same sums in the same
+    // order); the answers forget() took stay to be traced. Every face's texture is built anew after
+    // it, so the forgotten lists start again. The moves since the last textures must have been
+    // forgotten first (movedSinceSeen(): a full update's influence starts afresh).
+    void renew(std::vector<Light> lights);
+    // After an update's textures: the virtual objects as committed now are those the answers stand
+    // for. movedSinceSeen(): the balls then and now of every object committed since with another
+    // pose or presence (every object before the first seen()).
+    void seen();
+    std::vector<Ball> movedSinceSeen() const;
     // Before the textures of an update: the answers whose shafts meet any of `moved` go (tested
     // by tiles of texels first: most of a face is far from a move).
     void forget(const std::vector<Ball>& moved);
@@ -81,6 +97,7 @@ private:
         double all = 0.0;            // kernel weight of the pairs
         std::uint64_t blocked = 0;   // pairs the real scene blocks (bit j), or with no weight
         double open = 0.0;           // kernel weight of the pairs it leaves open (summed in order)
+        double both = 0.0;           // ... and of those the virtual objects leave open too (while the entry is valid)
     };
     struct FaceState {
         lighting::Face geometry;
@@ -117,6 +134,8 @@ private:
     std::atomic<long> traced_{0};
     std::uint32_t round_ = 1;  // forget() calls since the last reset(), plus one
     std::atomic<long> prefetched_{0}, prefetch_used_{0};
+    std::uint64_t seen_stamp_ = 0;                 // the scene's stamp at the last seen() (0: never)
+    std::vector<std::optional<Ball>> seen_balls_;  // by virtual object, then (none: disabled)
 };
 
 }  // namespace commonlight::lighting

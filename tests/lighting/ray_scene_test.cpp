@@ -497,7 +497,8 @@ TEST(RayScene, MeshBoundingBallKeepsEmbreesAnswer) {
 // The change stamps (virtualStamp(), virtualChangedSince(), virtualChangedLast()): answers kept
 // against an object hold until its pose or presence changes. After build() every object counts
 // as changed; a commit marks the moved, removed and brought-back objects alone; a commit with
-// nothing pending keeps the stamp; a second scene's stamps are all later.
+// nothing pending, or with poses set to those the objects have, keeps the stamp; a second
+// scene's stamps are all later.
 TEST(RayScene, ChangeStampsMarkTheChangedObjectsAlone) {
     VirtualShape sphere;
     sphere.sphere_radius = 0.3;
@@ -518,10 +519,17 @@ TEST(RayScene, ChangeStampsMarkTheChangedObjectsAlone) {
     EXPECT_EQ(rays.virtualChangedLast(), b0);
     EXPECT_EQ(rays.virtualChangedSince(s0), b0);
     EXPECT_EQ(rays.virtualChangedSince(s1), 0u);
-    // Nothing pending: the same stamp and the same last change.
+    // Nothing pending: the same stamp and the same last change; nor when every object is set
+    // where it is (the estimator sets every pose, moved or not).
     ASSERT_TRUE(rays.commitVirtual());
     EXPECT_EQ(rays.virtualStamp(), s1);
     EXPECT_EQ(rays.virtualChangedLast(), b0);
+    move(0, 1.0);
+    move(1, 0.0);
+    rays.setVirtualPose(2, Rigid3d{});
+    ASSERT_TRUE(rays.commitVirtual());
+    EXPECT_EQ(rays.virtualStamp(), s1);
+    EXPECT_EQ(rays.virtualChangedSince(s1), 0u);
     // A cube removed (presence), then brought back, then the other cube moved.
     rays.setVirtualEnabled(1, false);
     ASSERT_TRUE(rays.commitVirtual());

@@ -22,6 +22,7 @@
 #include "lighting/form_factor.h"
 #include "lighting/sampling.h"
 #include "lighting/tile_marks.h"
+#include "texel_direct_support.h"
 
 namespace commonlight::lighting {
 namespace {
@@ -338,29 +339,6 @@ TEST(TexelDirect, HeldSnapshotsKeepTheirTexturesWhileLaterMovesAreBuilt) {
 // forget() culls by tiles of texels before testing each texel's shafts: the texels it lists (and
 // only those) are the ones whose shaft to the light meets a moved ball, against a scan of every
 // texel; the first list after reset() is "any" (false), and a texel traced again is kept again.
-// A square floor of side 2 h about the origin (z = 0, facing up), and a square lamp of side `side`
-// facing down, centred at `centre`.
-Face squareFloor(double h) {
-    Face floor;
-    floor.origin = {-h, -h, 0.0};
-    floor.edge_s = {2 * h, 0, 0};
-    floor.edge_t = {0, 2 * h, 0};
-    floor.normal = {0, 0, 1};
-    floor.area = 4 * h * h;
-    return floor;
-}
-
-LightGeometry squareLamp(const Eigen::Vector3d& centre, double side) {
-    LightGeometry lamp;
-    lamp.world_from_object = Rigid3d::fromRpyDeg(centre, Eigen::Vector3d(180, 0, 0));
-    lamp.size = {side, side};
-    lamp.centre = centre;
-    lamp.normal = {0, 0, -1};
-    lamp.area = side * side;
-    const double h = 0.5 * side;
-    for (const auto& [x, y] : {std::pair{-h, -h}, {h, -h}, {h, h}, {-h, h}}) lamp.polygon.push_back(lamp.world_from_object * Eigen::Vector3d(x, y, 0));
-    return lamp;
-}
 
 TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
     const Face floor = squareFloor(0.6);
