@@ -153,6 +153,7 @@ Result<void> BundleOptions::validate() const {
     CL_TRY_VOID(requirePositive(outlier_px, "BundleOptions", "outlier_px"));
     CL_TRY_VOID(requirePositive(corner_sigma_px, "BundleOptions", "corner_sigma_px"));
     if (max_iterations < 1) return fail(ErrorCode::kUsage, "bundle max_iterations must be >= 1");
+    if (!(predicted_minimum_deg >= 0.0)) return fail(ErrorCode::kUsage, "bundle predicted_minimum_deg must be >= 0");
     return {};
 }
 
@@ -244,6 +245,9 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
             if (cost < fit_cost && !candidate.abandoned) {
                 fit_cost = cost;
                 fit = std::move(candidate);
+                if (predicted && rotationErrorDeg(fit.cam_from_local, *predicted * world_from_local) < options.predicted_minimum_deg) {
+                    break;
+                }
             }
         }
         if (!std::isfinite(fit_cost)) return fail(ErrorCode::kBadInput, "bundle: the solution does not reproject the corners");

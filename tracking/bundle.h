@@ -34,6 +34,12 @@ struct BundleOptions {
     // A start that cannot end below an earlier start's cost is given up (bundle.cpp's refine; the
     // same result up to rounding where it would have reached the winner's own minimum).
     bool give_up_hopeless_starts = true;
+    // With a prediction: once the best fit so far lies within this many degrees of it, the
+    // remaining starts (other minima: the planar ambiguity of the whole board) are not refined.
+    // The tracker's prediction is the motion model's: a pose near it is the one tracked, and a
+    // start refined to the same minimum adds nothing (docs/tracking.md, "Speed (issue 13)",
+    // change 22). 0: every distinct start is refined.
+    double predicted_minimum_deg = 2.0;
     Result<void> validate() const;
 };
 
