@@ -2,9 +2,10 @@
 //
 // Step 1 collects the corners of tags the scene places (world_from_tag); tags it does not know
 // are listed and ignored. Step 2 starts from each tag's single-tag candidates (and the temporal
-// prediction) mapped to the world, keeping the start with the smallest robust cost over all
-// corners. Step 3 runs Levenberg-Marquardt with Huber weights on the reprojection error in the
-// distorted image. Step 4 rejects the worst tag while its RMS exceeds the outlier threshold (a
+// prediction) mapped to the world, ranked by their robust cost over all corners. Step 3 runs
+// Levenberg-Marquardt with Huber weights on the reprojection error in the distorted image from
+// each distinct start (at most three), the lowest final cost winning; with a prediction, the
+// starts left once the best fit lies near it are not refined (predicted_minimum_deg). Step 4 rejects the worst tag while its RMS exceeds the outlier threshold (a
 // misplaced or moved tag, a wrong decoding) and solves again. The covariance comes from the
 // Jacobian at the solution (pose_types.h convention).
 //
