@@ -245,7 +245,9 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
             if (cost < fit_cost && !candidate.abandoned) {
                 fit_cost = cost;
                 fit = std::move(candidate);
-                if (predicted && rotationErrorDeg(fit.cam_from_local, *predicted * world_from_local) < options.predicted_minimum_deg) {
+                // Near the prediction: the minimum tracked (BundleOptions::predicted_minimum_deg).
+                if (predicted &&
+                    rotationErrorDeg(fit.cam_from_local, *predicted * world_from_local) < options.predicted_minimum_deg) {
                     break;
                 }
             }

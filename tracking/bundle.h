@@ -5,9 +5,10 @@
 // prediction) mapped to the world, ranked by their robust cost over all corners. Step 3 runs
 // Levenberg-Marquardt with Huber weights on the reprojection error in the distorted image from
 // each distinct start (at most three), the lowest final cost winning; with a prediction, the
-// starts left once the best fit lies near it are not refined (predicted_minimum_deg). Step 4 rejects the worst tag while its RMS exceeds the outlier threshold (a
-// misplaced or moved tag, a wrong decoding) and solves again. The covariance comes from the
-// Jacobian at the solution (pose_types.h convention).
+// starts left once the best fit lies near it are not refined (predicted_minimum_deg). Step 4
+// rejects the worst tag while its RMS exceeds the outlier threshold (a misplaced or moved tag, a
+// wrong decoding) and solves again. The covariance comes from the Jacobian at the solution
+// (pose_types.h convention).
 //
 // Hard cases: world coordinates far from the origin (1 km) are solved about the tags' centroid,
 // so nothing cancels catastrophically; a single tag is allowed (8 corners' worth of
