@@ -292,9 +292,10 @@ TEST(Bundle, AHopelessStartIsGivenUpWithoutChangingTheResult) {
     EXPECT_LT(steps, 0.5 * steps_all);
 }
 
-// With a prediction, the starts left once the best fit lies within predicted_minimum_deg (2) of
-// it are not refined (issue 13, change 22): the same pose as refining every start, in fewer
-// steps; a prediction further off than that leaves every start refined, as before.
+// With a prediction, its own start is refined first and, ending within predicted_minimum_deg (2)
+// of it, is the answer; else the starts are ranked and refined until the best fit lies that near
+// (issue 13, change 22): the same pose as refining every start, in fewer steps; a prediction
+// further off than that leaves every start refined, as before.
 TEST(Bundle, StartsBeyondTheMinimumNearThePredictionAreNotRefined) {
     const CameraModel cam = camera();
     const TagSet tags = board(Vector3d::Zero());
@@ -315,22 +316,24 @@ TEST(Bundle, StartsBeyondTheMinimumNearThePredictionAreNotRefined) {
         const auto fast = solveBundle(bt, tags, cam, near);
         const auto every = solveBundle(bt, tags, cam, near, all);
         ASSERT_TRUE(fast && every);
-        // The same minimum (a start refined to it from elsewhere stops a rounding error apart).
-        EXPECT_LT(rotationErrorDeg(fast->cam_from_world, every->cam_from_world), 1e-7) << "trial " << trial;
-        EXPECT_LT((fast->cam_from_world.translation - every->cam_from_world.translation).norm(), 1e-9);
+        // The same minimum (LM from another start stops up to 1.4e-7 degrees and 1.9e-9 m apart).
+        EXPECT_LT(rotationErrorDeg(fast->cam_from_world, every->cam_from_world), 1e-6) << "trial " << trial;
+        EXPECT_LT((fast->cam_from_world.translation - every->cam_from_world.translation).norm(), 1e-8);
         EXPECT_LT(rotationErrorDeg(fast->cam_from_world, truth), 2.0);  // not the board's other minimum
         EXPECT_EQ(fast->tags_used, every->tags_used);
         EXPECT_LE(fast->iterations_all_starts, every->iterations_all_starts);
         steps += fast->iterations_all_starts;
         steps_all += every->iterations_all_starts;
         fewer += fast->iterations_all_starts < every->iterations_all_starts;
-        // A prediction 10 degrees off: no fit lies near it, every start is refined.
+        // A prediction 10 degrees off: no fit lies near it, every start is refined (after the
+        // prediction's own).
         const Rigid3d off = expSe3((Vector6d() << 0.12, -0.12, 0.0, 0.0, 0.0, 0.0).finished()) * truth;
         const auto far_fast = solveBundle(bt, tags, cam, off);
         const auto far_every = solveBundle(bt, tags, cam, off, all);
         ASSERT_TRUE(far_fast && far_every);
-        EXPECT_EQ(far_fast->iterations_all_starts, far_every->iterations_all_starts) << "trial " << trial;
-        EXPECT_EQ(rotationErrorDeg(far_fast->cam_from_world, far_every->cam_from_world), 0.0);
+        EXPECT_GE(far_fast->iterations_all_starts, far_every->iterations_all_starts) << "trial " << trial;
+        EXPECT_LT(rotationErrorDeg(far_fast->cam_from_world, far_every->cam_from_world), 1e-7) << "trial " << trial;
+        EXPECT_LT((far_fast->cam_from_world.translation - far_every->cam_from_world.translation).norm(), 1e-9);
     }
     std::printf("  LM steps over every start, predicted: %d with the stop, %d without; fewer in %d of 40 frames\n",
                 steps, steps_all, fewer);
