@@ -153,6 +153,7 @@ Result<void> BundleOptions::validate() const {
     CL_TRY_VOID(requirePositive(outlier_px, "BundleOptions", "outlier_px"));
     CL_TRY_VOID(requirePositive(corner_sigma_px, "BundleOptions", "corner_sigma_px"));
     if (max_iterations < 1) return fail(ErrorCode::kUsage, "bundle max_iterations must be >= 1");
+    if (!(predicted_minimum_deg >= 0.0)) return fail(ErrorCode::kUsage, "bundle predicted_minimum_deg must be >= 0");
     return {};
 }
 
@@ -202,51 +203,81 @@ Result<BundleResult> solveBundle(std::span<const BundleTag> tags, const TagSet& 
                 points.push_back({p_world - centroid, u.tag->detection->corners[c], i, u.tag->weight});
             }
         }
-        // Step 2: the best start.
-        std::vector<Rigid3d> starts;
-        if (predicted) starts.push_back(*predicted * world_from_local);
-        for (int i : active) {
-            const Used& u = used[static_cast<std::size_t>(i)];
-            if (!u.tag->single) continue;
-            // local_from_tag = local_from_world * world_from_tag, exact in double about the centroid.
-            const Rigid3d tag_from_local = (local_from_world * u.item->world_from_tag).inverse();
-            for (const TagPoseCandidate& c : u.tag->single->candidates) starts.push_back(c.cam_from_tag * tag_from_local);
-        }
-        // The starts in order of their cost; distinct ones (more than 2 degrees apart) are each
-        // refined, and the lowest final cost wins: a board of small coplanar tags has two minima
-        // (the planar ambiguity of the whole board), and the start that is better before the
-        // refinement is not always the one that is better after it.
-        std::vector<std::pair<double, const Rigid3d*>> ranked;
-        for (const Rigid3d& st : starts) {
-            const double cost = robustCost(points, camera, st, options.huber_px);
-            if (std::isfinite(cost)) ranked.emplace_back(cost, &st);
-        }
-        if (ranked.empty()) return fail(ErrorCode::kBadInput, "bundle: no start pose puts the tags in front of the camera");
-        std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
-        std::vector<const Rigid3d*> distinct;
-        for (const auto& [cost, st] : ranked) {
-            const bool seen = std::any_of(distinct.begin(), distinct.end(),
-                                          [&](const Rigid3d* d) { return rotationErrorDeg(*d, *st) < 2.0; });
-            if (!seen) distinct.push_back(st);
-            if (distinct.size() == 3) break;
-        }
-
-        // Step 3: robust LM from each.
         Fit fit;
         double fit_cost = std::numeric_limits<double>::infinity();
         int iterations_all_starts = 0;
-        for (const Rigid3d* st : distinct) {
-            Fit candidate = refine(points, camera, *st, options,
-                                   RefineStop{options.give_up_hopeless_starts ? fit_cost
-                                                                              : std::numeric_limits<double>::infinity()});
-            iterations_all_starts += candidate.iterations;
-            const double cost = candidate.cost;
-            if (cost < fit_cost && !candidate.abandoned) {
-                fit_cost = cost;
-                fit = std::move(candidate);
+        // With a prediction, its own start first: refined to within predicted_minimum_deg of it, it
+        // is the minimum tracked, and no other start is ranked or refined
+        // (BundleOptions::predicted_minimum_deg).
+        bool settled = false;
+        if (predicted && options.predicted_minimum_deg > 0.0) {
+            const Rigid3d start = *predicted * world_from_local;
+            if (std::isfinite(robustCost(points, camera, start, options.huber_px))) {
+                Fit candidate = refine(points, camera, start, options, RefineStop{fit_cost});
+                iterations_all_starts += candidate.iterations;
+                if (!candidate.abandoned && std::isfinite(candidate.cost) &&
+                    rotationErrorDeg(candidate.cam_from_local, start) < options.predicted_minimum_deg) {
+                    fit_cost = candidate.cost;
+                    fit = std::move(candidate);
+                    settled = true;
+                }
             }
         }
-        if (!std::isfinite(fit_cost)) return fail(ErrorCode::kBadInput, "bundle: the solution does not reproject the corners");
+        if (!settled) {
+            // Step 2: the best start.
+            std::vector<Rigid3d> starts;
+            if (predicted) starts.push_back(*predicted * world_from_local);
+            for (int i : active) {
+                const Used& u = used[static_cast<std::size_t>(i)];
+                if (!u.tag->single) continue;
+                // local_from_tag = local_from_world * world_from_tag, exact in double about the centroid.
+                const Rigid3d tag_from_local = (local_from_world * u.item->world_from_tag).inverse();
+                for (const TagPoseCandidate& c : u.tag->single->candidates) {
+                    starts.push_back(c.cam_from_tag * tag_from_local);
+                }
+            }
+            // The starts in order of their cost; distinct ones (more than 2 degrees apart) are each
+            // refined, and the lowest final cost wins: a board of small coplanar tags has two minima
+            // (the planar ambiguity of the whole board), and the start that is better before the
+            // refinement is not always the one that is better after it.
+            std::vector<std::pair<double, const Rigid3d*>> ranked;
+            for (const Rigid3d& st : starts) {
+                const double cost = robustCost(points, camera, st, options.huber_px);
+                if (std::isfinite(cost)) ranked.emplace_back(cost, &st);
+            }
+            if (ranked.empty()) {
+                return fail(ErrorCode::kBadInput, "bundle: no start pose puts the tags in front of the camera");
+            }
+            std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+            std::vector<const Rigid3d*> distinct;
+            for (const auto& [cost, st] : ranked) {
+                const bool seen = std::any_of(distinct.begin(), distinct.end(),
+                                              [&](const Rigid3d* d) { return rotationErrorDeg(*d, *st) < 2.0; });
+                if (!seen) distinct.push_back(st);
+                if (distinct.size() == 3) break;
+            }
+
+            // Step 3: robust LM from each.
+            for (const Rigid3d* st : distinct) {
+                const double to_beat =
+                    options.give_up_hopeless_starts ? fit_cost : std::numeric_limits<double>::infinity();
+                Fit candidate = refine(points, camera, *st, options, RefineStop{to_beat});
+                iterations_all_starts += candidate.iterations;
+                const double cost = candidate.cost;
+                if (cost < fit_cost && !candidate.abandoned) {
+                    fit_cost = cost;
+                    fit = std::move(candidate);
+                    // Near the prediction: the minimum tracked (BundleOptions::predicted_minimum_deg).
+                    if (predicted && rotationErrorDeg(fit.cam_from_local, *predicted * world_from_local) <
+                                         options.predicted_minimum_deg) {
+                        break;
+                    }
+                }
+            }
+        }
+        if (!std::isfinite(fit_cost)) {
+            return fail(ErrorCode::kBadInput, "bundle: the solution does not reproject the corners");
+        }
 
         // Step 4: the worst tag, rejected while it is an outlier and others remain.
         std::vector<double> sum(used.size(), 0.0);

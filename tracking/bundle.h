@@ -2,11 +2,13 @@
 //
 // Step 1 collects the corners of tags the scene places (world_from_tag); tags it does not know
 // are listed and ignored. Step 2 starts from each tag's single-tag candidates (and the temporal
-// prediction) mapped to the world, keeping the start with the smallest robust cost over all
-// corners. Step 3 runs Levenberg-Marquardt with Huber weights on the reprojection error in the
-// distorted image. Step 4 rejects the worst tag while its RMS exceeds the outlier threshold (a
-// misplaced or moved tag, a wrong decoding) and solves again. The covariance comes from the
-// Jacobian at the solution (pose_types.h convention).
+// prediction) mapped to the world, ranked by their robust cost over all corners. Step 3 runs
+// Levenberg-Marquardt with Huber weights on the reprojection error in the distorted image from
+// each distinct start (at most three), the lowest final cost winning; with a prediction, its own
+// start is refined first and, ending near it, is the answer (predicted_minimum_deg). Step 4
+// rejects the worst tag while its RMS exceeds the outlier threshold (a misplaced or moved tag, a
+// wrong decoding) and solves again. The covariance comes from the Jacobian at the solution
+// (pose_types.h convention).
 //
 // Hard cases: world coordinates far from the origin (1 km) are solved about the tags' centroid,
 // so nothing cancels catastrophically; a single tag is allowed (8 corners' worth of
@@ -34,6 +36,14 @@ struct BundleOptions {
     // A start that cannot end below an earlier start's cost is given up (bundle.cpp's refine; the
     // same result up to rounding where it would have reached the winner's own minimum).
     bool give_up_hopeless_starts = true;
+    // With a prediction, its own start is refined first: ending within this many degrees of it,
+    // it is the answer, and the other starts (other minima: the planar ambiguity of the whole
+    // board) are neither ranked nor refined; else the starts are ranked and refined as without a
+    // prediction, until the best fit so far lies that near it. The tracker's prediction is the
+    // motion model's: a pose near it is the one tracked, and a start refined to the same minimum
+    // adds nothing (docs/tracking.md, "Speed (issue 13)", change 22). 0: every distinct start is
+    // ranked and refined.
+    double predicted_minimum_deg = 2.0;
     Result<void> validate() const;
 };
 

@@ -292,6 +292,55 @@ TEST(Bundle, AHopelessStartIsGivenUpWithoutChangingTheResult) {
     EXPECT_LT(steps, 0.5 * steps_all);
 }
 
+// With a prediction, its own start is refined first and, ending within predicted_minimum_deg (2)
+// of it, is the answer; else the starts are ranked and refined until the best fit lies that near
+// (issue 13, change 22): the same pose as refining every start, in fewer steps; a prediction
+// further off than that leaves every start refined, as before.
+TEST(Bundle, StartsBeyondTheMinimumNearThePredictionAreNotRefined) {
+    const CameraModel cam = camera();
+    const TagSet tags = board(Vector3d::Zero());
+    std::mt19937 rng(23);
+    BundleOptions all;
+    all.predicted_minimum_deg = 0.0;
+    int steps = 0, steps_all = 0, fewer = 0;
+    for (int trial = 0; trial < 40; ++trial) {
+        const Vector3d eye(0.2 * (trial % 5) - 0.4, -0.3 - 0.05 * (trial % 3), 1.5 + 0.1 * (trial % 4));
+        auto world_from_cam = worldFromCamLookingAt(eye, Vector3d(0.02 * (trial % 3), 0, 0.75));
+        ASSERT_TRUE(world_from_cam);
+        const Rigid3d truth = world_from_cam->inverse();
+        const Frame f = observe(cam, tags, truth, 0.4, rng);
+        const auto bt = bundleTags(f);
+        // A motion model's prediction: 0.3-0.6 degrees and a few mm off.
+        const double a = 0.005 + 0.0025 * (trial % 3);
+        const Rigid3d near = expSe3((Vector6d() << a, -a, 0.5 * a, 0.003, -0.002, 0.004).finished()) * truth;
+        const auto fast = solveBundle(bt, tags, cam, near);
+        const auto every = solveBundle(bt, tags, cam, near, all);
+        ASSERT_TRUE(fast && every);
+        // The same minimum (LM from another start stops up to 1.4e-7 degrees and 1.9e-9 m apart).
+        EXPECT_LT(rotationErrorDeg(fast->cam_from_world, every->cam_from_world), 1e-6) << "trial " << trial;
+        EXPECT_LT((fast->cam_from_world.translation - every->cam_from_world.translation).norm(), 1e-8);
+        EXPECT_LT(rotationErrorDeg(fast->cam_from_world, truth), 2.0);  // not the board's other minimum
+        EXPECT_EQ(fast->tags_used, every->tags_used);
+        EXPECT_LE(fast->iterations_all_starts, every->iterations_all_starts);
+        steps += fast->iterations_all_starts;
+        steps_all += every->iterations_all_starts;
+        fewer += fast->iterations_all_starts < every->iterations_all_starts;
+        // A prediction 10 degrees off: no fit lies near it, every start is refined (after the
+        // prediction's own).
+        const Rigid3d off = expSe3((Vector6d() << 0.12, -0.12, 0.0, 0.0, 0.0, 0.0).finished()) * truth;
+        const auto far_fast = solveBundle(bt, tags, cam, off);
+        const auto far_every = solveBundle(bt, tags, cam, off, all);
+        ASSERT_TRUE(far_fast && far_every);
+        EXPECT_GE(far_fast->iterations_all_starts, far_every->iterations_all_starts) << "trial " << trial;
+        EXPECT_LT(rotationErrorDeg(far_fast->cam_from_world, far_every->cam_from_world), 1e-7) << "trial " << trial;
+        EXPECT_LT((far_fast->cam_from_world.translation - far_every->cam_from_world.translation).norm(), 1e-9);
+    }
+    std::printf("  LM steps over every start, predicted: %d with the stop, %d without; fewer in %d of 40 frames\n",
+                steps, steps_all, fewer);
+    EXPECT_GE(fewer, 30);
+    EXPECT_LT(steps, 0.8 * steps_all);
+}
+
 // The projection's Jacobian (the distortion's part analytic since issue 13's pass 11) against
 // central differences of CameraModel::project, with every distortion term.
 TEST(Bundle, ProjectionJacobianMatchesDifferences) {
