@@ -102,7 +102,12 @@ Result<void> LightingStage::submit(const ImageView& rgb8, const FrameMetadata& m
 Result<void> LightingStage::process(const ImageView& rgb8, const FrameMetadata& meta,
                                     const std::optional<Rigid3d>& cam_from_world,
                                     const std::vector<Rigid3d>& virtual_poses) {
-    CL_TRY_VOID(submit(rgb8, meta, cam_from_world, virtual_poses));
+    if (warmed_ && *warmed_ == meta.timestamp_ns) {
+        warmed_.reset();  // (observed by warmUp(): the objects' poses alone)
+        engine_->setVirtualPoses(virtual_poses);
+    } else {
+        CL_TRY_VOID(submit(rgb8, meta, cam_from_world, virtual_poses));
+    }
     ++frames_;
     if (have_truth_ && cam_from_world && (frames_ - 1) % 5 == 0) return measure(rgb8, meta, *cam_from_world);
     return {};
@@ -112,6 +117,7 @@ Result<void> LightingStage::warmUp(const ImageView& rgb8, const FrameMetadata& m
                                    const std::vector<Rigid3d>& virtual_poses, double timeout_s) {
     const std::uint64_t before = engine_->stats().updates;
     CL_TRY_VOID(submit(rgb8, meta, cam_from_world, virtual_poses));
+    warmed_ = meta.timestamp_ns;
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
     while (engine_->stats().updates == before) {
         if (std::optional<Error> error = engine_->lastError()) return fail(std::move(*error));

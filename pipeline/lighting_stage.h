@@ -60,8 +60,9 @@ public:
     void stop();
     // Real time, before the first frame: the lighting thread's first update from this frame, waited
     // for (at most `timeout_s`), so the frames that follow are drawn lit instead of waiting for the
-    // first full update (about a second on the sample). Not counted among the frames processed.
-    // Errors: the update's (kBadInput ...), kTimeout.
+    // first full update (about a second on the sample). Not counted among the frames processed;
+    // when the same frame (its timestamp) then comes to process(), it is counted and measured but
+    // not observed again. Errors: the update's (kBadInput ...), kTimeout.
     Result<void> warmUp(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world,
                         const std::vector<Rigid3d>& virtual_poses, double timeout_s);
 
@@ -85,6 +86,7 @@ private:
     bool have_truth_ = false;
     RatioErrors ratio_errors_;
     std::uint64_t frames_ = 0;
+    std::optional<std::int64_t> warmed_;  // the timestamp of warmUp()'s frame, until process() has it
 };
 
 }  // namespace commonlight::pipeline
