@@ -23,19 +23,13 @@ namespace {
 // afresh with the new emissions and the ball where it is now; it traces only the texels whose
 // shafts the ball's move reached.
 TEST(TexelDirectRenew, RenewedAnswersEqualAFreshCacheWithTheNewEmissions) {
-    const Face floor = squareFloor(0.4);
-    VirtualShape sphere;
-    sphere.sphere_radius = 0.05;
-    auto rays = RayScene::build({floor}, {}, {sphere});
-    ASSERT_TRUE(rays) << rays.error().message;
-    RayScene& scene = **rays;
-    const LightGeometry lamp = squareLamp({0.05, 0.0, 0.7}, 0.15);
-    const LightGeometry lamp2 = squareLamp({-0.3, 0.2, 0.6}, 0.1);
+    const FloorUnderTwoLamps setup(0.05);
+    ASSERT_TRUE(setup.rays);
+    RayScene& scene = *setup.rays;
+    const Face& floor = setup.floor;
+    const LightGeometry &lamp = setup.lamp, &lamp2 = setup.lamp2;
     constexpr int kSide = 40;
-    std::vector<Eigen::Vector3d> points;
-    for (int j = 0; j < kSide; ++j) {
-        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
-    }
+    const std::vector<Eigen::Vector3d> points = texelCentres(floor, kSide);
     const std::vector<TexelDirectCache::Light> before{{&lamp, Eigen::Vector3d::Constant(80.0)}, {&lamp2, Eigen::Vector3d(20, 30, 40)}};
     const std::vector<TexelDirectCache::Light> after{{&lamp, Eigen::Vector3d(40.0, 90.0, 10.0)}, {&lamp2, Eigen::Vector3d(70, 5, 25)}};
     const auto place = [&](const Eigen::Vector3d& centre) {

@@ -356,9 +356,7 @@ TEST(TexelDirect, ForgetListsExactlyTheTexelsWhoseShaftsAMoveMeets) {
             cache.at(0, static_cast<std::size_t>(k), kSide, kSide, points[static_cast<std::size_t>(k)], floor.normal, d0, d1);
         }
     };
-    for (int j = 0; j < kSide; ++j) {
-        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
-    }
+    points = texelCentres(floor, kSide);
     traceAll();
     std::vector<std::uint32_t> list;
     EXPECT_FALSE(cache.takeForgotten(0, list)) << "after reset(): any";
@@ -414,10 +412,7 @@ TEST(TexelDirect, TexelsWhoseConeMissesEveryObjectSkipItsRays) {
         ASSERT_TRUE(scene.commitVirtual());
     };
     constexpr int kSide = 40;
-    std::vector<Eigen::Vector3d> points;
-    for (int j = 0; j < kSide; ++j) {
-        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
-    }
+    const std::vector<Eigen::Vector3d> points = texelCentres(floor, kSide);
     // The lamp's hidden fraction at each point, by 32 x 32 segments to the lamp's points.
     std::vector<double> hidden(points.size(), 0.0);
     for (std::size_t k = 0; k < points.size(); ++k) {
@@ -504,10 +499,7 @@ TEST(TexelDirect, AnswersEqualThePlainPerPairSum) {
     }
     const std::vector<Eigen::Vector3d> emission{Eigen::Vector3d(50.0, 40.0, 30.0), Eigen::Vector3d(20.0, 20.0, 25.0), Eigen::Vector3d(30.0, 30.0, 30.0)};
     constexpr int kSide = 24, kPairs = 16;
-    std::vector<Eigen::Vector3d> points;
-    for (int j = 0; j < kSide; ++j) {
-        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
-    }
+    const std::vector<Eigen::Vector3d> points = texelCentres(floor, kSide);
     int weightless = 0, low_blocked = 0;  // pairs with no weight (below the floor's horizon); to the low lamp, blocked
     const auto plain = [&](std::size_t texel, Eigen::Vector3d& without, Eigen::Vector3d& with, int& real_blocked) {
         const Eigen::Vector3d& x = points[texel];
@@ -685,19 +677,13 @@ TEST(TexelDirect, StratifiedSamplesOnTheirSideAreThoseOfTheirCount) {
 // and after each update's asks, and the prefetch both used and (for texels the window no longer
 // asks for) unused.
 TEST(TexelDirect, PrefetchedAnswersEqualTheAskedOnesAndCountAsTheyWould) {
-    const Face floor = squareFloor(0.4);
-    VirtualShape sphere;
-    sphere.sphere_radius = 0.04;
-    auto rays = RayScene::build({floor}, {}, {sphere});
-    ASSERT_TRUE(rays) << rays.error().message;
-    RayScene& scene = **rays;
-    const LightGeometry lamp = squareLamp({0.05, 0.0, 0.7}, 0.15);
-    const LightGeometry lamp2 = squareLamp({-0.3, 0.2, 0.6}, 0.1);
+    const FloorUnderTwoLamps setup(0.04);
+    ASSERT_TRUE(setup.rays);
+    RayScene& scene = *setup.rays;
+    const Face& floor = setup.floor;
+    const LightGeometry &lamp = setup.lamp, &lamp2 = setup.lamp2;
     constexpr int kSide = 40;
-    std::vector<Eigen::Vector3d> points;
-    for (int j = 0; j < kSide; ++j) {
-        for (int i = 0; i < kSide; ++i) points.push_back(floor.point((i + 0.5) / kSide, (j + 0.5) / kSide));
-    }
+    const std::vector<Eigen::Vector3d> points = texelCentres(floor, kSide);
     TexelDirectCache ahead(scene, 8), plain(scene, 8);
     for (TexelDirectCache* c : {&ahead, &plain}) c->reset({{&lamp, Eigen::Vector3d::Constant(80.0)}, {&lamp2, Eigen::Vector3d(20, 30, 40)}}, {floor});
     // The ball along a line at 12 cm; each update asks for the texels within 0.15 m of a point
