@@ -9,7 +9,7 @@
 // (1 - u) ra + u rb of (1 - u) a + u b: the hull is inside the cone of balls.
 //
 // The index is a bounding-volume hierarchy built by Embree's BVH builder (rtcBuildBVH) over the
-// shafts' bounding boxes; a query with a ball (a virtual object's bounding sphere) walks it and
+// shafts' bounding boxes (its low-quality Morton build: shaft_index.cpp); a query with a ball (a virtual object's bounding sphere) walks it and
 // keeps the shafts whose cone of balls meets the ball. Built once per link structure (tens of
 // milliseconds for 300 000 shafts), queried on every move (microseconds per hit).
 #pragma once
