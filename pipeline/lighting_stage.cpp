@@ -78,14 +78,56 @@ Result<std::unique_ptr<LightingStage>> LightingStage::create(const Scene& scene,
     stage->have_truth_ = sequence && fs::is_directory(sequence->root / "groundtruth/composite", ec) &&
                          fs::is_directory(sequence->root / "groundtruth/masks/changed", ec);
     stage->engine_->start();
+    if (stage->have_truth_ && !sync) stage->measurer_ = std::thread([s = stage.get()] { s->measureLoop(); });
     return stage;
 }
 
 LightingStage::~LightingStage() {
+    stop();
+}
+
+void LightingStage::stop() {
+    // The measuring thread finishes the frame it was given last, then the engine stops.
+    if (measurer_.joinable()) {
+        {
+            std::lock_guard lock(measure_mutex_);
+            measure_stop_ = true;
+        }
+        measure_wake_.notify_all();
+        measurer_.join();
+    }
     if (engine_) engine_->stop();
 }
 
-void LightingStage::stop() { engine_->stop(); }
+void LightingStage::measureLoop() {
+    // The newest frame left unmeasured because an update was in progress: measured once the run
+    // is over (waiting for the update), unless a later frame was measured since.
+    std::optional<MeasureJob> skipped;
+    const auto run = [&](MeasureJob& job, bool wait) {
+        auto measured = measure(job.rgb.view(), job.meta, job.cam_from_world, wait);
+        if (!measured && !measure_warned_) {
+            measure_warned_ = true;
+            log::warning(measured.error().message + " (the ratio error against the ground truth is not measured for it)");
+        }
+        return measured && *measured;
+    };
+    while (true) {
+        MeasureJob job;
+        {
+            std::unique_lock lock(measure_mutex_);
+            measure_wake_.wait(lock, [&] { return measure_job_.has_value() || measure_stop_; });
+            if (!measure_job_) break;
+            job = std::move(*measure_job_);
+            measure_job_.reset();
+        }
+        if (run(job, false)) {
+            skipped.reset();
+        } else {
+            skipped = std::move(job);
+        }
+    }
+    if (skipped) run(*skipped, true);
+}
 
 Result<void> LightingStage::submit(const ImageView& rgb8, const FrameMetadata& meta, const std::optional<Rigid3d>& cam_from_world,
                                    const std::vector<Rigid3d>& virtual_poses) {
@@ -109,7 +151,17 @@ Result<void> LightingStage::process(const ImageView& rgb8, const FrameMetadata& 
         CL_TRY_VOID(submit(rgb8, meta, cam_from_world, virtual_poses));
     }
     ++frames_;
-    if (have_truth_ && cam_from_world && (frames_ - 1) % 5 == 0) return measure(rgb8, meta, *cam_from_world);
+    if (!have_truth_ || !cam_from_world || (frames_ - 1) % 5 != 0) return {};
+    if (sync_) {
+        CL_TRY_VOID(measure(rgb8, meta, *cam_from_world, true));
+        return {};
+    }
+    MeasureJob job{Image::copyOf(rgb8), meta, *cam_from_world};
+    {
+        std::lock_guard lock(measure_mutex_);
+        measure_job_ = std::move(job);
+    }
+    measure_wake_.notify_one();
     return {};
 }
 
@@ -129,20 +181,20 @@ Result<void> LightingStage::warmUp(const ImageView& rgb8, const FrameMetadata& m
     return {};
 }
 
-Result<void> LightingStage::measure(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world) {
+Result<bool> LightingStage::measure(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world, bool wait) {
     // The frame's files in the ground truth, by its timestamp.
     std::string stem;
     for (const SequenceFrame& f : sequence_->frames) {
         if (f.timestamp_ns == meta.timestamp_ns) stem = fs::path(f.filename).stem().string();
     }
-    if (stem.empty()) return {};
+    if (stem.empty()) return true;
     const fs::path gt = sequence_->root / "groundtruth";
     fs::path composite_file;
     for (const char* ext : {".jpg", ".png"}) {
         if (fs::exists(gt / "composite" / (stem + ext))) composite_file = gt / "composite" / (stem + ext);
     }
     const fs::path changed_file = gt / "masks/changed" / (stem + ".png");
-    if (composite_file.empty() || !fs::exists(changed_file)) return {};
+    if (composite_file.empty() || !fs::exists(changed_file)) return true;
     const cv::Mat bgr = cv::imread(composite_file.string(), cv::IMREAD_COLOR);
     const cv::Mat changed = cv::imread(changed_file.string(), cv::IMREAD_GRAYSCALE);
     if (bgr.empty() || changed.empty() || bgr.cols != rgb8.width || bgr.rows != rgb8.height || changed.cols != rgb8.width ||
@@ -157,22 +209,28 @@ Result<void> LightingStage::measure(const ImageView& rgb8, const FrameMetadata& 
     const ImageView coverage_view{PixelFormat::kGray8, coverage.cols, coverage.rows, coverage.step, coverage.data,
                                   coverage.step * static_cast<std::size_t>(coverage.rows)};
     const lighting::SnapshotPtr snapshot = engine_->latest();
-    // In real time the pipeline does not wait for an update in progress: that frame goes unmeasured.
+    // In real time (the measuring thread) an update in progress is not waited for, but for the
+    // run's last frame given (`wait`): that frame goes unmeasured; and the ratio is traced at every second pixel of every second row (a quarter of
+    // the rays: the measurement's CPU is taken from the frames being played).
     Image predicted;
     if (sync_) {
         CL_TRY(predicted, engine_->ratioImage(*snapshot, cam_from_world, 1));
+    } else if (wait) {
+        CL_TRY(predicted, engine_->ratioImage(*snapshot, cam_from_world, 2));
     } else {
-        CL_TRY(std::optional<Image> got, engine_->tryRatioImage(*snapshot, cam_from_world, 1));
-        if (!got) return {};
+        CL_TRY(std::optional<Image> got, engine_->tryRatioImage(*snapshot, cam_from_world, 2));
+        if (!got) return false;
         predicted = std::move(*got);
     }
+    const std::lock_guard lock(measure_mutex_);
     ratio_errors_.add(predicted, rgb8, composite, mask, coverage.empty() ? nullptr : &coverage_view, response_);
-    return {};
+    return true;
 }
 
 nlohmann::json LightingStage::metricsJson() const {
     const lighting::SnapshotPtr snapshot = engine_->latest();
     nlohmann::json j = lighting::lightingMetricsJson(engine_->stats(), *snapshot);
+    const std::lock_guard lock(measure_mutex_);
     if (have_truth_ && ratio_errors_.count() > 0) j["shadow_ratio_error"] = ratio_errors_.json();
     return j;
 }

@@ -5,16 +5,21 @@
 // groundtruth/masks/changed/).
 #pragma once
 
+#include <condition_variable>
 #include <filesystem>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
 
 #include "core/camera_model.h"
 #include "core/frame.h"
+#include "core/image.h"
+#include "core/pose.h"
 #include "core/response.h"
 #include "core/scene.h"
 #include "core/sequence_io.h"
@@ -54,7 +59,11 @@ public:
 
     // One frame: `rgb8` at the camera's size, its pose (nullopt: counted, contributes nothing), the
     // virtual objects' world_from_object (by Scene::virtual_objects index). In sync mode it returns once the
-    // snapshot for this frame is published, and measures the ratio error on every 5th frame.
+    // snapshot for this frame is published, and measures the ratio error on every 5th frame; in
+    // real time every 5th frame is copied to the stage's measuring thread (newest wins: a frame
+    // still waiting when the next comes goes unmeasured; a quarter of the pixels), so reading the
+    // ground truth and tracing the ratio (40-60 ms at every pixel on the sample) never holds up
+    // the pipeline thread.
     Result<void> process(const ImageView& rgb8, const FrameMetadata& meta, const std::optional<Rigid3d>& cam_from_world,
                          const std::vector<Rigid3d>& virtual_poses);
     void stop();
@@ -73,10 +82,20 @@ public:
 
 private:
     LightingStage() = default;
-    Result<void> measure(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world);
+    // `wait`: for an update in progress (sync; real time, once the run is over). False: not
+    // waiting, an update was in progress (nothing measured).
+    Result<bool> measure(const ImageView& rgb8, const FrameMetadata& meta, const Rigid3d& cam_from_world, bool wait);
     // The frame and the objects' poses to the engine (no count, no measurement).
     Result<void> submit(const ImageView& rgb8, const FrameMetadata& meta, const std::optional<Rigid3d>& cam_from_world,
                         const std::vector<Rigid3d>& virtual_poses);
+
+    // Real time: the measuring thread's loop, and what process() hands it.
+    void measureLoop();
+    struct MeasureJob {
+        Image rgb;
+        FrameMetadata meta;
+        Rigid3d cam_from_world;
+    };
 
     std::unique_ptr<lighting::LightingEngine> engine_;
     Scene scene_;
@@ -84,8 +103,14 @@ private:
     bool sync_ = false;
     const Sequence* sequence_ = nullptr;
     bool have_truth_ = false;
-    RatioErrors ratio_errors_;
+    RatioErrors ratio_errors_;  // (under measure_mutex_)
     std::uint64_t frames_ = 0;
+    mutable std::mutex measure_mutex_;
+    std::condition_variable measure_wake_;
+    std::optional<MeasureJob> measure_job_;  // the newest frame to measure (real time)
+    bool measure_stop_ = false;
+    bool measure_warned_ = false;
+    std::thread measurer_;
     std::optional<std::int64_t> warmed_;  // the timestamp of warmUp()'s frame, until process() has it
 };
 

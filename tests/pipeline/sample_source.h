@@ -100,9 +100,11 @@ inline void skipWithoutGl() {
     }
 }
 
-inline std::unique_ptr<FrameRunner> makeRunner(bool sync, bool lighting, bool composite = false) {
+// `with_truth`: the sample's sequence given for the lighting's ground truth (the ratio error).
+inline std::unique_ptr<FrameRunner> makeRunner(bool sync, bool lighting, bool composite = false, bool with_truth = false) {
     if (sample().frames.empty() || !sample().sequence.sensor.camera) return nullptr;
     RunnerOptions options;
+    if (with_truth) options.sequence = &sample().sequence;
     options.composite = composite;
     options.sync = sync;
     options.lighting = lighting;
