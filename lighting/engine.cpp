@@ -78,6 +78,9 @@ Result<std::unique_ptr<LightingEngine>> LightingEngine::create(const Scene& scen
         return fail(ErrorCode::kUsage, "lighting: observation_stride must be at least 1");
     }
     if (options.update_every < 1) return fail(ErrorCode::kUsage, "lighting: update_every must be at least 1");
+    if (options.refit_min_frames < -1) {
+        return fail(ErrorCode::kUsage, "lighting: refit_min_frames must be -1 (automatic) or at least 0");
+    }
     if (options.observation_interleave < 0) {
         return fail(ErrorCode::kUsage, "lighting: observation_interleave must be 0 (automatic) or at least 1");
     }
@@ -94,6 +97,7 @@ Result<std::unique_ptr<LightingEngine>> LightingEngine::create(const Scene& scen
     model_options.observation_stride = options.observation_stride;
     model_options.observation_interleave =
         options.observation_interleave > 0 ? options.observation_interleave : (options.sync ? 1 : 2);
+    model_options.refit_min_frames = options.refit_min_frames >= 0 ? options.refit_min_frames : (options.sync ? 0 : 8);
     CL_TRY(impl->model, SceneLighting::create(impl->scene, camera, model_options));
     impl->virtual_poses = SceneLighting::scenePoses(impl->scene, 0.0);
     auto first = std::make_shared<LightingSnapshot>();

@@ -56,6 +56,11 @@ struct EngineOptions {
     // 1 / k^2 of the work. 0: 2 in real-time mode (where observations are a sample over time
     // anyway: newest wins), 1 in sync mode.
     int observation_interleave = 0;
+    // A full update (the lights and reflectances refitted: 100-150 ms on the sample, against 15-20
+    // for the others) no sooner than this many observations after the last one, so that the
+    // doubling schedule's early refits (after 2, 4, 8 ... observations) do not hold the lighting
+    // back for several frames in a row. -1: 8 in real-time mode, 0 (whenever they double) in sync.
+    int refit_min_frames = -1;
 };
 
 // One frame as the lighting thread sees it.

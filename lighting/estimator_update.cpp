@@ -58,7 +58,8 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     // Between full updates (a new fit of lights and reflectances, B~ solved again) only what the
     // virtual objects change is updated, incrementally (lighting/influence.h).
     const std::uint64_t frames = observations_->frames();
-    const bool refit = frames > d.frames_at_fit && frames >= 2 * d.frames_at_fit;
+    const bool refit = frames > d.frames_at_fit && frames >= 2 * d.frames_at_fit &&
+                       frames - d.frames_at_fit >= static_cast<std::uint64_t>(std::max(0, d.options.refit_min_frames));
     if (d.update_depth == 0 && d.mesh_built && d.influence->hasBase() && !d.force_full && !refit) {
         setVirtualPoses(virtual_world_from_object);
         return incrementalUpdate();

@@ -26,6 +26,9 @@ struct SceneLightingOptions {
     std::optional<double> radiance_scale;  // relative radiance per W/(m^2 sr); nullopt: 1 assumed
     int observation_stride = 2;            // ray cast every n-th pixel in x and y
     int observation_interleave = 1;        // k: each frame casts one of k x k offsets in turn (observations.h)
+    // A full update (lights and reflectances refitted when the observations have doubled) no
+    // sooner than this many observations after the last one (0: whenever they double).
+    int refit_min_frames = 0;
 };
 
 class SceneLighting {

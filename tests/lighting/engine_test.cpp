@@ -203,6 +203,30 @@ TEST(LightingEngine, UpdateEverySecondObservationAccumulatesTheOthersOnly) {
     EXPECT_FALSE(LightingEngine::create(smallScene(), smallCamera(), bad));
 }
 
+// A full update (the lights refitted) comes when the observations have doubled, and with
+// refit_min_frames no sooner than that many observations after the last one: in sync mode over
+// 20 observations, full updates after 1, 2, 4, 8 and 16 by default, after 1, 9 and 18 with 8.
+TEST(LightingEngine, FullUpdatesComeNoSoonerThanRefitMinFramesApart) {
+    for (const int min_frames : {0, 8}) {
+        EngineOptions options;
+        options.sync = true;
+        options.refit_min_frames = min_frames;
+        auto engine = LightingEngine::create(smallScene(), smallCamera(), options);
+        ASSERT_TRUE(engine) << engine.error().message;
+        LightingEngine& e = **engine;
+        e.start();
+        const Image frame = greyFrame(smallCamera(), 100);
+        for (int i = 0; i < 20; ++i) ASSERT_TRUE(e.submit(seenFromAbove(frame, 1000 + i)));
+        e.stop();
+        EXPECT_EQ(e.stats().updates, 20u) << min_frames;
+        EXPECT_EQ(e.stats().full_updates, min_frames == 0 ? 5u : 3u) << min_frames;
+        EXPECT_FALSE(e.lastError().has_value());
+    }
+    EngineOptions bad;
+    bad.refit_min_frames = -2;
+    EXPECT_FALSE(LightingEngine::create(smallScene(), smallCamera(), bad));
+}
+
 // Between full updates (when the observations double) the engine only brings the virtual
 // objects' influence up to date (lighting/influence.h): a ball moving across the floor in sync
 // mode gets a snapshot per frame, most of them incremental, and its shadow (the floor texel with
