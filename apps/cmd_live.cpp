@@ -258,26 +258,6 @@ int runLive(const LiveOptions& options) {
     say("live: %s (%s), scene %s%s\n", options.camera.c_str(), hal::describe(format).c_str(),
                 options.scene.c_str(), options.record.empty() ? "" : (", recording to " + options.record).c_str());
     if ((*runner)->lighting()) say("lighting: real time, response %s\n", runner_options.response.name().c_str());
-    // The lighting thread's first update is made from the camera's first frame before the loop
-    // starts (about a second: the camera streams on meanwhile), and the compositor draws it once at
-    // each quality level, so the first frames shown are lit (FrameRunner::warmUp). A frame without
-    // a pose (no tag in view yet) leaves the lighting to the loop, as before.
-    // The frame is then the loop's first (pipeline::FirstThenSource): tracked, written, counted.
-    FrameHandle warm_frame;
-    if ((*runner)->lighting()) {
-        const std::int64_t warm_ns = monotonicNowNs();
-        auto first = (*camera)->next(stopToken());
-        if (!first) {
-            // (The loop meets the same error and reports it; a stop request ends the loop at once.)
-            if (first.error().code != ErrorCode::kCancelled) log::warning(first.error().message + " (no lighting before the loop)");
-        } else if (*first) {
-            warm_frame = std::move(**first);
-            auto warmed = (*runner)->warmUp(*warm_frame);
-            if (!warmed) log::warning(warmed.error().message + " (running without lighting until the thread's first update)");
-            if (warmed && *warmed) say("lighting: first update from the first frame in %.2f s\n", static_cast<double>(monotonicNowNs() - warm_ns) / 1e9);
-        }
-    }
-    pipeline::FirstThenSource source(std::move(warm_frame), **camera);
 
     // Step 3: the frames. The pipeline thread takes them from the camera, tracks them and writes
     // poses.csv; this thread composites the newest and runs the window.
@@ -312,7 +292,7 @@ int runLive(const LiveOptions& options) {
         };
     }
     const std::int64_t start_ns = monotonicNowNs();
-    const pipeline::LoopStats loop = (*runner)->run(source, callbacks, stopToken());
+    const pipeline::LoopStats loop = (*runner)->run(**camera, callbacks, stopToken());
     (*runner)->stop();
     progress.finish();
     const double seconds = static_cast<double>(monotonicNowNs() - start_ns) / 1e9;

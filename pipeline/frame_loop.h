@@ -23,7 +23,6 @@
 #include <mutex>
 #include <optional>
 #include <stop_token>
-#include <utility>
 #include <vector>
 
 #include "capture/capture_session.h"
@@ -70,21 +69,6 @@ public:
 private:
     capture::CaptureSession* session_;
     std::chrono::nanoseconds timeout_;
-};
-
-// A frame taken from `rest` ahead of the run (live's lighting warm-up), then `rest`'s frames: the
-// frame taken first is tracked, written and counted like every other. `rest` is borrowed.
-class FirstThenSource final : public FrameSource {
-public:
-    FirstThenSource(FrameHandle first, FrameSource& rest) : first_(std::move(first)), rest_(&rest) {}
-    Result<std::optional<FrameHandle>> next(std::stop_token stop) override {
-        if (first_) return std::optional<FrameHandle>(std::move(first_));
-        return rest_->next(stop);
-    }
-
-private:
-    FrameHandle first_;
-    FrameSource* rest_;
 };
 
 // What the caller does between the stages. Each callback says its thread; none may throw.
