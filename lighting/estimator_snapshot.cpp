@@ -285,7 +285,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
         }
         // Per element: the lights' sum (its columns' direct light) and that plus the objects' share.
         // The sums depend on the element's number, the columns and the emissions alone, which stand
-        // until the next full update (new emissions: the cache renewed or made anew): kept, and made only for elements added since
+        // until the next full update (new emissions): kept, and made only for elements added since
         // (refinement appends them). In parallel (each element its own sums; the largest is a
         // maximum, the same in any order).
         const std::size_t n = rad.hierarchy().elements().size();

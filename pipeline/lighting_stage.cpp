@@ -195,6 +195,19 @@ Result<bool> LightingStage::measure(const ImageView& rgb8, const FrameMetadata& 
     }
     const fs::path changed_file = gt / "masks/changed" / (stem + ".png");
     if (composite_file.empty() || !fs::exists(changed_file)) return true;
+    // The prediction first: without `wait`, an update in progress leaves the frame unmeasured
+    // before its truth is read. In real time the ratio is traced at every second pixel of every
+    // second row (a quarter of the rays: the measurement's CPU is taken from the frames played).
+    const lighting::SnapshotPtr snapshot = engine_->latest();
+    const int stride = sync_ ? 1 : 2;
+    Image predicted;
+    if (wait) {
+        CL_TRY(predicted, engine_->ratioImage(*snapshot, cam_from_world, stride));
+    } else {
+        CL_TRY(std::optional<Image> got, engine_->tryRatioImage(*snapshot, cam_from_world, stride));
+        if (!got) return false;
+        predicted = std::move(*got);
+    }
     const cv::Mat bgr = cv::imread(composite_file.string(), cv::IMREAD_COLOR);
     const cv::Mat changed = cv::imread(changed_file.string(), cv::IMREAD_GRAYSCALE);
     if (bgr.empty() || changed.empty() || bgr.cols != rgb8.width || bgr.rows != rgb8.height || changed.cols != rgb8.width ||
@@ -208,20 +221,6 @@ Result<bool> LightingStage::measure(const ImageView& rgb8, const FrameMetadata& 
     const cv::Mat coverage = cv::imread((gt / "masks/virtual" / (stem + ".png")).string(), cv::IMREAD_GRAYSCALE);
     const ImageView coverage_view{PixelFormat::kGray8, coverage.cols, coverage.rows, coverage.step, coverage.data,
                                   coverage.step * static_cast<std::size_t>(coverage.rows)};
-    const lighting::SnapshotPtr snapshot = engine_->latest();
-    // In real time (the measuring thread) an update in progress is not waited for, but for the
-    // run's last frame given (`wait`): that frame goes unmeasured; and the ratio is traced at every second pixel of every second row (a quarter of
-    // the rays: the measurement's CPU is taken from the frames being played).
-    Image predicted;
-    if (sync_) {
-        CL_TRY(predicted, engine_->ratioImage(*snapshot, cam_from_world, 1));
-    } else if (wait) {
-        CL_TRY(predicted, engine_->ratioImage(*snapshot, cam_from_world, 2));
-    } else {
-        CL_TRY(std::optional<Image> got, engine_->tryRatioImage(*snapshot, cam_from_world, 2));
-        if (!got) return false;
-        predicted = std::move(*got);
-    }
     const std::lock_guard lock(measure_mutex_);
     ratio_errors_.add(predicted, rgb8, composite, mask, coverage.empty() ? nullptr : &coverage_view, response_);
     return true;
