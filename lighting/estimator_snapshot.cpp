@@ -259,7 +259,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     with_.summary.elements = static_cast<int>(std::count_if(rad.hierarchy().elements().begin(), rad.hierarchy().elements().end(),
                                                             [](const Element& el) { return el.leaf() && !el.buried; }));
     with_.summary.links = rad.linkCount(Mode::kReal) + stats_.influence.corrections + stats_.influence.cluster_links;
-    ScopedMs snapshot_timer(stats_.ms_snapshot);
+    const auto snapshot_start = std::chrono::steady_clock::now();  // (stats_.ms_snapshot, ended below)
     LightingSnapshot snapshot = d.last;
     snapshot.frames_used = observations_->frames();
     // Textures: every face after a full update, then the faces the influence changed.
@@ -371,6 +371,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     snapshot.solve = with_.summary;
     stats_.ms_observe = last_observe_ms_;
     stats_.leaves = with_.summary.elements;
+    stats_.ms_snapshot += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - snapshot_start).count();
     if (std::getenv("CL_LIGHTING_DEBUG")) {
         std::fprintf(stderr, "lighting update (%s): observe %.1f columns %.1f links %.1f fit %.1f solve %.1f influence %.1f snapshot %.1f ms; leaves %d; "
                      "texels traced %ld (made ahead since the last reset %ld, of them asked for %ld)\n",

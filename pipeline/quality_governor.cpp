@@ -41,6 +41,23 @@ bool QualityGovernor::step(double composite_ns, double period_ns) {
     return true;
 }
 
+int QualityGovernor::startAt(const std::vector<double>& draw_ns, double period_ns) {
+    if (!(period_ns > 0.0) || !std::isfinite(period_ns)) return level_;
+    const int levels = static_cast<int>(levels_.size());
+    level_ = levels - 1;
+    for (int l = 0; l < levels; ++l) {
+        const double t = static_cast<std::size_t>(l) < draw_ns.size() ? draw_ns[static_cast<std::size_t>(l)] : -1.0;
+        if (std::isfinite(t) && t >= 0.0 && t / period_ns <= kStepUpLoad) {
+            level_ = l;
+            break;
+        }
+    }
+    load_ = 0.0;
+    frames_heavy_ = 0;
+    frames_light_ = 0;
+    return level_;
+}
+
 render::CompositorOptions QualityGovernor::applyLevel(render::CompositorOptions options, int level) const {
     const Level& l = levels_[static_cast<std::size_t>(std::clamp(level, 0, static_cast<int>(levels_.size()) - 1))];
     options.msaa_samples = l.msaa_samples;

@@ -45,6 +45,13 @@ public:
     // a period <= 0, unknown yet, is ignored). True when the level changed.
     bool step(double composite_ns, double period_ns);
 
+    // Before the loop: the level to start at, from one uncontended draw per level (ns, by level;
+    // a missing or nonsense time counts as too slow) against the camera's frame period: the best
+    // level whose load is at most kStepUpLoad (the load the loop would step up to it at), else the
+    // lowest. A period <= 0 (unknown) keeps the configured level. Counts no frame and no change.
+    // Returns the level.
+    int startAt(const std::vector<double>& draw_ns, double period_ns);
+
     int level() const noexcept { return level_; }
     const std::vector<Level>& levels() const noexcept { return levels_; }
     // The compositor's options at the current level (everything else as in `options`).

@@ -98,5 +98,31 @@ TEST(QualityGovernor, FramesItCannotJudgeChangeNothing) {
     EXPECT_NE(g.summary().find("MSAA 4, 4 light samples: 600 frames (0 changes)"), std::string::npos);
 }
 
+TEST(QualityGovernor, StartsAtTheBestLevelWhoseMeasuredDrawLeavesRoom) {
+    // Draws of 40%, 55% and 70% of the period, fastest last: the best level at or under
+    // kStepUpLoad (0.6) is the second.
+    QualityGovernor g(configured(4, 4));
+    EXPECT_EQ(g.startAt({0.9 * kPeriod, 0.55 * kPeriod, 0.4 * kPeriod}, kPeriod), 1);
+    EXPECT_EQ(g.level(), 1);
+    EXPECT_EQ(g.json()["changes"], 0);
+    // The loop goes on from there: behind, it steps down as from any level; busy at 80% it stays.
+    EXPECT_EQ(framesUntilChange(g, 1.2, 100), QualityGovernor::kStepDownFrames);
+    EXPECT_EQ(g.level(), 2);
+    EXPECT_EQ(framesUntilChange(g, 0.8, 500), -1);
+    // Every level fits: the configured one.
+    QualityGovernor fast(configured(4, 4));
+    EXPECT_EQ(fast.startAt({0.3 * kPeriod, 0.2 * kPeriod, 0.1 * kPeriod}, kPeriod), 0);
+    // None fits: the lowest.
+    QualityGovernor slow(configured(4, 4));
+    EXPECT_EQ(slow.startAt({3.0 * kPeriod, 2.0 * kPeriod, 1.0 * kPeriod}, kPeriod), 2);
+    // Times it cannot judge are too slow; an unknown period keeps the configured level.
+    QualityGovernor odd(configured(4, 4));
+    EXPECT_EQ(odd.startAt({std::nan(""), -1.0}, kPeriod), 2);
+    EXPECT_EQ(odd.startAt({std::nan(""), 0.1 * kPeriod}, kPeriod), 1);
+    QualityGovernor unknown(configured(4, 4));
+    EXPECT_EQ(unknown.startAt({0.9 * kPeriod, 0.9 * kPeriod, 0.9 * kPeriod}, 0.0), 0);
+    EXPECT_EQ(unknown.startAt({0.9 * kPeriod, 0.9 * kPeriod, 0.9 * kPeriod}, std::nan("")), 0);
+}
+
 }  // namespace
 }  // namespace commonlight::pipeline
