@@ -96,6 +96,10 @@ struct Estimator::Impl {
     bool direction_fitted = false;  // a distant light's direction was (re)fitted this full update
     LightingSnapshot last;          // the last full update's snapshot (lights, warnings)
     std::vector<FaceBuild> face_builds;  // by real face: the textures and what their next build keeps
+    // The next textures visit every face (a full update: new B~ everywhere). Each face's build is
+    // kept through it: its layout, leaves and box filters stand where the leaves did, and only the
+    // texels whose leaves' values moved are made again (new emissions move most of them).
+    bool textures_all = false;
     std::unique_ptr<TexelDirectCache> texels;               // the area lights' direct light per texel (null: off; renewed at a full update)
     // Per element, the area lights' direct light without the objects (finishUpdate(); made with
     // `texels`: the columns and the lights' emissions stand until the next full update), and the

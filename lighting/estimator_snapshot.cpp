@@ -211,7 +211,7 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     std::optional<InfluenceViewer> viewer;
     if (d.viewer) viewer = InfluenceViewer{d.camera, *d.viewer};
     const std::size_t faces = rad.realFaceCount();
-    const bool all_faces = d.face_builds.size() != faces;
+    const bool all_faces = d.textures_all || d.face_builds.size() != faces;
     // The area lights' direct light per texel where the objects change it (lighting/texel_direct.h;
     // only when every light is an area light: the others' direct light stays the elements').
     const bool area_only = !d.sources.empty() && std::all_of(d.sources.begin(), d.sources.end(), [](const Source& s) {
@@ -267,8 +267,11 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     if (all_faces) {
         // A full update: the hierarchy may be new, the lights too; the probes trace afresh.
         d.probe_memories.clear();
-        d.face_builds.clear();
-        d.face_builds.resize(faces);
+        if (d.face_builds.size() != faces) {
+            d.face_builds.clear();
+            d.face_builds.resize(faces);
+        }
+        d.textures_all = false;
         for (std::size_t f = 0; f < faces; ++f) todo.push_back(static_cast<int>(f));
     } else {
         todo = inf.changedFaces();

@@ -751,7 +751,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
     snapshot.warnings = warnings_;
     d.last = std::move(snapshot);
     if (d.direction_fitted) d.force_full = true;
-    d.face_builds.clear();
+    d.textures_all = true;
     return finishUpdate();
 }
 

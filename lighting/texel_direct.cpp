@@ -74,8 +74,8 @@ void TexelDirectCache::renew(std::vector<Light> lights) {
     lights_ = std::move(lights);
     const std::size_t nl = lights_.size();
     for (FaceState& f : faces_) {
-        f.gone.clear();
-        f.all_gone = false;
+        // (The forgotten lists stand: the textures that follow rebuild the texels on them; a face
+        // whose layout changed rebuilds every texel and empties its list.)
         // at()'s sums (over the lights in order, each term as it adds it) from the kept fractions.
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, f.entries.size(), 1024), [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t t = r.begin(); t < r.end(); ++t) {

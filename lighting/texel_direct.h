@@ -46,9 +46,10 @@ public:
     bool sameGeometry(const std::vector<Light>& lights, const std::vector<Face>& faces) const;
     // A full update with sameGeometry() lights and new emissions: every answer is made again from
     // its kept visibility, as at() would make it with these emissions (the same sums in the same
-    // order); the answers forget() took stay to be traced. Every face's texture is built anew after
-    // it, so the forgotten lists start again. The moves since the last textures must have been
-    // forgotten first (movedSinceSeen(): a full update's influence starts afresh).
+    // order); the answers forget() took stay to be traced and on the forgotten lists (the
+    // textures that follow keep their layouts and rebuild those texels). The moves since the last
+    // textures must have been forgotten first (movedSinceSeen(): a full update's influence starts
+    // afresh).
     void renew(std::vector<Light> lights);
     // After an update's textures: the virtual objects as committed now are those the answers stand
     // for. movedSinceSeen(): the balls then and now of every object committed since with another

@@ -1,7 +1,8 @@
 // A full update keeps the texel cache's visibility (lighting/texel_direct.h renew()): the lights'
 // polygons and the real faces stay, only their emissions change, so each texel's answer is made
 // again from its kept fractions; what the virtual objects reached since the last textures is
-// traced again (movedSinceSeen()).
+// traced again (movedSinceSeen()). The textures keep their layouts through it too: only the
+// texels whose leaves' values moved or whose answers went are made again.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -71,12 +72,12 @@ TEST(TexelDirectRenew, RenewedAnswersEqualAFreshCacheWithTheNewEmissions) {
     EXPECT_LT(traced, static_cast<long>(points.size()) / 2) << "the others kept";
 }
 
-// The same through the estimator: a ball moved over a floor under two lamps, then a full update
-// (solveWith(), new emissions) with the ball moved a little further. The full update traces a
-// fraction of the texels the same update traces from scratch, and its textures are those of an estimator that only ever saw the new
-// emissions and the ball where it ended.
-TEST(TexelDirectRenew, AFullUpdateTracesOnlyWhatTheObjectsReachedAndEqualsAFreshEstimate) {
-    const std::string yaml = R"(
+// A ball over a floor under two lamps, seen from above, through the estimator: made by solveWith()
+// with given emissions (a fresh hierarchy and textures each time).
+class FloorEstimator : public ::testing::Test {
+protected:
+    void SetUp() override {
+        const std::string yaml = R"(
 real:
   - {name: floor, plane: {size: [1.2, 1.2]}, albedo: [0.5, 0.5, 0.5]}
 lights:
@@ -86,37 +87,70 @@ virtual:
   - {name: ball, sphere: {radius: 0.06}, material: {albedo: [0.0, 0.0, 0.0]}, world_from_object: {t: [0, 0, 0.2]}}
 lighting: {max_elements: 3000}
 )";
-    auto scene = parseScene(yaml, "texel_direct_renew.yaml");
-    ASSERT_TRUE(scene) << scene.error().message;
-    CameraModel cam;
-    cam.width = 160;
-    cam.height = 120;
-    cam.fx = cam.fy = 140.0;
-    cam.cx = 79.5;
-    cam.cy = 59.5;
-    EstimatorOptions o;
-    o.refine_unobserved = true;
-    o.initial_element_size = 0.2;
-    o.light_refinement_size = 0.08;
-    const std::vector<Eigen::Vector3d> albedo(scene->real_objects.size(), Eigen::Vector3d::Constant(0.5));
-    const std::vector<Eigen::Vector3d> first_emission{Eigen::Vector3d::Constant(100.0), Eigen::Vector3d::Constant(60.0)};
-    const std::vector<Eigen::Vector3d> new_emission{Eigen::Vector3d(200.0, 100.0, 50.0), Eigen::Vector3d(20.0, 60.0, 90.0)};
-    const auto make = [&](const std::vector<Eigen::Vector3d>& emission, const std::vector<Rigid3d>& poses) -> std::unique_ptr<Estimator> {
-        auto est = Estimator::create(*scene, cam, {}, o);
+        auto parsed = parseScene(yaml, "texel_direct_renew.yaml");
+        ASSERT_TRUE(parsed) << parsed.error().message;
+        scene = std::move(*parsed);
+        cam.width = 160;
+        cam.height = 120;
+        cam.fx = cam.fy = 140.0;
+        cam.cx = 79.5;
+        cam.cy = 59.5;
+        options.refine_unobserved = true;
+        options.initial_element_size = 0.2;
+        options.light_refinement_size = 0.08;
+        albedo.assign(scene.real_objects.size(), Eigen::Vector3d::Constant(0.5));
+    }
+    std::unique_ptr<Estimator> make(const std::vector<Eigen::Vector3d>& emission, const std::vector<Rigid3d>& poses) {
+        auto est = Estimator::create(scene, cam, {}, options);
         EXPECT_TRUE(est) << est.error().message;
         if (!est) return nullptr;
         (*est)->setViewer(Rigid3d::fromRpyDeg(Eigen::Vector3d(0.0, 0.0, 1.0), Eigen::Vector3d(180, 0, 0)).inverse());
         EXPECT_TRUE((*est)->solveWith(emission, albedo, poses));
         return std::move(*est);
+    }
+    static Rigid3d ballAt(double x, double y) { return Rigid3d::fromRpyDeg(Eigen::Vector3d(x, y, 0.2), Eigen::Vector3d::Zero()); }
+    // The largest ratio difference and relative B~ difference between two snapshots' floor
+    // textures, and the texels in the ball's shadow (ratio under 0.9 in `b`).
+    struct Differences {
+        double ratio = 1e300, original = 1e300;
+        int shadow = 0;
     };
-    std::vector<Rigid3d> poses = SceneLighting::scenePoses(*scene, 0.0);
+    static Differences compare(const LightingSnapshot& a_snap, const LightingSnapshot& b_snap) {
+        Differences out;
+        const FaceModulation* a = a_snap.findFace(0, 0);
+        const FaceModulation* b = b_snap.findFace(0, 0);
+        EXPECT_TRUE(a && b);
+        if (!a || !b || a->ratio.size() != b->ratio.size()) return out;
+        out.ratio = out.original = 0.0;
+        for (std::size_t k = 0; k < a->ratio.size(); ++k) {
+            out.ratio = std::max(out.ratio, static_cast<double>((a->ratio[k] - b->ratio[k]).cwiseAbs().maxCoeff()));
+            const double scale = std::max(1e-6f, b->original[k].maxCoeff());
+            out.original = std::max(out.original, static_cast<double>((a->original[k] - b->original[k]).cwiseAbs().maxCoeff()) / scale);
+            if (b->ratio[k].y() < 0.9f) ++out.shadow;
+        }
+        return out;
+    }
+
+    Scene scene;
+    CameraModel cam;
+    EstimatorOptions options;
+    std::vector<Eigen::Vector3d> albedo;
+    const std::vector<Eigen::Vector3d> first_emission{Eigen::Vector3d::Constant(100.0), Eigen::Vector3d::Constant(60.0)};
+};
+
+// A full update (solveWith(), new emissions) with the ball moved a little further traces a fraction
+// of the texels the same update traces from scratch, and its textures are those of an estimator
+// that only ever saw the new emissions and the ball where it ended.
+TEST_F(FloorEstimator, AFullUpdateTracesOnlyWhatTheObjectsReachedAndEqualsAFreshEstimate) {
+    const std::vector<Eigen::Vector3d> new_emission{Eigen::Vector3d(200.0, 100.0, 50.0), Eigen::Vector3d(20.0, 60.0, 90.0)};
+    std::vector<Rigid3d> poses = SceneLighting::scenePoses(scene, 0.0);
     auto moving = make(first_emission, poses);
     ASSERT_TRUE(moving);
     for (double x : {0.03, 0.06}) {
-        poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(x, 0.0, 0.2), Eigen::Vector3d::Zero());
+        poses[0] = ballAt(x, 0.0);
         ASSERT_TRUE(moving->update(poses));
     }
-    poses[0] = Rigid3d::fromRpyDeg(Eigen::Vector3d(0.065, 0.005, 0.2), Eigen::Vector3d::Zero());
+    poses[0] = ballAt(0.065, 0.005);
     ASSERT_TRUE(moving->solveWith(new_emission, albedo, poses));
     ASSERT_TRUE(moving->stats().full);
     const long renewed_traced = moving->stats().texels_traced;
@@ -129,21 +163,42 @@ lighting: {max_elements: 3000}
     EXPECT_GT(fresh_traced, 300) << "the same update from scratch traces the ball's influence on the floor";
     EXPECT_GT(renewed_traced, 0) << "the full update traces where the ball was and is";
     EXPECT_LT(renewed_traced * 3, fresh_traced * 2) << "and keeps the rest (the ball's own shadows are most of what it changes)";
-    const FaceModulation* a = last->findFace(0, 0);
-    const FaceModulation* b = fresh->findFace(0, 0);
-    ASSERT_TRUE(a && b);
-    ASSERT_EQ(a->ratio.size(), b->ratio.size());
-    double worst = 0.0, worst_original = 0.0;
-    int shadow = 0;
-    for (std::size_t k = 0; k < a->ratio.size(); ++k) {
-        worst = std::max(worst, static_cast<double>((a->ratio[k] - b->ratio[k]).cwiseAbs().maxCoeff()));
-        const double scale = std::max(1e-6f, b->original[k].maxCoeff());
-        worst_original = std::max(worst_original, static_cast<double>((a->original[k] - b->original[k]).cwiseAbs().maxCoeff()) / scale);
-        if (b->ratio[k].y() < 0.9f) ++shadow;
+    const Differences d = compare(*last, *fresh);
+    EXPECT_GT(d.shadow, 50) << "the ball's shadow is in the textures";
+    EXPECT_LT(d.ratio, 0.01) << "largest ratio difference against a fresh estimate";
+    EXPECT_LT(d.original, 0.01) << "largest relative B~ difference against a fresh estimate";
+}
+
+// A full update of the same hierarchy (requestFullUpdate(): B~ solved again, the influence from
+// nothing) keeps each face's texture layout and box filters: it makes again only the texels
+// whose leaves' values moved (here, with the same emissions, few), and its textures are those of
+// a fresh estimator with the ball where it ended.
+TEST_F(FloorEstimator, AFullUpdateKeepsTheTextureLayoutAndMakesOnlyWhatMoved) {
+    std::vector<Rigid3d> poses = SceneLighting::scenePoses(scene, 0.0);
+    auto moving = make(first_emission, poses);
+    ASSERT_TRUE(moving);
+    for (double x : {0.03, 0.06}) {
+        poses[0] = ballAt(x, 0.0);
+        ASSERT_TRUE(moving->update(poses));
     }
-    EXPECT_GT(shadow, 50) << "the ball's shadow is in the textures";
-    EXPECT_LT(worst, 0.01) << "largest ratio difference against a fresh estimate";
-    EXPECT_LT(worst_original, 0.01) << "largest relative B~ difference against a fresh estimate";
+    poses[0] = ballAt(0.065, 0.005);
+    moving->requestFullUpdate();
+    auto full = moving->update(poses);
+    ASSERT_TRUE(full);
+    ASSERT_TRUE(moving->stats().full);
+    const long built = moving->stats().texels_built, texels = moving->stats().texels;
+    auto fresh_est = make(first_emission, poses);
+    ASSERT_TRUE(fresh_est);
+    const long fresh_texels = fresh_est->stats().texels;
+    auto fresh = fresh_est->update(poses);
+    ASSERT_TRUE(fresh);
+    EXPECT_EQ(texels, fresh_texels) << "the full update visits every face's texels";
+    EXPECT_GT(built, 0) << "the texels the ball's move reached are made again";
+    EXPECT_LT(built * 4, texels) << "the rest are kept";
+    const Differences d = compare(*full, *fresh);
+    EXPECT_GT(d.shadow, 50) << "the ball's shadow is in the textures";
+    EXPECT_LT(d.ratio, 0.01) << "largest ratio difference against a fresh estimate";
+    EXPECT_LT(d.original, 0.01) << "largest relative B~ difference against a fresh estimate";
 }
 
 }  // namespace
