@@ -89,6 +89,7 @@ struct EstimatorStats {
     long texels_traced = 0;       // ... and of those, the texels whose direct light was traced again (a move reached it)
     double ms_observe = 0.0;      // the last frame's observation (ray cast and accumulation)
     double ms_influence = 0.0;    // the virtual objects' influence (lighting/influence.h)
+    double ms_base = 0.0;         // ... its new base at a full update (setBase(): the shaft index)
     bool full = false;            // a full update (fit, B~); else only the influence, incrementally
     int leaves = 0;               // leaves in use, real and virtual
     InfluenceStats influence;

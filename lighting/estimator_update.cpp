@@ -631,6 +631,7 @@ Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_w
         base.radiance = without_.radiance;
         base.indirect = without_.indirect;
         base.radiance_scale = radiance_scale_;
+        ScopedMs timer(stats_.ms_base);
         CL_TRY_VOID(d.influence->setBase(std::move(base)));
         d.frames_at_fit = observations_->frames();
         d.solve_emission = emission_le;
