@@ -377,11 +377,11 @@ Result<LightingSnapshot> Estimator::finishUpdate() {
     stats_.ms_snapshot += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - snapshot_start).count();
     if (std::getenv("CL_LIGHTING_DEBUG")) {
         std::fprintf(stderr, "lighting update (%s): observe %.1f columns %.1f links %.1f fit %.1f solve %.1f base %.1f influence %.1f "
-                     "(candidates %.1f refine %.1f solve %.1f) snapshot %.1f ms; leaves %d; "
+                     "(candidates %.1f refine %.1f solve %.1f; hulls made %ld) snapshot %.1f ms; leaves %d; "
                      "texels traced %ld (made ahead since the last reset %ld, of them asked for %ld)\n",
                      stats_.full ? "full" : "incremental", stats_.ms_observe, stats_.ms_columns, stats_.ms_links, stats_.ms_fit,
                      stats_.ms_solve, stats_.ms_base, stats_.ms_influence, stats_.influence.ms_candidates, stats_.influence.ms_refine,
-                     stats_.influence.ms_solve, stats_.ms_snapshot, rad.hierarchy().leafCount(), stats_.texels_traced,
+                     stats_.influence.ms_solve, stats_.influence.hulls_made, stats_.ms_snapshot, rad.hierarchy().leafCount(), stats_.texels_traced,
                      d.texels ? d.texels->prefetched() : 0L, d.texels ? d.texels->prefetchUsed() : 0L);
     }
     return snapshot;

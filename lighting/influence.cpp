@@ -170,6 +170,7 @@ const CachedHull& VirtualInfluence::Impl::linkHull(int element, int source) cons
     auto& list = link_hulls[static_cast<std::size_t>(element)];
     const auto it = std::lower_bound(list.begin(), list.end(), source, [](const auto& entry, int key) { return entry.first < key; });
     if (it != list.end() && it->first == source) return it->second;
+    hulls_made.fetch_add(1, std::memory_order_relaxed);
     return list.emplace(it, source, CachedHull::of(shape[static_cast<std::size_t>(element)].polygon(), shape[static_cast<std::size_t>(source)].polygon()))->second;
 }
 
@@ -213,6 +214,7 @@ bool VirtualInfluence::Impl::cachedPairMeets(ObjectState& obj, std::size_t i, co
     if (!obj.cache_hulls[i]) {
         const std::span<const Eigen::Vector3d> other =
             what < 0 ? lightPolygon(-1 - what) : shape[static_cast<std::size_t>(links[static_cast<std::size_t>(what)].source)].polygon();
+        hulls_made.fetch_add(1, std::memory_order_relaxed);
         obj.cache_hulls[i] = std::make_unique<HullPlanes>(HullPlanes::of(shape[static_cast<std::size_t>(element)].polygon(), other));
     }
     const HullPlanes& hull = *obj.cache_hulls[i];
@@ -430,6 +432,7 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
     if (!has_base_) return fail(ErrorCode::kInternal, "lighting: the influence has no base solution (setBase() first)");
     const auto t0 = std::chrono::steady_clock::now();
     stats_ = {};
+    d.hulls_made.store(0, std::memory_order_relaxed);
     std::fill(d.face_dirty.begin(), d.face_dirty.end(), 0);
     d.shots = 0;
     // Step 1: what changed. An object moved, appeared, disappeared or changed emission; the
@@ -525,6 +528,7 @@ Result<InfluenceStats> VirtualInfluence::update(const std::vector<InfluenceObjec
     d.propagate(stats_);
     stats_.ms_solve = msSince(ts);
     d.finish();
+    stats_.hulls_made = d.hulls_made.load(std::memory_order_relaxed);
     stats_.ms_total = msSince(t0);
     return stats_;
 }
@@ -535,6 +539,7 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
     if (!has_base_) return fail(ErrorCode::kInternal, "lighting: the influence has no base solution (setBase() first)");
     const auto t0 = std::chrono::steady_clock::now();
     stats_ = {};
+    d.hulls_made.store(0, std::memory_order_relaxed);
     // Step 1: forget everything: no refinement, no difference, no object placed.
     Hierarchy& h = radiosity_.hierarchy();
     for (std::size_t e = 0; e < d.base_leaf.size(); ++e) {
@@ -600,6 +605,7 @@ Result<InfluenceStats> VirtualInfluence::rebuild(const std::vector<InfluenceObje
     d.resync();
     stats_.ms_solve = msSince(ts);
     d.finish();
+    stats_.hulls_made = d.hulls_made.load(std::memory_order_relaxed);
     stats_.ms_total = msSince(t0);
     return stats_;
 }

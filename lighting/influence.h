@@ -161,6 +161,7 @@ struct InfluenceStats {
     long answers_computed = 0;   // items (a light, a blocked link, an object's light at an element) answered again
     long answers_kept = 0;       // items whose last answer stood (no moved object's old or new bounds in the shaft)
     long pairs_tested = 0;       // the moved objects' cached (base leaf, link or light) pairs tested (significance, shaft)
+    long hulls_made = 0;         // hulls of (element, source) pairs found (the others kept, also through a new base)
     int leaves = 0;              // real leaves in use (base and refined)
     int refined = 0;             // of them, under the base leaves
     int corrections = 0;         // blocked base links corrected at leaves

@@ -24,6 +24,22 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
     Impl& d = *impl_;
     const Hierarchy& h = radiosity_.hierarchy();
     const std::size_t n = h.elements().size();
+    // Step 0: the hulls the objects' caches hold, by element and source (the source element of the
+    // pair's link, or -1 - light): kept below where both shapes stand. A hull is the two polygons'
+    // alone, and a full update rarely moves them (new emissions, B~), so the first caches under the
+    // new base find most of them made.
+    std::vector<std::vector<ObjectState::CarriedHull>> carried(d.objects.size());
+    for (std::size_t o = 0; o < d.objects.size(); ++o) {
+        ObjectState& obj = d.objects[o];
+        for (std::size_t i = 0; i < obj.cache_hulls.size() && i < obj.cache_pairs.size(); ++i) {
+            const auto [element, what] = obj.cache_pairs[i];
+            if (!obj.cache_hulls[i] || (what >= 0 && static_cast<std::size_t>(what) >= d.links.size())) continue;
+            const int source = what >= 0 ? d.links[static_cast<std::size_t>(what)].source : what;
+            carried[o].push_back({element, source, std::move(obj.cache_hulls[i])});
+        }
+    }
+    const std::vector<ElementShape> old_shape = std::move(d.shape);
+    const std::vector<std::vector<Eigen::Vector3d>> old_lights = std::move(d.light_polygons);
     // Step 1: the per-element state, all of it the base's.
     d.base = std::move(b);
     d.base.rho.resize(n, Eigen::Vector3d::Constant(0.5));
@@ -44,7 +60,6 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
     d.answers.assign(n, Answers{});
     d.has_terms.assign(n, 0);
     d.masks.assign(n, {});
-    d.link_hulls.assign(n, {});
     d.selection.assign(n, Selection{});
     d.entries.assign(n, {});
     d.bound_level.assign(n, -1);
@@ -52,6 +67,41 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
     d.shape.assign(n, ElementShape{});
     for (std::size_t e = 0; e < n; ++e) {
         if (!radiosity_.isVirtualElement(static_cast<int>(e))) d.cacheShape(static_cast<int>(e));
+    }
+    // Whose shape stands (the same corners to the bit as under the last base), and which lights'.
+    // (A real element's place never changes: Hierarchy keeps a collapsed element's children
+    // retired and brings them back, so an index is never another element's. The check keeps the
+    // hulls right should that change.)
+    const auto sameShape = [&](int e) {
+        const auto u = static_cast<std::size_t>(e);
+        if (e < 0 || u >= old_shape.size() || u >= n) return false;
+        const ElementShape& a = old_shape[u];
+        const ElementShape& s = d.shape[u];
+        if (a.count == 0 || a.count != s.count) return false;
+        for (int i = 0; i < a.count; ++i) {
+            if (a.corners[static_cast<std::size_t>(i)] != s.corners[static_cast<std::size_t>(i)]) return false;
+        }
+        return true;
+    };
+    d.light_polygons.clear();
+    for (std::size_t k = 0; k < d.base.lights.size(); ++k) {
+        const std::span<const Eigen::Vector3d> p = d.lightPolygon(static_cast<int>(k));
+        d.light_polygons.emplace_back(p.begin(), p.end());
+    }
+    const auto sameLight = [&](int k) {
+        const auto u = static_cast<std::size_t>(k);
+        return k >= 0 && u < old_lights.size() && u < d.light_polygons.size() && old_lights[u] == d.light_polygons[u];
+    };
+    // The links' hulls of the elements whose shape and whose source's stand are kept.
+    d.link_hulls.resize(n);
+    for (std::size_t e = 0; e < n; ++e) {
+        auto& list = d.link_hulls[e];
+        if (list.empty()) continue;
+        if (!sameShape(static_cast<int>(e))) {
+            list.clear();
+            continue;
+        }
+        std::erase_if(list, [&](const auto& entry) { return !sameShape(entry.first); });
     }
     d_.assign(n, Eigen::Vector3d::Zero());
     tilde_ = d.base.radiance;
@@ -190,6 +240,14 @@ Result<void> VirtualInfluence::setBase(InfluenceBase b) {
     const std::size_t count = rays_.virtualCount();
     d.objects.clear();
     d.objects.resize(count);
+    for (std::size_t o = 0; o < count && o < carried.size(); ++o) {
+        std::vector<ObjectState::CarriedHull>& list = carried[o];
+        std::erase_if(list, [&](const ObjectState::CarriedHull& c) {
+            return !sameShape(c.element) || (c.source >= 0 ? !sameShape(c.source) : !sameLight(-1 - c.source));
+        });
+        std::sort(list.begin(), list.end(), [](const auto& x, const auto& y) { return std::pair(x.element, x.source) < std::pair(y.element, y.source); });
+        d.objects[o].carried_hulls = std::move(list);
+    }
     for (std::size_t f = radiosity_.realFaceCount(); f < h.faceCount(); ++f) {
         const int o = radiosity_.virtualObjectOfFace(static_cast<int>(f));
         if (o >= 0 && static_cast<std::size_t>(o) < count) d.objects[static_cast<std::size_t>(o)].faces.push_back(static_cast<int>(f));

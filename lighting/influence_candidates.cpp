@@ -203,6 +203,23 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                 }
             }
         }
+        // The first cache under a new base: the hulls the last base's cache held (setBase()).
+        if (!obj.carried_hulls.empty()) {
+            const auto& carried = obj.carried_hulls;
+            for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
+                if (obj.cache_hulls[i]) continue;
+                const auto [element, what] = obj.cache_pairs[i];
+                const int source = what >= 0 ? links[static_cast<std::size_t>(what)].source : what;
+                auto it = std::lower_bound(carried.begin(), carried.end(), std::pair(element, source),
+                                           [](const ObjectState::CarriedHull& c, const std::pair<int, int>& key) { return std::pair(c.element, c.source) < key; });
+                for (; it != carried.end() && it->element == element && it->source == source; ++it) {
+                    if (!it->hull) continue;
+                    obj.cache_hulls[i] = std::move(obj.carried_hulls[static_cast<std::size_t>(it - carried.begin())].hull);
+                    break;
+                }
+            }
+            obj.carried_hulls.clear();
+        }
     } else {
         obj.cache_idle.swap(old_idle);
         obj.cache_meets.swap(old_meets);

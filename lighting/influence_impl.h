@@ -5,6 +5,7 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <limits>
 #include <span>
@@ -245,6 +246,15 @@ struct ObjectState {
     // until then). Held apart: a pair in six or fewer ever needs them (a HullPlanes is 388 bytes,
     // the room's ball caches 29 000 pairs).
     std::vector<std::unique_ptr<HullPlanes>> cache_hulls;
+    // The hulls the object's cache held under the last base whose element and source kept their
+    // shapes (setBase()), by (element, source element; -1 - light for a light), sorted: taken by
+    // the first cache made under the new base, then dropped. A hull is the two polygons' alone.
+    struct CarriedHull {
+        int element = 0;
+        int source = 0;
+        std::unique_ptr<HullPlanes> hull;
+    };
+    std::vector<CarriedHull> carried_hulls;
     // Per cache pair, the parts of its significance that do not depend on where the object is
     // (share, solid angle; < 0: not found yet).
     std::vector<std::array<double, 2>> cache_sig;
@@ -309,6 +319,8 @@ struct VirtualInfluence::Impl {
     std::vector<std::vector<std::pair<int, int>>> entries;  // base leaves: (object, base link)
     std::vector<int> bound_level;                           // base leaves: the footprint level used
     std::vector<ElementShape> shape;                        // real elements
+    std::vector<std::vector<Eigen::Vector3d>> light_polygons;  // by light, at the last setBase() (its hulls kept while the same)
+    mutable std::atomic<long> hulls_made{0};                // hull planes found since the update began (InfluenceStats::hulls_made)
     std::vector<double> rho_max, rho_mean, den_min;         // base elements: over the leaves under them (luminance)
     // B~ as the objects' irradiance reads it: an element made here reads as its base leaf (so an
     // object's light does not depend on the refinement that others left), virtual faces as black.

@@ -469,6 +469,34 @@ TEST(Influence, SmallMovesKeepTheAnswersTheyDoNotReach) {
     EXPECT_GT(3 * kept, computed) << computed << " answers computed, " << kept << " kept";
 }
 
+// A full update keeps the hulls of the (element, source) pairs whose two shapes stand (the objects'
+// caches and the links' own, VirtualInfluence::setBase()): the next full update of the same
+// configuration makes a small part of the hulls the first made from nothing, and its difference is
+// the first's.
+TEST(Influence, AFullUpdateKeepsTheHullsOfShapesThatStand) {
+    const Scene scene = parse(kScene);
+    auto est = make(scene);
+    const long from_nothing = est->stats().influence.hulls_made;
+    const std::map<Place, Eigen::Vector3d> before = differenceByPlace(*est);
+    est->requestFullUpdate();
+    ASSERT_TRUE(apply(*est, sceneConfig(scene)));
+    ASSERT_TRUE(est->stats().full);
+    const long again = est->stats().influence.hulls_made;
+    EXPECT_GT(from_nothing, 500) << "the objects' shafts need hulls";
+    EXPECT_LT(again * 10, from_nothing) << again << " hulls made again of " << from_nothing;
+    const std::map<Place, Eigen::Vector3d> after = differenceByPlace(*est);
+    ASSERT_EQ(before.size(), after.size());
+    double worst = 0.0, largest = 0.0;
+    for (const auto& [place, d] : before) {
+        const auto it = after.find(place);
+        ASSERT_NE(it, after.end());
+        worst = std::max(worst, (d - it->second).cwiseAbs().maxCoeff());
+        largest = std::max(largest, d.cwiseAbs().maxCoeff());
+    }
+    EXPECT_GT(largest, 1e-3 * scaleOf(*est)) << "the objects change the light";
+    EXPECT_LE(worst, 1e-9 * scaleOf(*est));
+}
+
 // An element's answer lists are made in its thread's reused lists and swapped in (computeTerms(),
 // computeLinks(): no allocation once grown). With a second estimator of another scene (other
 // lights, the elements drawing the direct light: other lists) updated between the moves on the same
