@@ -109,6 +109,19 @@ lighting: {max_elements: 3000}
         return std::move(*est);
     }
     static Rigid3d ballAt(double x, double y) { return Rigid3d::fromRpyDeg(Eigen::Vector3d(x, y, 0.2), Eigen::Vector3d::Zero()); }
+    // An estimator that saw the first emissions with the ball at x = 0.03, then 0.06; `poses` hold
+    // the ball where both tests end it, (0.065, 0.005), not yet updated there.
+    std::unique_ptr<Estimator> movedTwice(std::vector<Rigid3d>& poses) {
+        poses = SceneLighting::scenePoses(scene, 0.0);
+        auto est = make(first_emission, poses);
+        if (!est) return nullptr;
+        for (double x : {0.03, 0.06}) {
+            poses[0] = ballAt(x, 0.0);
+            EXPECT_TRUE(est->update(poses));
+        }
+        poses[0] = ballAt(0.065, 0.005);
+        return est;
+    }
     // The largest ratio difference and relative B~ difference between two snapshots' floor
     // textures, and the texels in the ball's shadow (ratio under 0.9 in `b`).
     struct Differences {
@@ -143,14 +156,9 @@ lighting: {max_elements: 3000}
 // that only ever saw the new emissions and the ball where it ended.
 TEST_F(FloorEstimator, AFullUpdateTracesOnlyWhatTheObjectsReachedAndEqualsAFreshEstimate) {
     const std::vector<Eigen::Vector3d> new_emission{Eigen::Vector3d(200.0, 100.0, 50.0), Eigen::Vector3d(20.0, 60.0, 90.0)};
-    std::vector<Rigid3d> poses = SceneLighting::scenePoses(scene, 0.0);
-    auto moving = make(first_emission, poses);
+    std::vector<Rigid3d> poses;
+    auto moving = movedTwice(poses);
     ASSERT_TRUE(moving);
-    for (double x : {0.03, 0.06}) {
-        poses[0] = ballAt(x, 0.0);
-        ASSERT_TRUE(moving->update(poses));
-    }
-    poses[0] = ballAt(0.065, 0.005);
     ASSERT_TRUE(moving->solveWith(new_emission, albedo, poses));
     ASSERT_TRUE(moving->stats().full);
     const long renewed_traced = moving->stats().texels_traced;
@@ -174,14 +182,9 @@ TEST_F(FloorEstimator, AFullUpdateTracesOnlyWhatTheObjectsReachedAndEqualsAFresh
 // whose leaves' values moved (here, with the same emissions, few), and its textures are those of
 // a fresh estimator with the ball where it ended.
 TEST_F(FloorEstimator, AFullUpdateKeepsTheTextureLayoutAndMakesOnlyWhatMoved) {
-    std::vector<Rigid3d> poses = SceneLighting::scenePoses(scene, 0.0);
-    auto moving = make(first_emission, poses);
+    std::vector<Rigid3d> poses;
+    auto moving = movedTwice(poses);
     ASSERT_TRUE(moving);
-    for (double x : {0.03, 0.06}) {
-        poses[0] = ballAt(x, 0.0);
-        ASSERT_TRUE(moving->update(poses));
-    }
-    poses[0] = ballAt(0.065, 0.005);
     moving->requestFullUpdate();
     auto full = moving->update(poses);
     ASSERT_TRUE(full);
