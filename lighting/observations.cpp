@@ -171,17 +171,30 @@ Result<FrameObservation> Observations::add(const ImageView& rgb8, const Rigid3d&
     std::vector<Sample> samples(per_phase);
 
     // Step 1: one ray per sample, in parallel; the per-pixel decisions that need no neighbour.
+    // (A row's rays from the camera's centre traced together: Embree's packets of 8.)
     tbb::parallel_for(0, samples_y_, [&](int j) {
+        thread_local std::vector<int> row;
+        thread_local std::vector<Eigen::Vector3d> dirs;
+        thread_local std::vector<RayHit> hits;
+        row.clear();
+        dirs.clear();
         for (int i = 0; i < samples_x_; ++i) {
+            const Eigen::Vector3f& d = rays_in_cam[static_cast<std::size_t>(j) * samples_x_ + i];
+            if (!d.allFinite()) continue;
+            row.push_back(i);
+            dirs.push_back(rotation * d.cast<double>());
+        }
+        hits.resize(row.size());
+        rays.intersectAllMany(origin, dirs.data(), static_cast<int>(row.size()), hits.data());
+        for (std::size_t r = 0; r < row.size(); ++r) {
+            const int i = row[r];
             const std::size_t k = static_cast<std::size_t>(j) * samples_x_ + i;
             Sample& s = samples[k];
-            const Eigen::Vector3f& d = rays_in_cam[k];
-            if (!d.allFinite()) continue;
             const Eigen::Vector2i pixel = samplePixel(phase, i, j);
             const int px = pixel.x(), py = pixel.y();
             const std::uint8_t* c = rgb8.row(py) + 3 * px;
-            const Eigen::Vector3d dir = rotation * d.cast<double>();
-            const RayHit hit = rays.intersectAll(origin, dir);
+            const Eigen::Vector3d& dir = dirs[r];
+            const RayHit& hit = hits[r];
             if (hit.kind == HitKind::kVirtual) {
                 s.face = -2;
                 continue;

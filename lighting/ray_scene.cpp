@@ -272,6 +272,44 @@ struct RayScene::Impl {
         return decode(rh, top);
     }
 
+    // The rays intersect() makes, eight at a time (Embree's packets: rays from one origin are
+    // coherent); each lane's hit decoded as one ray's.
+    void intersectMany(RTCScene scene, const Eigen::Vector3d& origin, const Eigen::Vector3d* directions, int count, RayHit* out,
+                       double max_distance) const {
+        const auto ox = static_cast<float>(origin.x()), oy = static_cast<float>(origin.y()), oz = static_cast<float>(origin.z());
+        const auto tfar = static_cast<float>(std::min(max_distance, 1e30));
+        for (int first = 0; first < count; first += 8) {
+            RTCRayHit8 packet{};
+            alignas(32) int valid[8] = {};
+            for (int j = 0; j < 8 && first + j < count; ++j) {
+                const Eigen::Vector3d& w = directions[first + j];
+                packet.ray.org_x[j] = ox;
+                packet.ray.org_y[j] = oy;
+                packet.ray.org_z[j] = oz;
+                packet.ray.dir_x[j] = static_cast<float>(w.x());
+                packet.ray.dir_y[j] = static_cast<float>(w.y());
+                packet.ray.dir_z[j] = static_cast<float>(w.z());
+                packet.ray.tnear[j] = 0.0f;
+                packet.ray.tfar[j] = tfar;
+                packet.ray.mask[j] = 0xFFFFFFFFu;
+                packet.hit.geomID[j] = RTC_INVALID_GEOMETRY_ID;
+                packet.hit.instID[0][j] = RTC_INVALID_GEOMETRY_ID;
+                valid[j] = -1;
+            }
+            RTCIntersectContext context;
+            rtcInitIntersectContext(&context);
+            rtcIntersect8(valid, scene, &context, &packet);
+            for (int j = 0; j < 8 && first + j < count; ++j) {
+                RTCRayHit one{};
+                one.ray.tfar = packet.ray.tfar[j];
+                one.hit.geomID = packet.hit.geomID[j];
+                one.hit.primID = packet.hit.primID[j];
+                one.hit.instID[0] = packet.hit.instID[0][j];
+                out[first + j] = decode(one, scene);
+            }
+        }
+    }
+
     bool occluded(RTCScene top, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double tfar,
                   std::uint32_t mask = 0xFFFFFFFFu) const {
         if (!(tfar > 0.0)) return false;
@@ -713,40 +751,12 @@ RayHit RayScene::intersectReal(const Eigen::Vector3d& origin, const Eigen::Vecto
 
 void RayScene::intersectRealMany(const Eigen::Vector3d& origin, const Eigen::Vector3d* directions, int count,
                                  RayHit* out, double max_distance) const {
-    // The rays Impl::intersect() makes, eight at a time; each lane's hit decoded as one ray's.
-    RTCScene scene = impl_->real_top;
-    const auto ox = static_cast<float>(origin.x()), oy = static_cast<float>(origin.y()), oz = static_cast<float>(origin.z());
-    const auto tfar = static_cast<float>(std::min(max_distance, 1e30));
-    for (int first = 0; first < count; first += 8) {
-        RTCRayHit8 packet{};
-        alignas(32) int valid[8] = {};
-        for (int j = 0; j < 8 && first + j < count; ++j) {
-            const Eigen::Vector3d& w = directions[first + j];
-            packet.ray.org_x[j] = ox;
-            packet.ray.org_y[j] = oy;
-            packet.ray.org_z[j] = oz;
-            packet.ray.dir_x[j] = static_cast<float>(w.x());
-            packet.ray.dir_y[j] = static_cast<float>(w.y());
-            packet.ray.dir_z[j] = static_cast<float>(w.z());
-            packet.ray.tnear[j] = 0.0f;
-            packet.ray.tfar[j] = tfar;
-            packet.ray.mask[j] = 0xFFFFFFFFu;
-            packet.hit.geomID[j] = RTC_INVALID_GEOMETRY_ID;
-            packet.hit.instID[0][j] = RTC_INVALID_GEOMETRY_ID;
-            valid[j] = -1;
-        }
-        RTCIntersectContext context;
-        rtcInitIntersectContext(&context);
-        rtcIntersect8(valid, scene, &context, &packet);
-        for (int j = 0; j < 8 && first + j < count; ++j) {
-            RTCRayHit one{};
-            one.ray.tfar = packet.ray.tfar[j];
-            one.hit.geomID = packet.hit.geomID[j];
-            one.hit.primID = packet.hit.primID[j];
-            one.hit.instID[0] = packet.hit.instID[0][j];
-            out[first + j] = impl_->decode(one, scene);
-        }
-    }
+    impl_->intersectMany(impl_->real_top, origin, directions, count, out, max_distance);
+}
+
+void RayScene::intersectAllMany(const Eigen::Vector3d& origin, const Eigen::Vector3d* directions, int count,
+                                RayHit* out, double max_distance) const {
+    impl_->intersectMany(impl_->all_top, origin, directions, count, out, max_distance);
 }
 
 RayHit RayScene::intersectVirtual(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,

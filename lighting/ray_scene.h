@@ -128,6 +128,9 @@ public:
     // as Embree packets of 8 rays (the rays of a probe: one origin, many directions).
     void intersectRealMany(const Eigen::Vector3d& origin, const Eigen::Vector3d* directions, int count, RayHit* out,
                            double max_distance = 1e30) const;
+    // The same with intersectAll() (a camera's rays: the observations).
+    void intersectAllMany(const Eigen::Vector3d& origin, const Eigen::Vector3d* directions, int count, RayHit* out,
+                          double max_distance = 1e30) const;
     // Same as intersectVirtual but ignoring one virtual object (rays leaving it, for its probes).
     RayHit intersectVirtualExcept(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, int excluded,
                                   double max_distance = 1e30) const;

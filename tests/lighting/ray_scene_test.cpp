@@ -346,20 +346,27 @@ TEST(RayScene, RealPacketsKeepTheAnswer) {
     EXPECT_GT(open, 300);
 }
 
-// intersectRealMany() (packets of 8, the probes' rays) gives each ray the hit intersectReal() gives
-// it: the same face or lamp and distance, for 1-20 rays from one point (a partial last packet),
-// from points in the room and on the pillar's side, some with a finite reach (misses).
-TEST(RayScene, RealHitsInPacketsEqualOneRayAtATime) {
+// intersectRealMany() and intersectAllMany() (packets of 8: the probes' rays, the observations')
+// give each ray the hit intersectReal() and intersectAll() give it: the same face, lamp or virtual
+// object and distance, for 1-20 rays from one point (a partial last packet), from points in the
+// room and on the pillar's side, some with a finite reach (misses), a sphere and a cube standing in
+// the room.
+TEST(RayScene, HitsInPacketsEqualOneRayAtATime) {
     std::vector<Face> faces;
     LightGeometry lamp;
     pillarRoom(faces, lamp);
-    auto built = RayScene::build(faces, {lamp}, {});
+    VirtualShape sphere;
+    sphere.sphere_radius = 0.25;
+    auto built = RayScene::build(faces, {lamp}, {sphere, cube()});
     ASSERT_TRUE(built) << built.error().message;
-    const RayScene& rays = **built;
+    RayScene& rays = **built;
+    rays.setVirtualPose(0, Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.7, 0.6, 0.8)));
+    rays.setVirtualPose(1, Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.6, Eigen::Vector3d(1, 2, 3).normalized())), Eigen::Vector3d(2.2, 1.3, 1.0)));
+    ASSERT_TRUE(rays.commitVirtual());
     std::mt19937 rng(5);
     std::uniform_real_distribution<double> u(0.0, 1.0);
     std::normal_distribution<double> g(0.0, 1.0);
-    int faces_hit = 0, lamp_hit = 0, missed = 0, pillar_hit = 0;
+    int faces_hit = 0, lamp_hit = 0, missed = 0, pillar_hit = 0, virtual_hit = 0;
     for (int probe = 0; probe < 400; ++probe) {
         const int count = 1 + probe % 20;
         const Eigen::Vector3d origin = probe % 5 == 0 ? Eigen::Vector3d(1.3 - 0.01 * u(rng), 0.8 + 0.4 * u(rng), 1.5 * u(rng))
@@ -367,25 +374,31 @@ TEST(RayScene, RealHitsInPacketsEqualOneRayAtATime) {
         const double reach = probe % 3 == 0 ? 0.5 + u(rng) : 1e30;
         std::vector<Eigen::Vector3d> dirs;
         for (int k = 0; k < count; ++k) dirs.push_back(Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized());
-        std::vector<RayHit> got(static_cast<std::size_t>(count));
-        rays.intersectRealMany(origin, dirs.data(), count, got.data(), reach);
+        std::vector<RayHit> real(static_cast<std::size_t>(count)), all(static_cast<std::size_t>(count));
+        rays.intersectRealMany(origin, dirs.data(), count, real.data(), reach);
+        rays.intersectAllMany(origin, dirs.data(), count, all.data(), reach);
         for (int k = 0; k < count; ++k) {
-            const RayHit one = rays.intersectReal(origin, dirs[static_cast<std::size_t>(k)], reach);
-            const RayHit& many = got[static_cast<std::size_t>(k)];
-            ASSERT_EQ(many.kind, one.kind) << "probe " << probe << " ray " << k;
-            ASSERT_EQ(many.index, one.index) << "probe " << probe << " ray " << k;
-            ASSERT_EQ(many.primitive, one.primitive) << "probe " << probe << " ray " << k;
-            ASSERT_NEAR(many.distance, one.distance, 1e-6) << "probe " << probe << " ray " << k;
+            const Eigen::Vector3d& d = dirs[static_cast<std::size_t>(k)];
+            for (const auto& [one, many] : {std::pair{rays.intersectReal(origin, d, reach), real[static_cast<std::size_t>(k)]},
+                                            std::pair{rays.intersectAll(origin, d, reach), all[static_cast<std::size_t>(k)]}}) {
+                ASSERT_EQ(many.kind, one.kind) << "probe " << probe << " ray " << k;
+                ASSERT_EQ(many.index, one.index) << "probe " << probe << " ray " << k;
+                ASSERT_EQ(many.primitive, one.primitive) << "probe " << probe << " ray " << k;
+                ASSERT_NEAR(many.distance, one.distance, 1e-6) << "probe " << probe << " ray " << k;
+            }
+            const RayHit& one = real[static_cast<std::size_t>(k)];
             if (one.kind == HitKind::kRealFace) ++faces_hit;
             if (one.kind == HitKind::kRealFace && one.index >= 6) ++pillar_hit;
             if (one.kind == HitKind::kLight) ++lamp_hit;
             if (one.kind == HitKind::kNone) ++missed;
+            if (all[static_cast<std::size_t>(k)].kind == HitKind::kVirtual) ++virtual_hit;
         }
     }
     EXPECT_GT(faces_hit, 1000);
     EXPECT_GT(pillar_hit, 100);
     EXPECT_GT(lamp_hit, 5);
     EXPECT_GT(missed, 300);
+    EXPECT_GT(virtual_hit, 100);
 }
 
 // intersectVirtualExcept() skips a ray that misses every other object's ball: its answer is the
