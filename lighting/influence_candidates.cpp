@@ -205,7 +205,7 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
         }
         // The first cache under a new base: the hulls the last base's cache held (setBase()).
         if (!obj.carried_hulls.empty()) {
-            const auto& carried = obj.carried_hulls;
+            auto& carried = obj.carried_hulls;
             for (std::size_t i = 0; i < obj.cache_pairs.size(); ++i) {
                 if (obj.cache_hulls[i]) continue;
                 const auto [element, what] = obj.cache_pairs[i];
@@ -214,7 +214,7 @@ void VirtualInfluence::Impl::candidates(int object, const Ball& ball, bool scan,
                                            [](const ObjectState::CarriedHull& c, const std::pair<int, int>& key) { return std::pair(c.element, c.source) < key; });
                 for (; it != carried.end() && it->element == element && it->source == source; ++it) {
                     if (!it->hull) continue;
-                    obj.cache_hulls[i] = std::move(obj.carried_hulls[static_cast<std::size_t>(it - carried.begin())].hull);
+                    obj.cache_hulls[i] = std::move(it->hull);
                     break;
                 }
             }
