@@ -68,6 +68,11 @@ Result<std::unique_ptr<FrameRunner>> FrameRunner::create(const Scene& scene, con
         if (!options.frames_dir.empty() || !options.video.empty()) {
             CL_TRY(runner->writer_, CompositeWriter::open(options.frames_dir, options.video, camera.width, camera.height, options.fps));
         }
+        if (options.sequence) {
+            CompositeMeasurerOptions measurer_options;
+            measurer_options.background = !options.sync;
+            runner->measurer_ = std::make_unique<CompositeMeasurer>(*options.sequence, options.response, measurer_options);
+        }
     }
     return runner;
 }
@@ -97,6 +102,10 @@ void FrameRunner::moveVirtualObject(std::size_t index, const Eigen::Vector3d& de
 LoopStats FrameRunner::run(FrameSource& source, const LoopCallbacks& callbacks, std::stop_token stop) {
     LoopStats stats = options_.sync || !options_.pipeline_thread ? runInOrder(source, callbacks, stop)
                                                                   : runPipelined(source, callbacks, stop);
+    // The composites still waiting to be measured.
+    if (measurer_) {
+        if (Result<void> measured = measurer_->finish(); !measured && !stats.failure) stats.failure = measured.error();
+    }
     loop_stats_ = stats;
     return stats;
 }
@@ -397,13 +406,12 @@ Result<void> FrameRunner::composite(const TrackedFrame& frame) {
         }
     }
     if (writer_) CL_TRY_VOID(writer_->write(composite_.view(), stem));
-    std::optional<FrameTruth> truth;
-    if (options_.sequence) {
-        CL_TRY(truth, readFrameTruth(*options_.sequence, frame.meta.timestamp_ns));
-        if (truth) composite_errors_.add(composite_.view(), truth->composite.view(), truth->changed.view(), options_.response,
-                                         exposureGain(frame.meta));
-    }
+    if (measurer_) CL_TRY_VOID(measurer_->add(composite_.view(), frame.meta.timestamp_ns, exposureGain(frame.meta)));
     if (!options_.side_by_side.empty() && !side_by_side_done_ && frame.index >= options_.side_by_side_frame) {
+        std::optional<FrameTruth> truth;
+        if (options_.sequence) {
+            CL_TRY(truth, readFrameTruth(*options_.sequence, frame.meta.timestamp_ns));
+        }
         const ImageView truth_view = truth ? truth->composite.view() : ImageView{};
         CL_TRY_VOID(writeSideBySide(options_.side_by_side, frame.rgb.view(), composite_.view(), truth ? &truth_view : nullptr));
         side_by_side_done_ = true;
@@ -451,7 +459,11 @@ nlohmann::json FrameRunner::metricsJson() const {
             c["lighting_lag_frames"] = {{"p50", lag.p50}, {"p95", lag.p95}, {"max", lag.max}};
         }
         metrics["compositor"] = c;
-        if (composite_errors_.frames() > 0) metrics["composite_error"] = composite_errors_.json();
+        if (measurer_ && measurer_->errors().frames() > 0) {
+            metrics["composite_error"] = measurer_->errors().json();
+            // Real time: composites left unmeasured because the measurement was behind.
+            metrics["composite_error"]["unmeasured"] = measurer_->unmeasured();
+        }
     }
     return metrics;
 }
@@ -461,14 +473,17 @@ std::string FrameRunner::summary() const {
     if (tracking_->poseErrors().count() > 0) text += tracking_->poseErrors().summary() + "\n";
     if (lighting_) text += lighting_->summary() + "\n";
     if (governor_ && processed_ > 0) text += "compositor quality: " + governor_->summary() + "\n";
-    if (composite_errors_.frames() > 0) {
-        const nlohmann::json e = composite_errors_.json();
+    if (measurer_ && measurer_->errors().frames() > 0) {
+        const nlohmann::json e = measurer_->errors().json();
         char line[256];
         std::snprintf(line, sizeof line,
                       "composite against ground truth (%zu frames): PSNR %.2f dB; linear RMSE %.4f (frame), %.4f (where the virtual objects change it)\n",
-                      composite_errors_.frames(), e["psnr_db"].get<double>(), e["rmse_linear"].get<double>(),
+                      measurer_->errors().frames(), e["psnr_db"].get<double>(), e["rmse_linear"].get<double>(),
                       e["rmse_linear_changed"].get<double>());
         text += line;
+        if (measurer_->unmeasured() > 0) {
+            text += "  (" + std::to_string(measurer_->unmeasured()) + " composites not measured: the measurement fell behind)\n";
+        }
     }
     return text;
 }

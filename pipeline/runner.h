@@ -35,6 +35,7 @@
 #include "core/response.h"
 #include "core/scene.h"
 #include "core/sequence_io.h"
+#include "pipeline/composite_measurer.h"
 #include "pipeline/composite_output.h"
 #include "pipeline/frame_loop.h"
 #include "pipeline/frame_pipeline.h"
@@ -103,7 +104,8 @@ public:
     // ends the run.
     Result<void> track(const Frame& frame, TrackedFrame& out);
     // The main thread's stage: composites `frame` with the newest lighting snapshot, writes the
-    // outputs, measures against ground truth (nothing without a compositor but the count).
+    // outputs, measures against ground truth (in real time on the measuring thread, which run()
+    // waits for before it returns; nothing without a compositor but the count).
     Result<void> composite(const TrackedFrame& frame);
     // Draws `frame` again with the virtual objects where they are now (moved while paused or while
     // the camera is lost), into the window and composite(); no outputs, no metrics.
@@ -178,7 +180,8 @@ private:
     std::unique_ptr<render::Compositor> compositor_;
     std::unique_ptr<CompositeWriter> writer_;
     Image composite_;
-    CompositeErrors composite_errors_;
+    // The composites against the recording's ground truth (in real time on a thread of its own).
+    std::unique_ptr<CompositeMeasurer> measurer_;
     SampleReservoir lag_ms_;       // frame timestamp minus the snapshot's, per composite
     SampleReservoir lag_frames_;
     SampleReservoir latency_ms_;   // frame arrival to composite ready
