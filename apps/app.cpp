@@ -20,8 +20,9 @@ int reportError(const Error& error) {
 
 void addRealTimeOptions(CLI::App& sub, int& lighting_every, bool& fixed_quality) {
     sub.add_option("--lighting-every", lighting_every,
-                   "In real time, update the lighting for every N-th frame at most (1: as often as it can)")
-        ->check(CLI::Range(1, 1000))
+                   "In real time, update the lighting for every N-th frame at most (1: as often as it can; "
+                   "0: every frame while the camera's frames keep up, fewer while frames are dropped)")
+        ->check(CLI::Range(0, 1000))
         ->capture_default_str();
     sub.add_flag("--fixed-quality", fixed_quality,
                  "Composite at full quality always (default: MSAA off, then fewer light samples, while compositing falls behind the camera)");

@@ -57,7 +57,7 @@ struct LiveOptions {
     double timeout_s = 5.0;
     bool edges = false;
     bool no_lighting = false;
-    int lighting_every = 2;
+    int lighting_every = 0;
     bool fixed_quality = false;
     bool full_frame = false;
     bool composite = false;    // --composite: headless runs composite offscreen too

@@ -42,7 +42,7 @@ struct PlayOptions {
     bool sync = false;
     bool no_track = false;
     bool no_lighting = false;
-    int lighting_every = 2;
+    int lighting_every = 0;
     bool fixed_quality = false;
     bool full_frame = false;
     std::string response;  // --response: overrides sensor.yaml's

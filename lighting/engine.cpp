@@ -1,6 +1,7 @@
 #include "lighting/engine.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <condition_variable>
 #include <mutex>
@@ -54,6 +55,7 @@ struct LightingEngine::Impl {
     std::int64_t started_ns = 0;
     std::int64_t last_update_ns = 0;
     std::uint64_t last_update_ticket = 0;  // the observation the newest snapshot was solved for
+    std::atomic<int> update_every{1};      // options.update_every, then setUpdateEvery()'s
     std::uint64_t version = 0;
 
     mutable std::mutex model_mutex;     // held by the thread during an update, and by ratioImage()
@@ -99,6 +101,7 @@ Result<std::unique_ptr<LightingEngine>> LightingEngine::create(const Scene& scen
         options.observation_interleave > 0 ? options.observation_interleave : (options.sync ? 1 : 2);
     model_options.refit_min_frames = options.refit_min_frames >= 0 ? options.refit_min_frames : (options.sync ? 0 : 8);
     CL_TRY(impl->model, SceneLighting::create(impl->scene, camera, model_options));
+    impl->update_every.store(options.update_every);
     impl->virtual_poses = SceneLighting::scenePoses(impl->scene, 0.0);
     auto first = std::make_shared<LightingSnapshot>();
     first->radiance_scale = options.radiance_scale.value_or(1.0);
@@ -201,6 +204,10 @@ void LightingEngine::setVirtualPoses(const std::vector<Rigid3d>& world_from_obje
     impl_->virtual_poses = world_from_object;
 }
 
+void LightingEngine::setUpdateEvery(int n) noexcept { impl_->update_every.store(std::clamp(n, 1, 1000)); }
+
+int LightingEngine::updateEvery() const noexcept { return impl_->update_every.load(); }
+
 SnapshotPtr LightingEngine::latest() const noexcept {
     std::lock_guard lock(impl_->snapshot_mutex);
     return impl_->snapshot;
@@ -276,7 +283,7 @@ Result<void> LightingEngine::Impl::process(OwnedObservation& observation, const 
         static_cast<double>(start_ns - last_update_ns) < 1e9 / options.max_update_hz) {
         return {};
     }
-    if (!options.sync && last_update_ticket != 0 && observation.ticket - last_update_ticket < static_cast<std::uint64_t>(options.update_every)) {
+    if (!options.sync && last_update_ticket != 0 && observation.ticket - last_update_ticket < static_cast<std::uint64_t>(update_every.load())) {
         return {};
     }
     // Step 3: estimate and solve.

@@ -112,6 +112,11 @@ public:
     // A size other than the scene's count is a contract violation.
     void setVirtualPoses(const std::vector<Rigid3d>& world_from_object);
 
+    // From now on, solve for every n-th submission at most (EngineOptions::update_every; n >= 1,
+    // clamped). Any thread; the lighting thread reads it at its next observation.
+    void setUpdateEvery(int n) noexcept;
+    int updateEvery() const noexcept;
+
     // The newest snapshot; never null (version 0 before the first update: every ratio 1).
     SnapshotPtr latest() const noexcept;
     EngineStats stats() const;

@@ -76,6 +76,8 @@ public:
                         const std::vector<Rigid3d>& virtual_poses, double timeout_s);
 
     lighting::SnapshotPtr latest() const { return engine_->latest(); }
+    // In real time, solve for every n-th frame at most from now on (LightingEngine::setUpdateEvery).
+    void setUpdateEvery(int n) { engine_->setUpdateEvery(n); }
     nlohmann::json metricsJson() const;
     // Two lines for the summary.
     std::string summary() const;

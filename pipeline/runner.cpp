@@ -49,7 +49,8 @@ Result<std::unique_ptr<FrameRunner>> FrameRunner::create(const Scene& scene, con
     runner->tracking_.emplace(std::move(tracking));
     if (options.lighting && !scene.real_objects.empty()) {
         CL_TRY(runner->lighting_, LightingStage::create(runner->scene_, camera, options.response, options.radiance_scale,
-                                                        options.sync, options.sequence, options.lighting_every));
+                                                        options.sync, options.sequence, std::max(1, options.lighting_every)));
+        if (options.lighting_every <= 0 && !options.sync) runner->pacer_.emplace();
     } else if (options.lighting) {
         log::info("lighting off: the scene has no real proxy geometry to light");
     }
@@ -251,6 +252,8 @@ Result<void> FrameRunner::track(const Frame& frame, TrackedFrame& out) {
     out.scene_time_s = sceneTime(frame.meta.timestamp_ns);
     out.virtual_poses = virtualPoses(out.scene_time_s);
     // The camera's frame period (frames dropped in between are counted by their sequence numbers).
+    std::uint64_t dropped = 0;
+    if (last_frame_ns_ > 0 && frame.meta.sequence > last_sequence_ + 1) dropped = frame.meta.sequence - last_sequence_ - 1;
     if (last_frame_ns_ > 0 && frame.meta.timestamp_ns > last_frame_ns_) {
         const double frames = frame.meta.sequence > last_sequence_ ? static_cast<double>(frame.meta.sequence - last_sequence_) : 1.0;
         const double period = static_cast<double>(frame.meta.timestamp_ns - last_frame_ns_) / frames;
@@ -274,7 +277,15 @@ Result<void> FrameRunner::track(const Frame& frame, TrackedFrame& out) {
     } else {
         out.raw = Image();
     }
-    // Step 4: the frame to the lighting thread (sync: its update is published before we go on).
+    // Step 4: the frame to the lighting thread (sync: its update is published before we go on),
+    // at the pace the dropped frames allow.
+    if (lighting_ && pacer_) {
+        if (const std::optional<int> every = pacer_->step(dropped, lighting_->latest()->version > 0)) {
+            lighting_->setUpdateEvery(*every);
+            log::info(*every == 1 ? std::string("lighting: solving for every frame again")
+                                  : "lighting: solving for one frame in " + std::to_string(*every) + " (frames were dropped)");
+        }
+    }
     if (lighting_) {
         const std::vector<Rigid3d> lighting_poses = lightingPoses(out.virtual_poses);
         capture::StageTimer lighting_timer(timings_, timings_.id("lighting"));
@@ -433,7 +444,10 @@ nlohmann::json FrameRunner::metricsJson() const {
         metrics["pose_error"] = tracking_->poseErrors().json();
         metrics["frames_without_truth"] = tracking_->framesWithoutTruth();
     }
-    if (lighting_) metrics["lighting"] = lighting_->metricsJson();
+    if (lighting_) {
+        metrics["lighting"] = lighting_->metricsJson();
+        if (pacer_) metrics["lighting"]["pacing"] = pacer_->json();
+    }
     if (compositor_) {
         nlohmann::json c;
         c["frames"] = processed_;
@@ -472,6 +486,7 @@ std::string FrameRunner::summary() const {
     std::string text;
     if (tracking_->poseErrors().count() > 0) text += tracking_->poseErrors().summary() + "\n";
     if (lighting_) text += lighting_->summary() + "\n";
+    if (pacer_ && lighting_) text += "lighting pace: " + pacer_->summary() + "\n";
     if (governor_ && processed_ > 0) text += "compositor quality: " + governor_->summary() + "\n";
     if (measurer_ && measurer_->errors().frames() > 0) {
         const nlohmann::json e = measurer_->errors().json();

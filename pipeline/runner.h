@@ -39,6 +39,7 @@
 #include "pipeline/composite_output.h"
 #include "pipeline/frame_loop.h"
 #include "pipeline/frame_pipeline.h"
+#include "pipeline/lighting_pacer.h"
 #include "pipeline/lighting_stage.h"
 #include "pipeline/quality_governor.h"
 #include "render/compositor.h"
@@ -53,9 +54,10 @@ struct RunnerOptions {
     // caller's thread, one after the other; for comparison in `bench pipeline`).
     bool pipeline_thread = true;
     bool lighting = true;   // run the lighting thread (needs real proxies in the scene)
-    // Real time: the lighting thread solves for every n-th frame at most (1: as often as it can).
-    // 2 leaves the cores to tracking and compositing at the camera's rate, lighting every second frame.
-    int lighting_every = 2;
+    // Real time: the lighting thread solves for every n-th frame at most (1: as often as it can);
+    // 0: paced (pipeline/lighting_pacer.h): every frame while the camera's frames keep up, fewer
+    // while frames are dropped.
+    int lighting_every = 0;
     // Real time: step the compositor's quality down when compositing falls behind the camera, and
     // back up when it has room (pipeline/quality_governor.h).
     bool adapt_quality = true;
@@ -171,6 +173,7 @@ private:
     std::optional<FramePipeline> tracking_;
     std::unique_ptr<LightingStage> lighting_;
     std::optional<QualityGovernor> governor_;  // the real-time loop's, when adapt_quality
+    std::optional<LightingPacer> pacer_;       // real time with lighting_every 0 (pipeline thread)
     capture::PixelConverter converter_;
     TrackedFrame sync_frame_;  // process()'s frame
     std::optional<std::int64_t> first_timestamp_;

@@ -203,6 +203,33 @@ TEST(LightingEngine, UpdateEverySecondObservationAccumulatesTheOthersOnly) {
     EXPECT_FALSE(LightingEngine::create(smallScene(), smallCamera(), bad));
 }
 
+// setUpdateEvery() between observations: 1 for tickets 1-3 (solved for 1, 2, 3), then 3 (solved
+// for 6 and 9 of 4-10), then 1 again (11 and 12): 7 updates for 12 observations.
+TEST(LightingEngine, SetUpdateEveryChangesThePaceFromTheNextObservation) {
+    auto engine = LightingEngine::create(smallScene(), smallCamera(), EngineOptions{});
+    ASSERT_TRUE(engine) << engine.error().message;
+    LightingEngine& e = **engine;
+    EXPECT_EQ(e.updateEvery(), 1);
+    e.start();
+    const Image frame = greyFrame(smallCamera(), 100);
+    for (int i = 0; i < 12; ++i) {
+        if (i == 3) e.setUpdateEvery(3);
+        if (i == 10) e.setUpdateEvery(1);
+        ASSERT_TRUE(e.submit(seenFromAbove(frame, 2000 + i)));
+        const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+        while (e.stats().processed < static_cast<std::uint64_t>(i + 1) && std::chrono::steady_clock::now() < deadline) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        }
+    }
+    e.stop();
+    const EngineStats stats = e.stats();
+    EXPECT_EQ(stats.processed, 12u);
+    EXPECT_EQ(stats.updates, 7u);
+    EXPECT_EQ(e.latest()->frame_timestamp_ns, 2011);
+    e.setUpdateEvery(0);  // clamped
+    EXPECT_EQ(e.updateEvery(), 1);
+}
+
 // A full update (the lights refitted) comes when the observations have doubled, and with
 // refit_min_frames no sooner than that many observations after the last one: in sync mode over
 // 20 observations, full updates after 1, 2, 4, 8 and 16 by default, after 1, 9 and 18 with 8.
