@@ -25,9 +25,11 @@ std::size_t differingPixels(const Image& a, const Image& b) {
     return n;
 }
 
+// With the recording's ground truth: the composites are measured against it on the measuring
+// thread (pipeline/composite_measurer.h), every one by the time run() returns.
 TEST(FrameRunnerRunGl, TheMainThreadCompositesWhatThePipelineThreadTracked) {
     skipWithoutGl();
-    auto runner = makeRunner(/*sync=*/false, /*lighting=*/true, /*composite=*/true);
+    auto runner = makeRunner(/*sync=*/false, /*lighting=*/true, /*composite=*/true, /*with_truth=*/true);
     ASSERT_TRUE(runner);
     SampleSource source(20);
     const std::thread::id main_thread = std::this_thread::get_id();
@@ -52,6 +54,10 @@ TEST(FrameRunnerRunGl, TheMainThreadCompositesWhatThePipelineThreadTracked) {
     EXPECT_EQ(metrics["compositor"]["replaced"].get<std::uint64_t>(), stats.replaced);
     EXPECT_EQ(metrics["compositor"]["threads"].get<std::string>(), "pipeline thread + main thread");
     EXPECT_TRUE(metrics["compositor"].contains("latency_ms"));
+    ASSERT_TRUE(metrics.contains("composite_error"));
+    EXPECT_EQ(metrics["composite_error"]["frames"].get<std::uint64_t>() + metrics["composite_error"]["unmeasured"].get<std::uint64_t>(),
+              shown);
+    EXPECT_GT(metrics["composite_error"]["psnr_db"].get<double>(), 30.0);
 }
 
 // play's warm-up: the first frame goes to the lighting thread before run(), which waits for its
