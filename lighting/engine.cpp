@@ -225,6 +225,10 @@ Result<Image> LightingEngine::ratioImage(const LightingSnapshot& snapshot, const
     return impl_->model->ratioImage(snapshot, cam_from_world, stride);
 }
 
+Result<Image> LightingEngine::realRatioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride) const {
+    return impl_->model->ratioImage(snapshot, cam_from_world, stride, /*through_virtual=*/true);
+}
+
 Result<std::optional<Image>> LightingEngine::tryRatioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world,
                                                             int stride) const {
     std::unique_lock lock(impl_->model_mutex, std::try_to_lock);

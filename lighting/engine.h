@@ -123,6 +123,10 @@ public:
     // The ratio B/B~ a snapshot predicts per pixel for a camera pose (kRgbF32, NaN where no real
     // proxy is seen): for metrics against ground truth. Waits while an update is under way.
     Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const;
+    // The same for the real surfaces behind the virtual objects too (a caller that leaves their
+    // pixels out by other means, e.g. the ground truth's coverage mask). It never waits and never
+    // holds an update up: it reads the real scene and the snapshot only.
+    Result<Image> realRatioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const;
     // The same without waiting: nullopt when the thread is in the middle of an update (a real-time
     // caller must not stall behind it).
     Result<std::optional<Image>> tryRatioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world,

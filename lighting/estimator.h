@@ -142,8 +142,10 @@ public:
                            const std::vector<Rigid3d>& virtual_world_from_object);
     // What a snapshot predicts for a camera view: per pixel the ratio B/B~ (RGB) of the real surface
     // it sees, sampled bilinearly from the snapshot's face textures (kRgbF32; NaN where the pixel
-    // sees no real proxy or sees a virtual object). Every `stride`-th pixel (the others NaN).
-    Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const override;
+    // sees no real proxy or sees a virtual object; with `through_virtual` the real proxy behind
+    // the object: SceneLighting::ratioImage()). Every `stride`-th pixel (the others NaN).
+    Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1,
+                             bool through_virtual = false) const override;
 
     // Analysis for the benchmark (issue 12: per-texel shadow rays against element links for the
     // direct term). For the pixels of a camera view with `mask` set (width x height, row-major;

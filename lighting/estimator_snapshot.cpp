@@ -42,11 +42,14 @@ struct RealHit {
     Eigen::Vector2d st = Eigen::Vector2d::Zero();
 };
 std::optional<RealHit> realFaceAt(const RayScene& rays, const std::vector<Face>& faces, const CameraModel& cam,
-                                  const Rigid3d& world_from_cam, const Eigen::Matrix3d& rotation, int x, int y) {
+                                  const Rigid3d& world_from_cam, const Eigen::Matrix3d& rotation, int x, int y,
+                                  bool through_virtual = false) {
     const auto ray = cam.unproject(Eigen::Vector2d(x, y));
     if (!ray) return std::nullopt;
     const Eigen::Vector3d dir = rotation * ray->normalized();
-    const RayHit hit = rays.intersectAll(world_from_cam.translation, dir);
+    // (The real scene's rays: committed once, never changed; the virtual objects' move per update.)
+    const RayHit hit = through_virtual ? rays.intersectReal(world_from_cam.translation, dir)
+                                       : rays.intersectAll(world_from_cam.translation, dir);
     if (hit.kind != HitKind::kRealFace) return std::nullopt;
     const Face& f = faces[static_cast<std::size_t>(hit.index)];
     RealHit out;
@@ -150,7 +153,8 @@ Result<Estimator::TexelRatio> Estimator::texelDirectRatio(const Rigid3d& cam_fro
     return out;
 }
 
-Result<Image> Estimator::ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride) const {
+Result<Image> Estimator::ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride,
+                                    bool through_virtual) const {
     const Impl& d = *impl_;
     if (!cam_from_world.isValid()) return fail(ErrorCode::kBadInput, "lighting: the camera pose is not finite");
     stride = std::max(1, stride);
@@ -167,7 +171,7 @@ Result<Image> Estimator::ratioImage(const LightingSnapshot& snapshot, const Rigi
         const int y = jy * stride;
         auto* row = reinterpret_cast<float*>(out.mutableView().row(y));
         for (int x = 0; x < cam.width; x += stride) {
-            const std::optional<RealHit> hit = realFaceAt(*rays_, d.real_faces, cam, world_from_cam, rotation, x, y);
+            const std::optional<RealHit> hit = realFaceAt(*rays_, d.real_faces, cam, world_from_cam, rotation, x, y, through_virtual);
             if (!hit) continue;
             const Face& f = d.real_faces[static_cast<std::size_t>(hit->face)];
             const FaceModulation* m = snapshot.findFace(f.object_index, f.face_index);

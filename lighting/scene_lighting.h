@@ -53,7 +53,11 @@ public:
     virtual bool lastUpdateFull() const { return true; }
 
     // The ratio B/B~ a snapshot predicts for a view (lighting/estimator.h ratioImage()).
-    virtual Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride) const = 0;
+    // `through_virtual`: the real surface behind a virtual object too; it then reads only what no
+    // update changes (the real scene's rays and faces) and the snapshot, so any thread may call it
+    // while another updates.
+    virtual Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride,
+                                     bool through_virtual = false) const = 0;
 
     // The virtual objects' poses in the scene file at time t (keyframes, tags at their world
     // placement); identity for a tag-attached object whose tag is unknown.

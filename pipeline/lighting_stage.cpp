@@ -3,6 +3,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include <tbb/task_arena.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -10,6 +12,7 @@
 #include <thread>
 
 #include "core/log.h"
+#include "core/thread_priority.h"
 #include "lighting/scene_lighting.h"
 
 namespace commonlight::pipeline {
@@ -100,6 +103,14 @@ void LightingStage::stop() {
 }
 
 void LightingStage::measureLoop() {
+    // A measurement, not the product: it yields the CPU to tracking, compositing and the lighting,
+    // when it traces on its own (the truth has masks/virtual: measure()). Otherwise it holds the
+    // lighting's model while it traces, and a lower priority would hold the lighting thread up.
+    std::error_code ec;
+    if (fs::is_directory(sequence_->root / "groundtruth/masks/virtual", ec) &&
+        !setCurrentThreadNice(currentThreadNice() + 5)) {
+        log::warning("lighting measurement: could not lower its thread's priority");
+    }
     // The newest frame left unmeasured because an update was in progress: measured once the run
     // is over (waiting for the update), unless a later frame was measured since.
     std::optional<MeasureJob> skipped;
@@ -195,14 +206,24 @@ Result<bool> LightingStage::measure(const ImageView& rgb8, const FrameMetadata& 
     }
     const fs::path changed_file = gt / "masks/changed" / (stem + ".png");
     if (composite_file.empty() || !fs::exists(changed_file)) return true;
-    // The prediction first: without `wait`, an update in progress leaves the frame unmeasured
-    // before its truth is read. In real time the ratio is traced at every second pixel of every
-    // second row (a quarter of the rays: the measurement's CPU is taken from the frames played).
+    // In real time the ratio is traced at every second pixel of every second row (a quarter of the
+    // rays: the measurement's CPU is taken from the frames played). Where the truth says which
+    // pixels show a virtual object (masks/virtual), the prediction sees through the objects and
+    // needs nothing an update changes: it is traced on this thread alone (its priority lowered,
+    // measureLoop()) while the lighting thread goes on. Without that mask the objects must hide
+    // what is behind them, which needs the lighting's model: without `wait`, an update in progress
+    // then leaves the frame unmeasured, before its truth is read.
     const lighting::SnapshotPtr snapshot = engine_->latest();
     const int stride = sync_ ? 1 : 2;
+    const fs::path coverage_file = gt / "masks/virtual" / (stem + ".png");
+    const bool have_coverage = fs::exists(coverage_file);
     Image predicted;
     if (wait) {
         CL_TRY(predicted, engine_->ratioImage(*snapshot, cam_from_world, stride));
+    } else if (have_coverage) {
+        Result<Image> traced = fail(ErrorCode::kInternal, "not traced");
+        tbb::task_arena(1).execute([&] { traced = engine_->realRatioImage(*snapshot, cam_from_world, stride); });
+        CL_TRY(predicted, std::move(traced));
     } else {
         CL_TRY(std::optional<Image> got, engine_->tryRatioImage(*snapshot, cam_from_world, stride));
         if (!got) return false;
@@ -218,7 +239,10 @@ Result<bool> LightingStage::measure(const ImageView& rgb8, const FrameMetadata& 
     cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
     const ImageView composite{PixelFormat::kRgb8, rgb.cols, rgb.rows, rgb.step, rgb.data, rgb.step * rgb.rows};
     const ImageView mask{PixelFormat::kGray8, changed.cols, changed.rows, changed.step, changed.data, changed.step * changed.rows};
-    const cv::Mat coverage = cv::imread((gt / "masks/virtual" / (stem + ".png")).string(), cv::IMREAD_GRAYSCALE);
+    const cv::Mat coverage = have_coverage ? cv::imread(coverage_file.string(), cv::IMREAD_GRAYSCALE) : cv::Mat();
+    if (have_coverage && !wait && (coverage.cols != rgb8.width || coverage.rows != rgb8.height)) {
+        return fail(ErrorCode::kBadInput, coverage_file.string() + ": unreadable or not the frame's size (ground truth)");
+    }
     const ImageView coverage_view{PixelFormat::kGray8, coverage.cols, coverage.rows, coverage.step, coverage.data,
                                   coverage.step * static_cast<std::size_t>(coverage.rows)};
     const std::lock_guard lock(measure_mutex_);

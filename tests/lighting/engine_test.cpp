@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <thread>
 
 namespace commonlight::lighting {
@@ -297,6 +298,67 @@ TEST(LightingEngine, MovingObjectUpdatesIncrementallyAndItsShadowFollows) {
     // Full updates when the observations have doubled: after frames 1, 2, 4 and 8.
     EXPECT_EQ(stats.full_updates, 4u);
     EXPECT_EQ(stats.incremental_ms.count(), 8u);
+}
+
+// realRatioImage(): the ratio of the real surface behind a virtual object too (the floor under
+// the ball, in its shadow), the same as ratioImage() wherever that sees a real surface; and it is
+// read beside the lighting thread's updates while the ball moves (race-free under TSan: it reads
+// only the real scene and the snapshot).
+TEST(LightingEngine, RealRatioImageSeesThroughTheObjectsAndRunsBesideUpdates) {
+    EngineOptions sync_options;
+    sync_options.sync = true;
+    auto sync = LightingEngine::create(smallScene(), smallCamera(), sync_options);
+    ASSERT_TRUE(sync) << sync.error().message;
+    (*sync)->start();
+    const Image frame = greyFrame(smallCamera(), 100);
+    for (int i = 0; i < 3; ++i) ASSERT_TRUE((*sync)->submit(seenFromAbove(frame, 3000 + i)));
+    const SnapshotPtr snapshot = (*sync)->latest();
+    auto all = (*sync)->ratioImage(*snapshot, lookingDown());
+    auto real = (*sync)->realRatioImage(*snapshot, lookingDown());
+    (*sync)->stop();
+    ASSERT_TRUE(all && real);
+    int behind = 0, same = 0;
+    for (int y = 0; y < smallCamera().height; ++y) {
+        const auto* a = reinterpret_cast<const float*>(all->view().row(y));
+        const auto* r = reinterpret_cast<const float*>(real->view().row(y));
+        for (int x = 0; x < 3 * smallCamera().width; x += 3) {
+            ASSERT_TRUE(std::isfinite(r[x + 1])) << x / 3 << "," << y;  // the floor fills the view
+            if (std::isfinite(a[x + 1])) {
+                EXPECT_EQ(a[x + 1], r[x + 1]) << x / 3 << "," << y;
+                ++same;
+            } else {
+                EXPECT_LT(r[x + 1], 0.9f) << x / 3 << "," << y;  // under the ball: its contact shadow
+                ++behind;
+            }
+        }
+    }
+    EXPECT_GT(behind, 20);
+    EXPECT_GT(same, 1000);
+
+    auto engine = LightingEngine::create(smallScene(), smallCamera(), {});
+    ASSERT_TRUE(engine);
+    LightingEngine& e = **engine;
+    e.start();
+    std::atomic<bool> done{false};
+    std::atomic<int> traced{0};
+    std::thread reader([&] {
+        while (!done.load()) {
+            if (e.realRatioImage(*e.latest(), lookingDown(), 2)) ++traced;
+        }
+    });
+    for (int i = 0; i < 20; ++i) {
+        e.setVirtualPoses({Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.01 * i, 0, 0.1))});
+        ASSERT_TRUE(e.submit(seenFromAbove(frame, 4000 + i)));
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+    while (e.stats().updates < 2 && std::chrono::steady_clock::now() < deadline) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    done = true;
+    reader.join();
+    e.stop();
+    EXPECT_GE(e.stats().updates, 2u);
+    EXPECT_GT(traced.load(), 0);
+    EXPECT_FALSE(e.lastError().has_value());
 }
 
 TEST(LightingEngine, StopIsIdempotentAndSubmitAfterStopFails) {
