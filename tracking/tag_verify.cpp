@@ -155,33 +155,26 @@ public:
     // whole; where the correlation has one peak over the grid, as it has around a tag predicted
     // within the search, both end on the same shift. `evaluated`: the grid shifts tried.
     std::pair<double, Eigen::Vector2d> best(const Cells& white, double search, double step, bool ascent,
-                                            bool half_toward_better, int* evaluated = nullptr,
-                                            int* half_evaluated = nullptr) const {
+                                            int* evaluated = nullptr) const {
         double best_ncc = -2.0;
         Eigen::Vector2d best_shift = Eigen::Vector2d::Zero();
         const int steps = static_cast<int>(std::floor(search / step + 1e-9));
         const int side = 2 * steps + 1;
         int tried = 0;
-        int cx = 0, cy = 0;
-        // The grid's shifts and half a step around them; each grid shift's NCC (NaN: not tried).
+        // The grid's shifts and half a step around them.
         prepareFixed(white, Eigen::Vector2d::Constant(step * steps + 0.5 * step));
-        std::vector<double> grid(static_cast<std::size_t>(side * side), std::numeric_limits<double>::quiet_NaN());
-        const auto grid_at = [&](int sx, int sy) {
-            return std::abs(sx) <= steps && std::abs(sy) <= steps
-                       ? grid[static_cast<std::size_t>((sy + steps) * side + sx + steps)]
-                       : std::numeric_limits<double>::quiet_NaN();
-        };
         if (!ascent) {
             for (int sy = -steps; sy <= steps; ++sy) {
                 for (int sx = -steps; sx <= steps; ++sx) {
                     const Eigen::Vector2d shift(step * sx, step * sy);
                     const double v = ncc(white, shift);
-                    grid[static_cast<std::size_t>((sy + steps) * side + sx + steps)] = v;
                     ++tried;
-                    if (v > best_ncc) best_ncc = v, best_shift = shift, cx = sx, cy = sy;
+                    if (v > best_ncc) best_ncc = v, best_shift = shift;
                 }
             }
         } else {
+            // Each grid shift at most once (NaN: not tried yet).
+            std::vector<double> grid(static_cast<std::size_t>(side * side), std::numeric_limits<double>::quiet_NaN());
             const auto at_grid = [&](int sx, int sy) {
                 double& v = grid[static_cast<std::size_t>((sy + steps) * side + sx + steps)];
                 if (std::isnan(v)) {
@@ -190,6 +183,7 @@ public:
                 }
                 return v;
             };
+            int cx = 0, cy = 0;
             best_ncc = at_grid(0, 0);
             for (;;) {
                 int nx = cx, ny = cy;
@@ -207,24 +201,11 @@ public:
         }
         if (evaluated) *evaluated = tried;
         const Eigen::Vector2d coarse = best_shift;
-        // `half_toward_better`: along each axis only the half step towards the better of the best
-        // grid shift's two neighbours there (both where either was not tried or they tie; the
-        // climb ends having tried the 3 x 3 around its best): 3 of the 8 half steps.
-        int lo_x = -1, hi_x = 1, lo_y = -1, hi_y = 1;
-        if (half_toward_better) {
-            const auto toward = [](double minus, double plus, int& lo, int& hi) {
-                if (std::isnan(minus) || std::isnan(plus) || minus == plus) return;
-                (plus > minus ? lo : hi) = 0;
-            };
-            toward(grid_at(cx - 1, cy), grid_at(cx + 1, cy), lo_x, hi_x);
-            toward(grid_at(cx, cy - 1), grid_at(cx, cy + 1), lo_y, hi_y);
-        }
-        for (int sy = lo_y; sy <= hi_y; ++sy) {
-            for (int sx = lo_x; sx <= hi_x; ++sx) {
+        for (int sy = -1; sy <= 1; ++sy) {
+            for (int sx = -1; sx <= 1; ++sx) {
                 if (sx == 0 && sy == 0) continue;
                 const Eigen::Vector2d shift = coarse + Eigen::Vector2d(0.5 * step * sx, 0.5 * step * sy);
                 const double v = ncc(white, shift);
-                if (half_evaluated) ++*half_evaluated;
                 if (v > best_ncc) best_ncc = v, best_shift = shift;
             }
         }
@@ -683,8 +664,7 @@ TagVerifyResult verifyPredictedTag(const ImageView& gray8, const CameraModel& ca
     // Step 2: the tag's pattern.
     const Cells own = cellsOf(total, [&](int c, int r) { return pattern.white(c, r); });
     const auto [ncc, shift] = matcher->best(own, options.search_px, options.search_step_px, options.search_ascent,
-                                             options.half_steps_toward_better, &out.grid_shifts_tried,
-                                             &out.half_steps_tried);
+                                             &out.grid_shifts_tried);
     for (auto& c : out.corners) c += shift;
     out.ncc = ncc;
     out.shift_px = shift;

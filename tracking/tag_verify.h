@@ -53,9 +53,6 @@ struct TagVerifyOptions {
     // the grid (docs/tracking.md, "Speed (issue 13)", seventh round). A tag predicted up to
     // search_px off is still found: the climb walks there.
     bool search_ascent = true;
-    // The half steps around the grid's best only towards its better neighbour along each axis (3
-    // of 8; track40, measured and not merged: docs/history/tracking-passes-6.md).
-    bool half_steps_toward_better = true;
     // The pattern's normalized cross-correlation with the image: measured on synthetic 7-20 px
     // tags (blur 0.8 px, noise 1.5 grey levels) 0.95-0.99 at the truth; another id printed in
     // the tag's place, 0.8-0.87 (the black square and the border dominate both).
@@ -90,7 +87,6 @@ struct TagVerifyResult {
     Eigen::Vector2d shift_px = Eigen::Vector2d::Zero();  // from the predicted corners
     double ncc = 0.0;                                    // the tag's pattern at the best shift
     int grid_shifts_tried = 0;                           // of step 2's 0.5 px grid (search_ascent)
-    int half_steps_tried = 0;                            // around its best (half_steps_toward_better: 3 of 8)
     double ncc_square = 0.0;                             // the plain black square at its best shift
     double ncc_other = -1.0;                             // the best of the other ids
     // Step 3 skipped: the tag was reported at this place in the last frame (`known_at_px`), so
