@@ -4,13 +4,28 @@
 
 namespace commonlight::pipeline {
 
-std::optional<int> LightingPacer::step(std::uint64_t dropped, bool lighting_published) {
+std::optional<int> LightingPacer::step(std::uint64_t dropped, bool lighting_published, std::uint64_t full_updates) {
     ++frames_;
     ++frames_at_[static_cast<std::size_t>(every_ - 1)];
-    const bool counts = lighting_published && frames_ > static_cast<std::uint64_t>(kGraceFrames);
+    // A full update that ended since the last frame: a drop held pending is its, and so is one
+    // seen within kRefitFrames after it.
+    const bool refit_ended = full_updates != full_updates_;
+    full_updates_ = full_updates;
+    if (refit_ended) {
+        since_refit_ = 0;
+        pending_ = -1;
+    } else if (since_refit_ < kRefitFrames) {
+        ++since_refit_;
+    }
+    const bool counts = lighting_published && frames_ > static_cast<std::uint64_t>(kGraceFrames) && since_refit_ >= kRefitFrames;
+    if (dropped > 0 && counts && pending_ < 0) pending_ = 0;
     int next = every_;
-    if (dropped > 0 && counts) {
+    if (pending_ >= 0 && ++pending_ > kRefitFrames) {
+        // No full update ended within kRefitFrames of the drop: the pace's.
+        pending_ = -1;
         next = std::min(every_ + 1, kMaxEvery);
+        calm_ = 0;
+    } else if (dropped > 0 || pending_ >= 0) {
         calm_ = 0;
     } else if (++calm_ >= kCalmFrames) {
         next = std::max(every_ - 1, 1);

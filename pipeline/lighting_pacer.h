@@ -8,9 +8,12 @@
 // A slower machine would lose frames to it. So the pacer starts at every frame and, when the
 // pipeline thread finds frames dropped before it took them, solves for one frame fewer in each
 // run of frames (every 2nd, 3rd, up to kMaxEvery-th); after kCalmFrames frames without a drop it
-// steps back towards every frame. Drops while the lighting has published nothing yet (its first,
-// full update) and in the first kGraceFrames frames (the compositor's programs compiling) are not
-// held against it.
+// steps back towards every frame. Drops the pace does not cause are not held against it: while
+// the lighting has published nothing yet (its first, full update), in the first kGraceFrames
+// frames (the compositor's programs compiling), and around a full update (the lights refitted:
+// 75-120 ms of both cores whatever the pace; `live` drops most of its frames there): a drop is
+// held for kRefitFrames frames and forgotten when a full update ends meanwhile or ended less than
+// kRefitFrames frames before it.
 //
 // Pure logic: the pipeline thread calls step() for each frame it tracks and applies the answer
 // (LightingEngine::setUpdateEvery()).
@@ -30,10 +33,12 @@ public:
     static constexpr int kMaxEvery = 4;
     static constexpr int kCalmFrames = 60;   // two seconds at 30 fps without a drop: one step back
     static constexpr int kGraceFrames = 15;
+    static constexpr int kRefitFrames = 6;   // 0.2 s at 30 fps
 
-    // One tracked frame: `dropped` frames were lost before it (its sequence number's gap), and
-    // whether the lighting has published a snapshot yet. The new "every" when it changed.
-    std::optional<int> step(std::uint64_t dropped, bool lighting_published);
+    // One tracked frame: `dropped` frames were lost before it (its sequence number's gap), whether
+    // the lighting has published a snapshot yet, and how many full updates it has made so far.
+    // The new "every" when it changed.
+    std::optional<int> step(std::uint64_t dropped, bool lighting_published, std::uint64_t full_updates = 0);
 
     int every() const noexcept { return every_; }
     std::uint64_t changes() const noexcept { return changes_; }
@@ -46,6 +51,9 @@ public:
 private:
     int every_ = 1;
     int calm_ = 0;              // frames without a drop since the last drop or change
+    int pending_ = -1;          // frames a drop has been held (-1: none)
+    std::uint64_t full_updates_ = 0;
+    int since_refit_ = kRefitFrames;  // frames since a full update ended (kRefitFrames: long ago)
     std::uint64_t frames_ = 0;  // frames seen
     std::uint64_t changes_ = 0;
     std::vector<std::uint64_t> frames_at_ = std::vector<std::uint64_t>(kMaxEvery, 0);

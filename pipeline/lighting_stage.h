@@ -78,6 +78,8 @@ public:
     lighting::SnapshotPtr latest() const { return engine_->latest(); }
     // In real time, solve for every n-th frame at most from now on (LightingEngine::setUpdateEvery).
     void setUpdateEvery(int n) { engine_->setUpdateEvery(n); }
+    // The full updates published so far (the lights refitted).
+    std::uint64_t fullUpdates() const { return engine_->stats().full_updates; }
     nlohmann::json metricsJson() const;
     // Two lines for the summary.
     std::string summary() const;

@@ -280,7 +280,7 @@ Result<void> FrameRunner::track(const Frame& frame, TrackedFrame& out) {
     // Step 4: the frame to the lighting thread (sync: its update is published before we go on),
     // at the pace the dropped frames allow.
     if (lighting_ && pacer_) {
-        if (const std::optional<int> every = pacer_->step(dropped, lighting_->latest()->version > 0)) {
+        if (const std::optional<int> every = pacer_->step(dropped, lighting_->latest()->version > 0, lighting_->fullUpdates())) {
             lighting_->setUpdateEvery(*every);
             log::info(*every == 1 ? std::string("lighting: solving for every frame again")
                                   : "lighting: solving for one frame in " + std::to_string(*every) + " (frames were dropped)");
