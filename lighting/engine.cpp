@@ -220,6 +220,11 @@ EngineStats LightingEngine::stats() const {
     return s;
 }
 
+std::uint64_t LightingEngine::fullUpdates() const {
+    std::lock_guard lock(impl_->mutex);
+    return impl_->stats.full_updates;
+}
+
 Result<Image> LightingEngine::ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride) const {
     std::lock_guard lock(impl_->model_mutex);
     return impl_->model->ratioImage(snapshot, cam_from_world, stride);

@@ -120,6 +120,8 @@ public:
     // The newest snapshot; never null (version 0 before the first update: every ratio 1).
     SnapshotPtr latest() const noexcept;
     EngineStats stats() const;
+    // stats().full_updates alone (no copy of the time reservoirs: for a caller's every frame).
+    std::uint64_t fullUpdates() const;
     // The ratio B/B~ a snapshot predicts per pixel for a camera pose (kRgbF32, NaN where no real
     // proxy is seen): for metrics against ground truth. Waits while an update is under way.
     Result<Image> ratioImage(const LightingSnapshot& snapshot, const Rigid3d& cam_from_world, int stride = 1) const;

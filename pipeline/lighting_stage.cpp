@@ -208,12 +208,12 @@ Result<bool> LightingStage::measure(const ImageView& rgb8, const FrameMetadata& 
     if (composite_file.empty() || !fs::exists(changed_file)) return true;
     // In real time the ratio is traced at every fourth pixel of every fourth row (a sixteenth of
     // the rays, 450-500 of the changed region's pixels a frame on the sample: the measurement's CPU
-    // is taken from the frames played). Where the truth says which
-    // pixels show a virtual object (masks/virtual), the prediction sees through the objects and
-    // needs nothing an update changes: it is traced on this thread alone (its priority lowered,
-    // measureLoop()) while the lighting thread goes on. Without that mask the objects must hide
-    // what is behind them, which needs the lighting's model: without `wait`, an update in progress
-    // then leaves the frame unmeasured, before its truth is read.
+    // is taken from the frames played). Where the truth says which pixels show a virtual object
+    // (masks/virtual), the prediction sees through the objects and needs nothing an update
+    // changes: it is traced on this thread alone (its priority lowered, measureLoop()) while the
+    // lighting thread goes on. Without that mask the objects must hide what is behind them, which
+    // needs the lighting's model: without `wait`, an update in progress then leaves the frame
+    // unmeasured, before its truth is read.
     const lighting::SnapshotPtr snapshot = engine_->latest();
     const int stride = sync_ ? 1 : 4;
     const fs::path coverage_file = gt / "masks/virtual" / (stem + ".png");

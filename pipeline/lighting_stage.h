@@ -79,7 +79,7 @@ public:
     // In real time, solve for every n-th frame at most from now on (LightingEngine::setUpdateEvery).
     void setUpdateEvery(int n) { engine_->setUpdateEvery(n); }
     // The full updates published so far (the lights refitted).
-    std::uint64_t fullUpdates() const { return engine_->stats().full_updates; }
+    std::uint64_t fullUpdates() const { return engine_->fullUpdates(); }
     nlohmann::json metricsJson() const;
     // Two lines for the summary.
     std::string summary() const;

@@ -248,6 +248,7 @@ TEST(LightingEngine, FullUpdatesComeNoSoonerThanRefitMinFramesApart) {
         e.stop();
         EXPECT_EQ(e.stats().updates, 20u) << min_frames;
         EXPECT_EQ(e.stats().full_updates, min_frames == 0 ? 5u : 3u) << min_frames;
+        EXPECT_EQ(e.fullUpdates(), e.stats().full_updates) << min_frames;
         EXPECT_FALSE(e.lastError().has_value());
     }
     EngineOptions bad;
