@@ -43,11 +43,12 @@ expect_exit 0 "$COMMONLIGHT" play "$SAMPLE" --metrics "$TMP/r.json"
 python3 -c 'import json,sys; d=json.load(open(sys.argv[1]))["duration_s"]; n=int(sys.argv[2]); assert 0.9*(n-1)/30 < d < 20*n/30, d' \
     "$TMP/r.json" "$SAMPLE_FRAMES"
 # In real time the ratio error is measured on the stage's own thread (every 5th frame, newest
-# wins, every second pixel of every second row): measured, and as close to the truth as in sync.
+# wins, every fourth pixel of every fourth row: 450-500 of the changed region's pixels a frame):
+# measured, and as close to the truth as in sync.
 python3 - "$TMP/r.json" <<'PY'
 import json, sys
 shadow = json.load(open(sys.argv[1]))["lighting"]["shadow_ratio_error"]
-assert shadow["frames"] >= 1 and shadow["pixels"] > 1000, shadow
+assert shadow["frames"] >= 1 and shadow["pixels"] > 250 * shadow["frames"], shadow
 assert shadow["rms"] < 0.13 and abs(shadow["mean_signed"]) < 0.06, shadow
 PY
 echo PASS
