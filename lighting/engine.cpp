@@ -11,6 +11,8 @@
 #include "core/log.h"
 #include "lighting/scene_lighting.h"
 
+#include <tbb/task_arena.h>
+
 namespace commonlight::lighting {
 
 namespace {
@@ -57,6 +59,7 @@ struct LightingEngine::Impl {
     std::uint64_t last_update_ticket = 0;  // the observation the newest snapshot was solved for
     std::atomic<int> update_every{1};      // options.update_every, then setUpdateEvery()'s
     std::uint64_t version = 0;
+    int full_update_threads = 0;  // options.full_update_threads resolved: 0 every core
 
     mutable std::mutex model_mutex;     // held by the thread during an update, and by ratioImage()
     mutable std::mutex snapshot_mutex;  // held only to copy the pointer
@@ -86,6 +89,9 @@ Result<std::unique_ptr<LightingEngine>> LightingEngine::create(const Scene& scen
     if (options.observation_interleave < 0) {
         return fail(ErrorCode::kUsage, "lighting: observation_interleave must be 0 (automatic) or at least 1");
     }
+    if (options.full_update_threads < 0) {
+        return fail(ErrorCode::kUsage, "lighting: full_update_threads must be 0 (automatic) or at least 1");
+    }
     if (options.radiance_scale && !(std::isfinite(*options.radiance_scale) && *options.radiance_scale > 0.0)) {
         return fail(ErrorCode::kBadInput, "lighting: radiance_scale must be positive and finite");
     }
@@ -100,6 +106,7 @@ Result<std::unique_ptr<LightingEngine>> LightingEngine::create(const Scene& scen
     model_options.observation_interleave =
         options.observation_interleave > 0 ? options.observation_interleave : (options.sync ? 1 : 2);
     model_options.refit_min_frames = options.refit_min_frames >= 0 ? options.refit_min_frames : (options.sync ? 0 : 8);
+    impl->full_update_threads = options.full_update_threads > 0 ? options.full_update_threads : (options.sync ? 0 : 1);
     CL_TRY(impl->model, SceneLighting::create(impl->scene, camera, model_options));
     impl->update_every.store(options.update_every);
     impl->virtual_poses = SceneLighting::scenePoses(impl->scene, 0.0);
@@ -295,8 +302,21 @@ Result<void> LightingEngine::Impl::process(OwnedObservation& observation, const 
     if (!options.sync && last_update_ticket != 0 && observation.ticket - last_update_ticket < static_cast<std::uint64_t>(update_every.load())) {
         return {};
     }
-    // Step 3: estimate and solve.
-    CL_TRY(LightingSnapshot next, model->update(poses));
+    // Step 3: estimate and solve. A full update after the first in an arena of
+    // full_update_threads (EngineOptions), so that it leaves the rest of the machine alone.
+    int threads = 0;
+    Result<LightingSnapshot> solved = fail(ErrorCode::kInternal, "lighting: no update ran");
+    const auto solve = [&] {
+        threads = tbb::this_task_arena::max_concurrency();
+        solved = model->update(poses);
+    };
+    if (full_update_threads > 0 && version > 0 && model->nextUpdateFull()) {
+        tbb::task_arena arena(full_update_threads);
+        arena.execute(solve);
+    } else {
+        solve();
+    }
+    CL_TRY(LightingSnapshot next, std::move(solved));
     const std::int64_t end_ns = monotonicNowNs();
     next.version = ++version;
     next.frame_timestamp_ns = observation.timestamp_ns;
@@ -313,7 +333,10 @@ Result<void> LightingEngine::Impl::process(OwnedObservation& observation, const 
     std::lock_guard lock(mutex);
     ++stats.updates;
     const bool full = model->lastUpdateFull();
-    if (full) ++stats.full_updates;
+    if (full) {
+        ++stats.full_updates;
+        stats.full_update_threads = threads;
+    }
     stats.update_ms.add(static_cast<double>(end_ns - start_ns) / 1e6);
     stats.lag_ms.add(static_cast<double>(end_ns - observation.submitted_ns) / 1e6);
     if (!full) stats.incremental_ms.add(static_cast<double>(end_ns - start_ns) / 1e6);
@@ -335,6 +358,7 @@ nlohmann::json lightingMetricsJson(const EngineStats& stats, const LightingSnaps
     j["lag_ms"] = percentilesJson(stats.lag_ms);
     j["updates"] = stats.updates;
     j["full_updates"] = stats.full_updates;
+    j["full_update_threads"] = stats.full_update_threads;
     j["incremental_update_ms"] = percentilesJson(stats.incremental_ms);
     j["update_rate_hz"] = stats.updateRateHz();
     j["observations"] = {{"submitted", stats.submitted},

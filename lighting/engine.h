@@ -61,6 +61,11 @@ struct EngineOptions {
     // doubling schedule's early refits (after 2, 4, 8 ... observations) do not hold the lighting
     // back for several frames in a row. -1: 8 in real-time mode, 0 (whenever they double) in sync.
     int refit_min_frames = -1;
+    // The threads a full update may use (a TBB arena of that many). It takes 75-140 ms of both
+    // cores on the sample: at one thread it takes about twice as long but leaves the other core to
+    // tracking and compositing, so frames are not dropped around it. The first full update (before
+    // any snapshot) always uses every core. 0: 1 in real-time mode, every core in sync mode.
+    int full_update_threads = 0;
 };
 
 // One frame as the lighting thread sees it.
@@ -79,6 +84,7 @@ struct EngineStats {
     std::uint64_t without_pose = 0;   // submitted without a camera pose
     std::uint64_t updates = 0;        // snapshots published
     std::uint64_t full_updates = 0;   // of them, full (light fit, B~ and the influence from scratch)
+    int full_update_threads = 0;      // the threads the last full update could use (0: none yet)
     // Per-update times in ms, in fixed-size reservoirs (an hour of live use allocates nothing more):
     SampleReservoir update_ms;        // accumulation + estimation + solve + publication
     SampleReservoir incremental_ms;   // the same, incremental updates only (the virtual objects' influence)

@@ -121,6 +121,7 @@ public:
     Result<LightingSnapshot> update(const std::vector<Rigid3d>& virtual_world_from_object) override;
 
     bool lastUpdateFull() const override { return stats_.full; }
+    bool nextUpdateFull() const override;
 
     // After update(): the estimates and solutions it used.
     const std::vector<LightEstimate>& lights() const noexcept { return estimates_; }

@@ -52,15 +52,22 @@ double unoccluded(const DirectSource& s, const Eigen::Vector3d& x, const Eigen::
 
 }  // namespace
 
+// A full update is due: nothing solved yet, one asked for, or the observations have doubled since
+// the last fit (and refit_min_frames have passed).
+bool Estimator::nextUpdateFull() const {
+    const Impl& d = *impl_;
+    const std::uint64_t frames = observations_->frames();
+    const bool refit = frames > d.frames_at_fit && frames >= 2 * d.frames_at_fit &&
+                       frames - d.frames_at_fit >= static_cast<std::uint64_t>(std::max(0, d.options.refit_min_frames));
+    return !d.mesh_built || !d.influence->hasBase() || d.force_full || refit;
+}
+
 // The whole update; see estimator.h for the cases.
 Result<LightingSnapshot> Estimator::update(const std::vector<Rigid3d>& virtual_world_from_object) {
     Impl& d = *impl_;
     // Between full updates (a new fit of lights and reflectances, B~ solved again) only what the
     // virtual objects change is updated, incrementally (lighting/influence.h).
-    const std::uint64_t frames = observations_->frames();
-    const bool refit = frames > d.frames_at_fit && frames >= 2 * d.frames_at_fit &&
-                       frames - d.frames_at_fit >= static_cast<std::uint64_t>(std::max(0, d.options.refit_min_frames));
-    if (d.update_depth == 0 && d.mesh_built && d.influence->hasBase() && !d.force_full && !refit) {
+    if (d.update_depth == 0 && !nextUpdateFull()) {
         setVirtualPoses(virtual_world_from_object);
         return incrementalUpdate();
     }

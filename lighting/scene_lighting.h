@@ -51,6 +51,8 @@ public:
     // Whether the last update() estimated and solved everything again (a full update: the light
     // fit, B~), or only brought the virtual objects' influence up to date (incremental).
     virtual bool lastUpdateFull() const { return true; }
+    // Whether the next update() will be a full one, as far as the observations so far decide.
+    virtual bool nextUpdateFull() const { return true; }
 
     // The ratio B/B~ a snapshot predicts for a view (lighting/estimator.h ratioImage()).
     // `through_virtual`: the real surface behind a virtual object too; it then reads only what no

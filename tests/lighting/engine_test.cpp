@@ -4,6 +4,7 @@
 #include "lighting/engine.h"
 
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include <atomic>
 #include <chrono>
@@ -253,6 +254,50 @@ TEST(LightingEngine, FullUpdatesComeNoSoonerThanRefitMinFramesApart) {
     }
     EngineOptions bad;
     bad.refit_min_frames = -2;
+    EXPECT_FALSE(LightingEngine::create(smallScene(), smallCamera(), bad));
+}
+
+// In real time a full update after the first runs in an arena of full_update_threads (default 1),
+// so it leaves the other core to tracking and compositing; the first (nothing drawn lit yet) and
+// every full update in sync mode use every core. Full updates after observations 1 and 9.
+TEST(LightingEngine, FullUpdatesAfterTheFirstUseFullUpdateThreadsInRealTime) {
+    const int every_core = tbb::this_task_arena::max_concurrency();
+    for (const int threads : {0, 2}) {
+        EngineOptions options;
+        options.full_update_threads = threads;
+        auto engine = LightingEngine::create(smallScene(), smallCamera(), options);
+        ASSERT_TRUE(engine) << engine.error().message;
+        LightingEngine& e = **engine;
+        e.start();
+        const Image frame = greyFrame(smallCamera(), 100);
+        for (int i = 0; i < 10; ++i) {
+            ASSERT_TRUE(e.submit(seenFromAbove(frame, 3000 + i)));
+            const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+            while (e.stats().updates < static_cast<std::uint64_t>(i + 1) && std::chrono::steady_clock::now() < deadline) {
+                std::this_thread::sleep_for(std::chrono::milliseconds(1));
+            }
+            if (i == 0) {
+                EXPECT_EQ(e.stats().full_updates, 1u);
+                EXPECT_EQ(e.stats().full_update_threads, every_core) << threads;
+            }
+        }
+        e.stop();
+        EXPECT_EQ(e.stats().full_updates, 2u) << threads;
+        EXPECT_EQ(e.stats().full_update_threads, threads == 0 ? 1 : threads);
+        EXPECT_FALSE(e.lastError().has_value());
+    }
+    EngineOptions sync;
+    sync.sync = true;
+    auto engine = LightingEngine::create(smallScene(), smallCamera(), sync);
+    ASSERT_TRUE(engine);
+    (*engine)->start();
+    const Image frame = greyFrame(smallCamera(), 100);
+    for (int i = 0; i < 10; ++i) ASSERT_TRUE((*engine)->submit(seenFromAbove(frame, 4000 + i)));
+    (*engine)->stop();
+    EXPECT_EQ((*engine)->stats().full_updates, 4u);  // after 1, 2, 4 and 8
+    EXPECT_EQ((*engine)->stats().full_update_threads, every_core);
+    EngineOptions bad;
+    bad.full_update_threads = -1;
     EXPECT_FALSE(LightingEngine::create(smallScene(), smallCamera(), bad));
 }
 
