@@ -353,14 +353,7 @@ Result<std::unique_ptr<Compositor>> Compositor::create(GlContext& context, const
     d.makeUndistortMap();
     CL_TRY_VOID(d.makePrograms());
     d.empty_vao = gl::newVertexArray();
-    d.tile_vao = gl::newVertexArray();
-    d.tile_vbo = gl::newBuffer();
-    glBindVertexArray(d.tile_vao);
-    glBindBuffer(GL_ARRAY_BUFFER, d.tile_vbo);
-    glEnableVertexAttribArray(0);
-    glVertexAttribPointer(0, 2, GL_FLOAT, GL_FALSE, 2 * sizeof(float), nullptr);
-    glBindVertexArray(0);
-    glBindBuffer(GL_ARRAY_BUFFER, 0);
+    d.makeTileBuffers();
     for (const RealObject& o : scene.real_objects) {
         d.real_meshes.push_back(uploadMesh(o.shape));
         d.real_models.push_back(toGl(o.world_from_object));
@@ -610,7 +603,6 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     // Step 4: the real proxies (atlas coordinates of their modulation) and the virtual layer, in
     // the undistorted image.
     const bool modulated = posed && d.snapshot_textures.modulates();
-    const bool debug_modulation = d.options.debug == DebugView::kElements || d.options.debug == DebugView::kRatio;
     Rect layer_rect, virtual_camera_rect;
     bool proxies_drawn = false;
     TileMask& tiles = d.modulation_tiles;
@@ -633,17 +625,7 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
         // The camera tiles to modulate: where the snapshot changes something (the debug views show
         // it all); elsewhere the final pass copies the frame's codes. The proxies are drawn where
         // the final pass reads them and under the virtual objects (their depth hides them).
-        if (modulated) {
-            if (debug_modulation) {
-                tiles.markPixels(unite(virtual_camera_rect, d.cameraRect(full_layer)));
-            } else if (d.options.modulation_region == ModulationRegion::kFrame) {
-                tiles.markPixels(Rect{0, 0, d.width - 1, d.height - 1});
-            } else if (d.options.modulation_region == ModulationRegion::kRectangle) {
-                tiles.markPixels(unite(virtual_camera_rect, d.cameraRect(d.influenceRect(cam_from_world))));
-            } else {
-                d.markInfluenceTiles(cam_from_world, tiles);
-            }
-        }
+        if (modulated) d.markModulationTiles(cam_from_world, virtual_camera_rect);
         const Rect camera_rect = unite(virtual_camera_rect, tiles.bounds(d.width, d.height));
         const Rect proxy_rect = unite(d.layerRectOfCamera(camera_rect), layer_rect);
         proxies_drawn = modulated && !camera_rect.empty() && !proxy_rect.empty();
@@ -676,16 +658,7 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     if (!virtual_camera_rect.empty()) {
         CL_TRY(with_virtual, d.finalProgram(virtual_bits));
     }
-    d.final_area = FinalPassArea{};
-    d.final_area.modulated_tiles = tiles.count();
-    d.tile_vertices.clear();
-    d.final_area.plain = appendTileQuads(tiles, false, virtual_camera_rect, d.width, d.height, d.tile_vertices);
-    const GLsizei plain_vertices = static_cast<GLsizei>(d.tile_vertices.size() / 2);
-    d.final_area.modulated = appendTileQuads(tiles, true, virtual_camera_rect, d.width, d.height, d.tile_vertices);
-    const GLsizei modulated_vertices = static_cast<GLsizei>(d.tile_vertices.size() / 2) - plain_vertices;
-    glBindBuffer(GL_ARRAY_BUFFER, d.tile_vbo);
-    glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(d.tile_vertices.size() * sizeof(float)), d.tile_vertices.data(), GL_STREAM_DRAW);
-    glBindBuffer(GL_ARRAY_BUFFER, 0);
+    const auto [plain_vertices, modulated_vertices] = d.uploadTileQuads(virtual_camera_rect);
     glBindFramebuffer(GL_FRAMEBUFFER, d.output_fbo);
     const GLenum out0 = GL_COLOR_ATTACHMENT0;
     glDrawBuffers(1, &out0);
@@ -727,16 +700,8 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     }
     if (with_virtual) {
         setUniforms(*with_virtual);
-        glEnable(GL_SCISSOR_TEST);
-        virtual_camera_rect.scissor();
-        glBindVertexArray(d.empty_vao);
-        glDrawArrays(GL_TRIANGLES, 0, 3);
-        glDisable(GL_SCISSOR_TEST);
-        ++d.final_area.draws;
-        d.final_area.with_virtual = static_cast<long>(virtual_camera_rect.x1 - virtual_camera_rect.x0 + 1) *
-                                    static_cast<long>(virtual_camera_rect.y1 - virtual_camera_rect.y0 + 1);
+        d.drawVirtualRect(virtual_camera_rect);
     }
-    glBindVertexArray(0);
     glActiveTexture(GL_TEXTURE0);
     d.mark("final pass");
 

@@ -293,7 +293,11 @@ struct Compositor::Impl {
     Rect projectedQuad(const std::array<Eigen::Vector3d, 4>& corners) const;
     Rect influenceRect(const Eigen::Matrix4d& cam_from_world) const;
     void markInfluenceTiles(const Eigen::Matrix4d& cam_from_world, TileMask& tiles);
+    void markModulationTiles(const Eigen::Matrix4d& cam_from_world, const Rect& virtual_camera_rect);
+    void makeTileBuffers();
+    std::pair<GLsizei, GLsizei> uploadTileQuads(const Rect& virtual_camera_rect);
     void drawTileQuads(GLint first, GLsizei count);
+    void drawVirtualRect(const Rect& virtual_camera_rect);
     void renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
                           const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax, double footprint_px);
     void drawProxies(const Eigen::Matrix4f& view_proj, const Eigen::Vector3f& camera_centre, const Rect& rect);

@@ -227,12 +227,67 @@ void Compositor::Impl::markInfluenceTiles(const Eigen::Matrix4d& cam_from_world,
     }
 }
 
+// The camera tiles the final pass modulates this frame (`modulation_tiles`, reset by the caller),
+// by CompositorOptions::modulation_region; the debug views of the modulation show it wherever the
+// layer is (as one rectangle).
+void Compositor::Impl::markModulationTiles(const Eigen::Matrix4d& cam_from_world, const Rect& virtual_camera_rect) {
+    if (options.debug == DebugView::kElements || options.debug == DebugView::kRatio) {
+        modulation_tiles.markPixels(unite(virtual_camera_rect, cameraRect(Rect{0, 0, layer_width - 1, layer_height - 1})));
+    } else if (options.modulation_region == ModulationRegion::kFrame) {
+        modulation_tiles.markPixels(Rect{0, 0, width - 1, height - 1});
+    } else if (options.modulation_region == ModulationRegion::kRectangle) {
+        modulation_tiles.markPixels(unite(virtual_camera_rect, cameraRect(influenceRect(cam_from_world))));
+    } else {
+        markInfluenceTiles(cam_from_world, modulation_tiles);
+    }
+}
+
+void Compositor::Impl::makeTileBuffers() {
+    tile_vao = gl::newVertexArray();
+    tile_vbo = gl::newBuffer();
+    glBindVertexArray(tile_vao);
+    glBindBuffer(GL_ARRAY_BUFFER, tile_vbo);
+    glEnableVertexAttribArray(0);
+    glVertexAttribPointer(0, 2, GL_FLOAT, GL_FALSE, 2 * sizeof(float), nullptr);
+    glBindVertexArray(0);
+    glBindBuffer(GL_ARRAY_BUFFER, 0);
+}
+
+// The quads of the unmarked tiles, then of the marked ones, outside the virtual layer's rectangle,
+// into the tile buffer; their vertex counts. Starts `final_area` of this draw.
+std::pair<GLsizei, GLsizei> Compositor::Impl::uploadTileQuads(const Rect& virtual_camera_rect) {
+    final_area = FinalPassArea{};
+    final_area.modulated_tiles = modulation_tiles.count();
+    tile_vertices.clear();
+    final_area.plain = appendTileQuads(modulation_tiles, false, virtual_camera_rect, width, height, tile_vertices);
+    const GLsizei plain = static_cast<GLsizei>(tile_vertices.size() / 2);
+    final_area.modulated = appendTileQuads(modulation_tiles, true, virtual_camera_rect, width, height, tile_vertices);
+    const GLsizei modulated = static_cast<GLsizei>(tile_vertices.size() / 2) - plain;
+    glBindBuffer(GL_ARRAY_BUFFER, tile_vbo);
+    glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(tile_vertices.size() * sizeof(float)), tile_vertices.data(), GL_STREAM_DRAW);
+    glBindBuffer(GL_ARRAY_BUFFER, 0);
+    return {plain, modulated};
+}
+
 // Quads of the tile buffer (vertices [first, first + count)) with the bound program.
 void Compositor::Impl::drawTileQuads(GLint first, GLsizei count) {
     if (count <= 0) return;
     glBindVertexArray(tile_vao);
     glDrawArrays(GL_TRIANGLES, first, count);
+    glBindVertexArray(0);
     ++final_area.draws;
+}
+
+// The full-screen triangle with the bound program, scissored to the virtual layer's camera pixels.
+void Compositor::Impl::drawVirtualRect(const Rect& r) {
+    glEnable(GL_SCISSOR_TEST);
+    r.scissor();
+    glBindVertexArray(empty_vao);
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+    glBindVertexArray(0);
+    glDisable(GL_SCISSOR_TEST);
+    ++final_area.draws;
+    final_area.with_virtual = static_cast<long>(r.x1 - r.x0 + 1) * static_cast<long>(r.y1 - r.y0 + 1);
 }
 
 }  // namespace commonlight::render
