@@ -208,6 +208,9 @@ Result<nlohmann::json> benchCompositor(const Loaded& l, const BenchPipelineOptio
         render::CompositorOptions co;
         co.msaa_samples = msaa;
         co.camera_matching = spec.matching;
+        co.modulation_region = options.modulation_region == "frame"       ? render::ModulationRegion::kFrame
+                               : options.modulation_region == "rectangle" ? render::ModulationRegion::kRectangle
+                                                                          : render::ModulationRegion::kTiles;
         CL_TRY(std::unique_ptr<render::Compositor> c, render::Compositor::create(*context, l.scene, camera, l.response, co));
         render::FrameInput in;
         in.image = spec.format == PixelFormat::kRgb8
@@ -275,9 +278,13 @@ Result<nlohmann::json> benchCompositor(const Loaded& l, const BenchPipelineOptio
             std::printf(" %s %.1f/%.1f", name.c_str(), t.first, t.second);
             pass_json[name] = {{"ms", t.first}, {"cpu_ms", t.second}};
         }
-        std::printf("\n");
+        // Where the final pass modulated (the last draw): pixels of the frame, the virtual layer's included.
+        const render::FinalPassArea& area = c->finalPassArea();
+        const double modulated = static_cast<double>(area.modulated + area.with_virtual) / (static_cast<double>(w) * h);
+        std::printf(" | modulated %.0f%% (%d tiles), %d draws\n", 100.0 * modulated, area.modulated_tiles, area.draws);
         cases.push_back({{"width", w}, {"height", h}, {"format", format}, {"msaa", msaa}, {"moving", moving}, {"camera_matching", spec.matching},
-                         {"ms", {{"p50", p50}, {"p95", p95}}}, {"cpu_ms", cpu_ms}, {"passes_ms", pass_json}});
+                         {"ms", {{"p50", p50}, {"p95", p95}}}, {"cpu_ms", cpu_ms}, {"passes_ms", pass_json},
+                         {"final_pass", {{"modulated_fraction", modulated}, {"modulated_tiles", area.modulated_tiles}, {"draws", area.draws}}}});
     }
     return nlohmann::json{{"cases", cases}, {"renderer", context->renderer()}};
 }

@@ -31,6 +31,7 @@ struct BenchPipelineOptions {
     int repeats = 30;  // draws per compositor configuration
     double seconds = 6.0;  // real-time playback per configuration
     std::vector<std::string> cases;  // empty: all (benchPipelineCaseNames())
+    std::string modulation_region = "tiles";  // compositor case: render::ModulationRegion (tiles, rectangle, frame)
 };
 
 std::vector<std::string> benchPipelineCaseNames();

@@ -115,6 +115,11 @@ void addBenchCommand(CLI::App& app, Runner& runner) {
     pipe->add_option("--cases", pipeline_options->cases, "Cases to run (default: all)")
         ->check(CLI::IsMember(benchPipelineCaseNames()))
         ->delimiter(',');
+    pipe->add_option("--modulation-region", pipeline_options->modulation_region,
+                     "Compositor: where the final pass modulates: tiles (where the snapshot changes something), rectangle (one "
+                     "around them), frame (everywhere); the composites are the same")
+        ->check(CLI::IsMember({"tiles", "rectangle", "frame"}))
+        ->capture_default_str();
     pipe->footer("Cases: system (composite error and stage times, every frame), compositor (draw and read-back time, "
                  "per pass), matching (camera matching's estimates and the noise of the virtual objects against the ground "
                  "truth), realtime (playback at the recorded rate: fps, latency, lighting lag; pipeline thread and one thread).");

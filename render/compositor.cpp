@@ -66,7 +66,7 @@ Result<void> Compositor::Impl::makePrograms() {
     CL_TRY_VOID(makeVirtualProgram(virtual_ggx_program, true));
 
     // The final pass's everyday variants (RGB8 frames); the others are made when first needed.
-    for (int bits : {0, int{kFinalModulation}, int{kFinalVirtual}, kFinalModulation | kFinalVirtual}) CL_TRY_VOID(finalProgram(bits));
+    for (int bits : {int{kFinalTiles}, kFinalTiles | kFinalModulation, int{kFinalVirtual}, kFinalModulation | kFinalVirtual}) CL_TRY_VOID(finalProgram(bits));
     return {};
 }
 
@@ -126,7 +126,8 @@ Result<const FinalProgram*> Compositor::Impl::finalProgram(int bits) {
     if (bits & kFinalNoise) defines.push_back("MATCH_NOISE");
     defines.push_back("MODULATION_EPSILON " + std::to_string(kModulationEpsilon));
     FinalProgram p;
-    CL_TRY(p.id, gl::newProgram("final", shaders::programSource({}, shaders::kFinalVs), shaders::programSource(defines, shaders::kFinalFs)));
+    const char* vs = (bits & kFinalTiles) ? shaders::kTileVs : shaders::kFinalVs;
+    CL_TRY(p.id, gl::newProgram("final", shaders::programSource({}, vs), shaders::programSource(defines, shaders::kFinalFs)));
     p.atlas_size = loc(p.id, "u_atlas_size");
     p.layer_rect = loc(p.id, "u_layer_rect");
     p.exposure_gain = loc(p.id, "u_exposure_gain");
@@ -308,6 +309,8 @@ void Compositor::Impl::releaseAll() {
     for (GpuMesh& m : real_meshes) releaseMesh(m);
     for (GpuMesh& m : virtual_meshes) releaseMesh(m);
     gl::deleteVertexArray(empty_vao);
+    gl::deleteVertexArray(tile_vao);
+    gl::deleteBuffer(tile_vbo);
     gl::deleteTexture(frame_texture);
     gl::deleteTexture(frame_uv_texture);
     gl::deleteBuffer(frame_pbo);
@@ -350,6 +353,7 @@ Result<std::unique_ptr<Compositor>> Compositor::create(GlContext& context, const
     d.makeUndistortMap();
     CL_TRY_VOID(d.makePrograms());
     d.empty_vao = gl::newVertexArray();
+    d.makeTileBuffers();
     for (const RealObject& o : scene.real_objects) {
         d.real_meshes.push_back(uploadMesh(o.shape));
         d.real_models.push_back(toGl(o.world_from_object));
@@ -435,6 +439,7 @@ Compositor::~Compositor() {
 void Compositor::setOptions(const CompositorOptions& options) { impl_->options = options; }
 const CompositorOptions& Compositor::options() const noexcept { return impl_->options; }
 const std::vector<PassTime>& Compositor::passTimes() const noexcept { return impl_->pass_times; }
+const FinalPassArea& Compositor::finalPassArea() const noexcept { return impl_->final_area; }
 const std::optional<CameraMatch>& Compositor::cameraMatch() const noexcept { return impl_->match; }
 
 Result<std::vector<Eigen::Vector4f>> Compositor::surfacePoints(const FrameInput& frame) {
@@ -598,9 +603,10 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     // Step 4: the real proxies (atlas coordinates of their modulation) and the virtual layer, in
     // the undistorted image.
     const bool modulated = posed && d.snapshot_textures.modulates();
-    const bool debug_modulation = d.options.debug == DebugView::kElements || d.options.debug == DebugView::kRatio;
-    Rect layer_rect, camera_rect, virtual_camera_rect;
+    Rect layer_rect, virtual_camera_rect;
     bool proxies_drawn = false;
+    TileMask& tiles = d.modulation_tiles;
+    tiles.reset(d.width, d.height, kBlock);
     if (posed) {
         // GL camera: x right, y up, looking along -z.
         Eigen::Matrix4d cam_from_world = Eigen::Matrix4d::Identity();
@@ -615,14 +621,13 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
         layer_rect = d.options.debug == DebugView::kProxyWireframe
                          ? full_layer
                          : d.layerRect(virtual_model, cam_from_world, 2.0 + (added_blur > 0.05 ? std::ceil(3.0 * added_blur) : 0.0));
-        // The modulation only where the snapshot changes something (the debug views show it all);
-        // elsewhere the final pass copies the frame's codes. The proxies are drawn where the final
-        // pass reads them and under the virtual objects (their depth hides them).
-        Rect modulation_rect;
-        if (modulated) modulation_rect = debug_modulation ? full_layer : d.influenceRect(cam_from_world);
         virtual_camera_rect = d.cameraRect(layer_rect);
-        camera_rect = unite(virtual_camera_rect, d.cameraRect(modulation_rect));
-        const Rect proxy_rect = unite(unite(d.layerRectOfCamera(camera_rect), layer_rect), modulation_rect);
+        // The camera tiles to modulate: where the snapshot changes something (the debug views show
+        // it all); elsewhere the final pass copies the frame's codes. The proxies are drawn where
+        // the final pass reads them and under the virtual objects (their depth hides them).
+        if (modulated) d.markModulationTiles(cam_from_world, virtual_camera_rect);
+        const Rect camera_rect = unite(virtual_camera_rect, tiles.bounds(d.width, d.height));
+        const Rect proxy_rect = unite(d.layerRectOfCamera(camera_rect), layer_rect);
         proxies_drawn = modulated && !camera_rect.empty() && !proxy_rect.empty();
         if (proxies_drawn) d.drawProxies(view_proj, camera_centre, proxy_rect);
         d.mark("proxies");
@@ -632,11 +637,12 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
         }
         d.mark("virtual layer");
     }
+    if (!proxies_drawn) tiles.reset(d.width, d.height, kBlock);
 
-    // Step 5: the final pass at each camera pixel, the virtual layer read only where it can show.
-    // Three nested regions: outside `camera_rect` the frame's codes as they are (converted from
-    // YUV); in it, the modulation (where the proxies were drawn); in `virtual_camera_rect`, also
-    // the virtual layer. Each program reads only what its region needs.
+    // Step 5: the final pass at each camera pixel, each program only where it is needed: in
+    // `virtual_camera_rect` (the pixels that can see the virtual layer) the modulation and the
+    // virtual layer; in the other marked tiles the modulation; elsewhere the frame's codes as they
+    // are (converted from YUV). The tiles as quads: one draw per program.
     const int bits = format == PixelFormat::kYuyv ? kFinalYuyv : format == PixelFormat::kNv12 ? kFinalNv12 : 0;
     int modulation_bits = bits;
     if (proxies_drawn) {
@@ -646,12 +652,13 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
     }
     const int virtual_bits = modulation_bits | kFinalVirtual | (matching ? kFinalNoise : 0);
     if (layer_rect.empty()) virtual_camera_rect = Rect{};
-    CL_TRY(const FinalProgram* plain, d.finalProgram(bits));
-    CL_TRY(const FinalProgram* modulating, d.finalProgram(modulation_bits));
+    CL_TRY(const FinalProgram* plain, d.finalProgram(bits | kFinalTiles));
+    CL_TRY(const FinalProgram* modulating, d.finalProgram(modulation_bits | kFinalTiles));
     const FinalProgram* with_virtual = nullptr;
     if (!virtual_camera_rect.empty()) {
         CL_TRY(with_virtual, d.finalProgram(virtual_bits));
     }
+    const auto [plain_vertices, modulated_vertices] = d.uploadTileQuads(virtual_camera_rect);
     glBindFramebuffer(GL_FRAMEBUFFER, d.output_fbo);
     const GLenum out0 = GL_COLOR_ATTACHMENT0;
     glDrawBuffers(1, &out0);
@@ -683,40 +690,18 @@ Result<void> Compositor::draw(const FrameInput& frame, const lighting::LightingS
             glUniform1ui(p.seed, static_cast<GLuint>(d.frames_drawn & 0xffffffffu));
         }
     };
-    // `outer` less `inner` (inside it, or empty) as up to four bands.
-    const auto drawAround = [](const Rect& outer, const Rect& inner) {
-        if (outer.empty()) return;
-        if (inner.empty()) {
-            outer.scissor();
-            glDrawArrays(GL_TRIANGLES, 0, 3);
-            return;
-        }
-        const Rect bands[4] = {{outer.x0, outer.y0, outer.x1, inner.y0 - 1},
-                               {outer.x0, inner.y1 + 1, outer.x1, outer.y1},
-                               {outer.x0, inner.y0, inner.x0 - 1, inner.y1},
-                               {inner.x1 + 1, inner.y0, outer.x1, inner.y1}};
-        for (const Rect& band : bands) {
-            if (band.empty()) continue;
-            band.scissor();
-            glDrawArrays(GL_TRIANGLES, 0, 3);
-        }
-    };
-    glBindVertexArray(d.empty_vao);
-    glEnable(GL_SCISSOR_TEST);
-    const Rect frame_rect{0, 0, d.width - 1, d.height - 1};
-    const Rect modulation_camera_rect = modulation_bits != bits ? unite(camera_rect, virtual_camera_rect) : virtual_camera_rect;
-    setUniforms(*plain);
-    drawAround(frame_rect, modulation_camera_rect);
-    if (modulation_bits != bits) {
+    if (plain_vertices > 0) {
+        setUniforms(*plain);
+        d.drawTileQuads(0, plain_vertices);
+    }
+    if (modulated_vertices > 0) {
         setUniforms(*modulating);
-        drawAround(modulation_camera_rect, virtual_camera_rect);
+        d.drawTileQuads(plain_vertices, modulated_vertices);
     }
     if (with_virtual) {
         setUniforms(*with_virtual);
-        drawAround(virtual_camera_rect, Rect{});
+        d.drawVirtualRect(virtual_camera_rect);
     }
-    glDisable(GL_SCISSOR_TEST);
-    glBindVertexArray(0);
     glActiveTexture(GL_TEXTURE0);
     d.mark("final pass");
 

@@ -43,10 +43,19 @@ enum class DebugView {
 const char* debugViewName(DebugView view);
 DebugView nextDebugView(DebugView view);
 
+// Where the final pass runs its modulating program (elsewhere it copies the frame's codes, which is
+// what the modulating program writes where the snapshot changes nothing: the composite is the same).
+enum class ModulationRegion {
+    kTiles,      // the camera tiles (16 px) that can show a texel the snapshot changes
+    kRectangle,  // one rectangle around every face's changed texels (before session 41)
+    kFrame,      // every camera pixel (the reference the others must equal)
+};
+
 struct CompositorOptions {
     int msaa_samples = 4;          // 1: none
     bool lighting = true;          // false: no background modulation; virtual objects lit by the snapshot's lights only
     DebugView debug = DebugView::kNone;
+    ModulationRegion modulation_region = ModulationRegion::kTiles;
     int shadow_map_size = 512;     // texels per side of each shadow map (64..4096), at most: the virtual objects' maps cover only
                                    // their bounds, at twice their width in pixels (a power of two); the real proxies' use this
     int area_light_samples = 4;    // shadow maps per area or disc light (1..8)
@@ -72,6 +81,15 @@ struct FrameInput {
     double exposure_gain = 1.0;       // exposure (s) x analog gain; <= 0 or not finite: 1
     std::optional<Rigid3d> cam_from_world;              // nullopt (no pose): the frame unchanged
     std::vector<std::optional<Rigid3d>> virtual_poses;  // world_from_object per Scene::virtual_objects; nullopt: not drawn
+};
+
+// The camera pixels each program of the last draw()'s final pass ran over, and its draw calls.
+struct FinalPassArea {
+    long plain = 0;         // the frame's codes as they are
+    long modulated = 0;     // the background modulated
+    long with_virtual = 0;  // the modulation and the virtual layer
+    int modulated_tiles = 0;  // camera tiles marked for the modulation (in the virtual layer's rectangle too)
+    int draws = 0;
 };
 
 // What camera matching measured and applies (CompositorOptions::camera_matching).
@@ -122,6 +140,8 @@ public:
 
     // The passes of the last draw() and read() with their times (profiling mode; empty otherwise).
     const std::vector<PassTime>& passTimes() const noexcept;
+    // Where the last draw()'s final pass ran each of its programs.
+    const FinalPassArea& finalPassArea() const noexcept;
 
     void setOptions(const CompositorOptions& options);
     const CompositorOptions& options() const noexcept;

@@ -25,6 +25,7 @@
 #include "render/gl_objects.h"
 #include "render/gpu_mesh.h"
 #include "render/light_samples.h"
+#include "render/modulation_tiles.h"
 #include "render/shaders.h"
 #include "render/snapshot_textures.h"
 
@@ -69,20 +70,6 @@ inline GLuint byteTexture(int width, int height, GLenum internal, GLenum format)
 inline GLint loc(GLuint program, const char* name) { return glGetUniformLocation(program, name); }
 inline void setMat4(GLint location, const Eigen::Matrix4f& m) { glUniformMatrix4fv(location, 1, GL_FALSE, m.data()); }
 inline void setVec3(GLint location, const Eigen::Vector3f& v) { glUniform3f(location, v.x(), v.y(), v.z()); }
-
-// Pixels [x0, x1] x [y0, y1], inclusive, in some framebuffer's GL rows.
-struct Rect {
-    int x0 = 0, y0 = 0, x1 = -1, y1 = -1;
-    bool empty() const { return x1 < x0 || y1 < y0; }
-    void scissor() const { glScissor(x0, y0, x1 - x0 + 1, y1 - y0 + 1); }
-};
-
-// The smallest rectangle around both.
-inline Rect unite(const Rect& a, const Rect& b) {
-    if (a.empty()) return b;
-    if (b.empty()) return a;
-    return Rect{std::min(a.x0, b.x0), std::min(a.y0, b.y0), std::max(a.x1, b.x1), std::max(a.y1, b.y1)};
-}
 
 // A closed mesh's faces turned away from the camera are hidden by its own front: not drawn (their
 // fragments would be shaded and then overwritten). Open surfaces are drawn from both sides.
@@ -195,6 +182,7 @@ enum FinalBits : int {
     kFinalElements = 16,
     kFinalRatio = 32,
     kFinalNoise = 64,
+    kFinalTiles = 128,  // drawn over quads of camera tiles (kTileVs) instead of one scissored triangle
 };
 
 }  // namespace compositor_detail
@@ -254,6 +242,13 @@ struct Compositor::Impl {
     Eigen::Vector3d real_shadow_centre = Eigen::Vector3d::Zero();
     double real_shadow_radius = 0.0;
     SnapshotTextures snapshot_textures;
+    // The final pass's regions (render/modulation_tiles.h): the camera tiles it modulates, the
+    // layer cells the snapshot's changes project to, the quads of both programs.
+    TileMask modulation_tiles;
+    CoverageGrid influence_cells;
+    std::vector<float> tile_vertices;
+    GLuint tile_vao = 0, tile_vbo = 0;
+    FinalPassArea final_area;
 
     // Camera matching: the last measurement, the frame as RGB8 when it came as YUV, the blur passes.
     std::optional<CameraMatch> match;
@@ -295,7 +290,14 @@ struct Compositor::Impl {
     Rect layerRect(const std::vector<std::optional<Eigen::Matrix4f>>& models, const Eigen::Matrix4d& cam_from_world, double margin) const;
     Rect cameraRect(const Rect& layer) const;
     Rect layerRectOfCamera(const Rect& camera) const;
+    Rect projectedQuad(const std::array<Eigen::Vector3d, 4>& corners) const;
     Rect influenceRect(const Eigen::Matrix4d& cam_from_world) const;
+    void markInfluenceTiles(const Eigen::Matrix4d& cam_from_world, TileMask& tiles);
+    void markModulationTiles(const Eigen::Matrix4d& cam_from_world, const Rect& virtual_camera_rect);
+    void makeTileBuffers();
+    std::pair<GLsizei, GLsizei> uploadTileQuads(const Rect& virtual_camera_rect);
+    void drawTileQuads(GLint first, GLsizei count);
+    void drawVirtualRect(const Rect& virtual_camera_rect);
     void renderShadowMaps(std::vector<LightSample>& samples, const std::vector<std::optional<Eigen::Matrix4f>>& models,
                           const Eigen::Vector3d& vmin, const Eigen::Vector3d& vmax, double footprint_px);
     void drawProxies(const Eigen::Matrix4f& view_proj, const Eigen::Vector3f& camera_centre, const Rect& rect);

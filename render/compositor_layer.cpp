@@ -80,49 +80,6 @@ Rect Compositor::Impl::layerRectOfCamera(const Rect& pixels) const {
     return Rect{std::max(0, r.x0), std::max(0, r.y0), std::min(layer_width - 1, r.x1), std::min(layer_height - 1, r.y1)};
 }
 
-// The layer pixels (GL rows) where the snapshot's modulation can change the frame: the influenced
-// part of every face (SnapshotTextures), clipped at the camera's near plane and projected, with 2
-// pixels for the filtering. Empty when the snapshot changes nothing.
-Rect Compositor::Impl::influenceRect(const Eigen::Matrix4d& cam_from_world) const {
-    constexpr double kNear = 0.01;
-    double x0 = 1e30, y0 = 1e30, x1 = -1e30, y1 = -1e30;
-    for (const auto& [key, face] : snapshot_textures.faces()) {
-        const Eigen::Vector4f& in = face.influence;
-        if (in[0] > in[2] || in[1] > in[3]) continue;
-        const Eigen::Vector2f st[4] = {{in[0], in[1]}, {in[2], in[1]}, {in[2], in[3]}, {in[0], in[3]}};
-        std::array<Eigen::Vector3d, 4> c;
-        for (int k = 0; k < 4; ++k) {
-            const Eigen::Vector3f w = face.c0 + st[k].x() * face.e1 + st[k].y() * face.e2;
-            c[static_cast<std::size_t>(k)] = (cam_from_world * Eigen::Vector4d(w.x(), w.y(), w.z(), 1.0)).head<3>();
-        }
-        // The quad's part in front of the near plane (Sutherland-Hodgman against one plane).
-        std::vector<Eigen::Vector3d> kept;
-        for (std::size_t k = 0; k < 4; ++k) {
-            const Eigen::Vector3d& a = c[k];
-            const Eigen::Vector3d& b = c[(k + 1) % 4];
-            if (a.z() >= kNear) kept.push_back(a);
-            if ((a.z() >= kNear) != (b.z() >= kNear)) kept.push_back(a + (b - a) * ((kNear - a.z()) / (b.z() - a.z())));
-        }
-        for (const Eigen::Vector3d& p : kept) {
-            const double u = layer_camera.fx * p.x() / p.z() + layer_camera.cx;
-            const double v = layer_camera.fy * p.y() / p.z() + layer_camera.cy;
-            if (!std::isfinite(u) || !std::isfinite(v)) return Rect{0, 0, layer_width - 1, layer_height - 1};
-            x0 = std::min(x0, u);
-            x1 = std::max(x1, u);
-            y0 = std::min(y0, v);
-            y1 = std::max(y1, v);
-        }
-    }
-    if (x0 > x1) return Rect{};
-    // Image rows (down) to GL rows (up).
-    Rect r;
-    r.x0 = static_cast<int>(std::max(0.0, std::floor(std::max(-1.0, x0) - 2.0)));
-    r.x1 = static_cast<int>(std::min(layer_width - 1.0, std::ceil(std::min(1e6, x1) + 2.0)));
-    r.y0 = static_cast<int>(std::max(0.0, std::floor(layer_height - 1.0 - std::min(1e6, y1) - 2.0)));
-    r.y1 = static_cast<int>(std::min(layer_height - 1.0, std::ceil(layer_height - 1.0 - std::max(-1.0, y0) + 2.0)));
-    return r;
-}
-
 // The camera pixels whose ideal positions can fall in a layer rectangle (whole blocks; output
 // rows are image rows).
 Rect Compositor::Impl::cameraRect(const Rect& layer) const {

@@ -394,6 +394,11 @@ void main() {
 }
 )";
 
+const char* const kTileVs = R"(
+layout(location = 0) in vec2 a_position;
+void main() { gl_Position = vec4(a_position, 0.0, 1.0); }
+)";
+
 // At each camera pixel: the frame's code, the layer at the undistorted position, the
 // differential combination, the camera's response. The output's row 0 is the image's top row
 // (read back as is).

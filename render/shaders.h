@@ -31,6 +31,7 @@ extern const char* const kBlurFs;     // one direction of a Gaussian over the vi
 extern const char* const kWorldFs;    // the world position, w = 1 (location 0): surfacePoints()
 extern const char* const kWarpFs;     // the world positions' layer read at each camera pixel's ideal position (full-screen triangle)
 extern const char* const kFinalVs;    // a full-screen triangle
+extern const char* const kTileVs;     // quads of camera tiles: clip-space (x, y) at location 0 (render/modulation_tiles.h)
 // The final pass. Defines: FRAME_RGB8 | FRAME_YUYV | FRAME_NV12 (the frame's format), MODULATION
 // (real surfaces modulated by the snapshot through the face atlas), VIRTUAL (the virtual layer is
 // read), MATCH_NOISE (with VIRTUAL: the frame's noise added where the virtual layer shows), VIEW_ELEMENTS |

@@ -32,12 +32,24 @@ GLuint atlasTexture(int width, int height, const std::vector<float>& rgba, GLenu
 struct FaceBlock {
     std::vector<float> m, d, o;
     Eigen::Vector4f influence = Eigen::Vector4f(1.0f, 1.0f, 0.0f, 0.0f);
+    std::vector<Eigen::Vector4f> influence_blocks;
 };
+
+// (s0, t0, s1, t1) around texels [i0, i1] x [j0, j1] of a face, one texel wider for the filtering.
+Eigen::Vector4f texelBounds(const lighting::FaceModulation& f, int i0, int j0, int i1, int j1) {
+    const float fw = static_cast<float>(f.width), fh = static_cast<float>(f.height);
+    return Eigen::Vector4f(std::max(0.0f, static_cast<float>(i0 - 1) / fw), std::max(0.0f, static_cast<float>(j0 - 1) / fh),
+                           std::min(1.0f, static_cast<float>(i1 + 2) / fw), std::min(1.0f, static_cast<float>(j1 + 2) / fh));
+}
 
 FaceBlock faceBlock(const lighting::FaceModulation& f) {
     const std::size_t n = static_cast<std::size_t>(f.width) * static_cast<std::size_t>(f.height);
     std::vector<float> fm(3 * n), fd(3 * n), fo(3 * n);
     int in_i0 = f.width, in_j0 = f.height, in_i1 = -1, in_j1 = -1;  // the influenced texels' bounds
+    // and per block of kInfluenceBlock texels (i0, j0, i1, j1; i1 < 0: none)
+    const int blocks_s = (f.width + kInfluenceBlock - 1) / kInfluenceBlock, blocks_t = (f.height + kInfluenceBlock - 1) / kInfluenceBlock;
+    std::vector<std::array<int, 4>> blocks(static_cast<std::size_t>(blocks_s) * static_cast<std::size_t>(blocks_t),
+                                           std::array<int, 4>{f.width, f.height, -1, -1});
     for (std::size_t k = 0; k < n; ++k) {
         const float w = lighting::ratioWeight(lighting::luminance(f.original[k]), f.mean_original);
         for (std::size_t c = 0; c < 3; ++c) {
@@ -58,13 +70,14 @@ FaceBlock faceBlock(const lighting::FaceModulation& f) {
             in_j0 = std::min(in_j0, j);
             in_i1 = std::max(in_i1, i);
             in_j1 = std::max(in_j1, j);
+            std::array<int, 4>& b = blocks[static_cast<std::size_t>(j / kInfluenceBlock * blocks_s + i / kInfluenceBlock)];
+            b = {std::min(b[0], i), std::min(b[1], j), std::max(b[2], i), std::max(b[3], j)};
         }
     }
     FaceBlock out;
-    if (in_i1 >= 0) {
-        const float fw = static_cast<float>(f.width), fh = static_cast<float>(f.height);
-        out.influence = Eigen::Vector4f(std::max(0.0f, static_cast<float>(in_i0 - 1) / fw), std::max(0.0f, static_cast<float>(in_j0 - 1) / fh),
-                                        std::min(1.0f, static_cast<float>(in_i1 + 2) / fw), std::min(1.0f, static_cast<float>(in_j1 + 2) / fh));
+    if (in_i1 >= 0) out.influence = texelBounds(f, in_i0, in_j0, in_i1, in_j1);
+    for (const std::array<int, 4>& b : blocks) {
+        if (b[2] >= 0) out.influence_blocks.push_back(texelBounds(f, b[0], b[1], b[2], b[3]));
     }
     // Element outlines in the debug view of B~: a darker rim on the texels at element borders.
     const auto darken = [&](int i, int j) {
@@ -145,6 +158,7 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
             if (it == faces_.end()) continue;  // left out of the atlas (degenerate, or did not fit)
             const FaceBlock block = faceBlock(f);
             it->second.influence = block.influence;
+            it->second.influence_blocks = block.influence_blocks;
             const int x = static_cast<int>(it->second.rect.x()) - 1, y = static_cast<int>(it->second.rect.y()) - 1;
             glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
             for (const auto& [texture, data] : {std::pair{atlas_m_, &block.m}, std::pair{atlas_d_, &block.d}, std::pair{atlas_o_, &block.o}}) {
@@ -244,6 +258,7 @@ void SnapshotTextures::update(const lighting::LightingSnapshot& snapshot, std::s
             const FaceBlock block = faceBlock(f);
             FaceInAtlas place = it.place;
             place.influence = block.influence;
+            place.influence_blocks = block.influence_blocks;
             const std::size_t bw = static_cast<std::size_t>(f.width + 2);
             for (std::size_t j = 0; j < static_cast<std::size_t>(f.height + 2); ++j) {
                 const std::size_t dst = (static_cast<std::size_t>(it.y) + j) * static_cast<std::size_t>(width) + static_cast<std::size_t>(it.x);

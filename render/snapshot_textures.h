@@ -31,7 +31,16 @@ struct FaceInAtlas {
     // texel whose M is more than kModulationEpsilon from 1 or whose D is not zero, one texel wider
     // for the filtering (s0 > s1: nowhere). Elsewhere the final pass leaves the frame's codes.
     Eigen::Vector4f influence = Eigen::Vector4f(1.0f, 1.0f, 0.0f, 0.0f);
+    // The same at a finer grain: per block of kInfluenceBlock x kInfluenceBlock texels that holds an
+    // influenced texel, the (s0, t0, s1, t1) around its influenced texels, one texel wider (their
+    // union is what `influence` bounds). A shadow's penumbra and the light around a virtual object
+    // change a fraction of a face's rectangle: the final pass modulates only where these project
+    // (render/modulation_tiles.h).
+    std::vector<Eigen::Vector4f> influence_blocks;
 };
+
+// Texels per side of the blocks of FaceInAtlas::influence_blocks.
+inline constexpr int kInfluenceBlock = 8;
 
 // A modulation M within this of 1 is left out (the frame's code is kept): it would move the code by
 // at most 0.51 at any level for any concave response (by E'(L) L |M - 1| <= 255 |M - 1|), so the

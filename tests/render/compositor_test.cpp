@@ -22,6 +22,7 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <map>
 #include <numbers>
 #include <random>
 
@@ -368,6 +369,102 @@ TEST_F(CompositorTest, TheModulationIsDrawnWhereTheSnapshotChangesSomethingAndOn
     EXPECT_EQ(unchanged_differing, 0) << "of " << unchanged_checked;
     EXPECT_GT(halved_checked, 4);
     EXPECT_EQ(halved_wrong, 0) << "of " << 3 * halved_checked;
+}
+
+// Two small shadows on a big face, at opposite corners of the view: the final pass modulates only
+// the camera tiles where they project (ModulationRegion::kTiles, the default), far fewer than one
+// rectangle around both, and the composite is byte for byte the one of the modulating program over
+// the whole frame (kFrame), and of the rectangle (kRectangle): looking down, and from a camera
+// low over the floor, which reaches behind it (the near plane clips the face's blocks). The face at
+// 64 texels a side (shadows with a penumbra, several blocks of texels each) and at 16 (a shadow is
+// one texel of 36 px: the filtering's reach beyond it is more than a tile). Faint texels (ratio
+// 1.0015, within 2e-3) over the whole face mark no tile; a virtual ball draws its own rectangle,
+// which the tiles' quads leave out; a texel lit from nothing (D only) counts too.
+TEST_F(CompositorTest, TheModulatedTilesAreWhereTheShadowsAreAndTheCompositeIsTheFullFramesOne) {
+    Scene scene;
+    scene.real_objects.push_back(floorPlane(4.0));
+    scene.virtual_objects.push_back(sphere("ball", 0.08, Eigen::Vector3d(-0.5, 0.4, 0.08), Eigen::Vector3d(0.5, 0.5, 0.5)));
+    CameraModel camera = smallCamera(320, 240);
+    camera.distortion.k1 = -0.2;
+    camera.distortion.k2 = 0.05;
+    const ResponseCurve response = ResponseCurve::srgb();
+    // The floor's modulation at `n` texels a side: shadows of 12.5 cm radius and a penumbra to 19 cm
+    // around (0.875, 0.625) and (-0.625, -0.375) m, a texel lit from nothing at (0.1, -0.7) m.
+    const auto snapshotAt = [](int n) {
+        lighting::LightingSnapshot snapshot;
+        snapshot.version = 1;
+        lighting::FaceModulation f;
+        f.object_index = 0;
+        f.face = 0;
+        f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
+        f.width = f.height = n;
+        const int lit_i = static_cast<int>((0.1 + 2.0) / 4.0 * n), lit_j = static_cast<int>((-0.7 + 2.0) / 4.0 * n);
+        for (int j = 0; j < n; ++j) {
+            for (int i = 0; i < n; ++i) {
+                const Eigen::Vector2d p(-2.0 + 4.0 * (i + 0.5) / n, -2.0 + 4.0 * (j + 0.5) / n);
+                const double r = std::min((p - Eigen::Vector2d(0.875, 0.625)).norm(), (p - Eigen::Vector2d(-0.625, -0.375)).norm());
+                const bool lit = i == lit_i && j == lit_j;  // B~ = 0 there: the difference alone
+                f.ratio.push_back(lighting::Rgb::Constant(r < 0.125 ? 0.4f : r < 0.19 ? 0.8f : (i + j) % 3 == 0 ? 1.0015f : 1.0f));
+                f.original.push_back(lighting::Rgb::Constant(lit ? 0.0f : 1.0f));
+                f.difference.push_back(lighting::Rgb::Constant(lit ? 0.2f : r < 0.125 ? -0.6f : r < 0.19 ? -0.2f : 0.0f));
+                f.reflectance.push_back(lighting::Rgb::Constant(0.5f));
+            }
+        }
+        f.mean_original = 1.0f;
+        snapshot.faces.push_back(std::make_shared<const lighting::FaceModulation>(f));
+        return snapshot;
+    };
+    // Camera centre to target, image x level: cam_from_world.
+    const auto lookAt = [](const Eigen::Vector3d& centre, const Eigen::Vector3d& target) {
+        const Eigen::Vector3d z = (target - centre).normalized();
+        const Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ()).normalized();
+        Eigen::Matrix3d r;
+        r.row(0) = x;
+        r.row(1) = z.cross(x);
+        r.row(2) = z;
+        return Rigid3d(Eigen::Quaterniond(r), -(r * centre));
+    };
+    const auto differing = [&](const Image& a, const Image& b) {
+        int n = 0;
+        for (int y = 0; y < camera.height; ++y) {
+            for (int x = 0; x < 3 * camera.width; ++x) n += a.view().row(y)[x] != b.view().row(y)[x] ? 1 : 0;
+        }
+        return n;
+    };
+    const Image frame = noiseFrame(camera.width, camera.height, 23);
+    const int all_tiles = ((camera.width + 15) / 16) * ((camera.height + 15) / 16);
+    for (const int texels : {64, 16}) {
+        const lighting::LightingSnapshot snapshot = snapshotAt(texels);
+        for (const Rigid3d& pose : {lookingDown(), lookAt(Eigen::Vector3d(0.1, -1.2, 0.5), Eigen::Vector3d(0.0, 0.4, 0.0))}) {
+            SCOPED_TRACE(std::to_string(texels) + " texels, camera at " + std::to_string(pose.inverse().translation.z()) + " m");
+            std::map<ModulationRegion, Image> out;
+            std::map<ModulationRegion, FinalPassArea> area;
+            for (const ModulationRegion region : {ModulationRegion::kFrame, ModulationRegion::kRectangle, ModulationRegion::kTiles}) {
+                CompositorOptions options;
+                options.modulation_region = region;
+                auto c = make(scene, camera, response, options);
+                ASSERT_TRUE(c);
+                out[region] = render(*c, frame.view(), pose, snapshot);
+                area[region] = c->finalPassArea();
+                const FinalPassArea& a = area[region];
+                EXPECT_EQ(a.plain + a.modulated + a.with_virtual, long{camera.width} * camera.height) << "every pixel drawn once";
+                EXPECT_GT(a.with_virtual, 0);
+                EXPECT_LE(a.draws, 3);
+            }
+            EXPECT_GT(differing(out[ModulationRegion::kFrame], frame), 1000) << "the shadows darken the frame";
+            EXPECT_EQ(differing(out[ModulationRegion::kTiles], out[ModulationRegion::kFrame]), 0) << "tiles";
+            EXPECT_EQ(differing(out[ModulationRegion::kRectangle], out[ModulationRegion::kFrame]), 0) << "rectangle";
+            const int tiles = area[ModulationRegion::kTiles].modulated_tiles, rectangle = area[ModulationRegion::kRectangle].modulated_tiles;
+            EXPECT_EQ(area[ModulationRegion::kFrame].modulated_tiles, all_tiles);
+            EXPECT_GT(tiles, 0);
+            // (Measured: 67 and 46 tiles at 64 texels, the rectangle 270 and 200, of 300; at 16
+            // texels, where a texel's filtering reaches 108 px, 133 and 138.)
+            EXPECT_LT((texels == 64 ? 3 : 1) * tiles, rectangle) << tiles << " tiles, the rectangle " << rectangle;
+            if (texels == 64) {
+                EXPECT_LT(4 * tiles, all_tiles) << tiles << " tiles of " << all_tiles;
+            }
+        }
+    }
 }
 
 // Registration measured directly: the world point the composite shows at each camera pixel (its
