@@ -67,6 +67,12 @@ Observation seenFromAbove(const Image& frame, std::int64_t timestamp_ns) {
     return obs;
 }
 
+// Waits (a minute at most) until `count` of the engine's stats reaches `n`.
+void waitUntil(const LightingEngine& e, std::uint64_t EngineStats::*count, std::uint64_t n) {
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+    while (e.stats().*count < n && std::chrono::steady_clock::now() < deadline) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+}
+
 TEST(LightingEngine, FirstSnapshotIsVersionZeroAndNeverNull) {
     auto engine = LightingEngine::create(smallScene(), smallCamera(), {});
     ASSERT_TRUE(engine) << engine.error().message;
@@ -187,10 +193,7 @@ TEST(LightingEngine, UpdateEverySecondObservationAccumulatesTheOthersOnly) {
         for (int i = 0; i < 7; ++i) {
             const Observation obs = seenFromAbove(frame, 1000 + i);
             ASSERT_TRUE(e.submit(obs));
-            const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-            while (e.stats().processed < static_cast<std::uint64_t>(i + 1) && std::chrono::steady_clock::now() < deadline) {
-                std::this_thread::sleep_for(std::chrono::milliseconds(1));
-            }
+            waitUntil(e, &EngineStats::processed, static_cast<std::uint64_t>(i + 1));
         }
         e.stop();
         const EngineStats stats = e.stats();
@@ -218,10 +221,7 @@ TEST(LightingEngine, SetUpdateEveryChangesThePaceFromTheNextObservation) {
         if (i == 3) e.setUpdateEvery(3);
         if (i == 10) e.setUpdateEvery(1);
         ASSERT_TRUE(e.submit(seenFromAbove(frame, 2000 + i)));
-        const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-        while (e.stats().processed < static_cast<std::uint64_t>(i + 1) && std::chrono::steady_clock::now() < deadline) {
-            std::this_thread::sleep_for(std::chrono::milliseconds(1));
-        }
+        waitUntil(e, &EngineStats::processed, static_cast<std::uint64_t>(i + 1));
     }
     e.stop();
     const EngineStats stats = e.stats();
@@ -272,10 +272,7 @@ TEST(LightingEngine, FullUpdatesAfterTheFirstUseFullUpdateThreadsInRealTime) {
         const Image frame = greyFrame(smallCamera(), 100);
         for (int i = 0; i < 10; ++i) {
             ASSERT_TRUE(e.submit(seenFromAbove(frame, 3000 + i)));
-            const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-            while (e.stats().updates < static_cast<std::uint64_t>(i + 1) && std::chrono::steady_clock::now() < deadline) {
-                std::this_thread::sleep_for(std::chrono::milliseconds(1));
-            }
+            waitUntil(e, &EngineStats::updates, static_cast<std::uint64_t>(i + 1));
             if (i == 0) {
                 EXPECT_EQ(e.stats().full_updates, 1u);
                 EXPECT_EQ(e.stats().full_update_threads, every_core) << threads;

@@ -83,6 +83,17 @@ inline RealObject floorPlane(double size = 4.0) {
     return o;
 }
 
+// floorPlane(4.0)'s face as a snapshot modulation of width x height texels (values left empty).
+inline lighting::FaceModulation floorFace(int width, int height) {
+    lighting::FaceModulation f;
+    f.object_index = 0;
+    f.face = 0;
+    f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
+    f.width = width;
+    f.height = height;
+    return f;
+}
+
 inline VirtualObject sphere(const std::string& name, double radius, const Eigen::Vector3d& at,
                             const Eigen::Vector3d& albedo, std::optional<Eigen::Vector3d> emission = std::nullopt) {
     VirtualObject v;

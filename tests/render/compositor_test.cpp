@@ -101,10 +101,7 @@ TEST_F(CompositorTest, YuyvAndNv12FramesAreConvertedAsTheCpuConvertsThem) {
     scene.virtual_objects.push_back(sphere("ball", 0.3, {0.5, 0.3, 0.3}, Eigen::Vector3d::Constant(0.5), Eigen::Vector3d::Constant(0.1)));
     lighting::LightingSnapshot snapshot;
     snapshot.version = 1;
-    lighting::FaceModulation f;
-    f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
-    f.width = 2;
-    f.height = 1;
+    lighting::FaceModulation f = floorFace(2, 1);
     f.ratio = {lighting::Rgb::Constant(0.5f), lighting::Rgb::Constant(1.0f)};
     f.difference = {lighting::Rgb::Constant(-0.1f), lighting::Rgb::Zero()};
     f.original = {lighting::Rgb::Constant(0.5f), lighting::Rgb::Constant(0.5f)};
@@ -150,12 +147,7 @@ TEST_F(CompositorTest, TheRatioDarkensAndTheDifferenceBrightensTheBackground) {
     const ResponseCurve response = ResponseCurve::srgb();
     lighting::LightingSnapshot snapshot;
     snapshot.version = 1;
-    lighting::FaceModulation f;
-    f.object_index = 0;
-    f.face = 0;
-    f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
-    f.width = 8;
-    f.height = 8;
+    lighting::FaceModulation f = floorFace(8, 8);
     for (int j = 0; j < 8; ++j) {
         for (int i = 0; i < 8; ++i) {
             const bool left = i < 4;
@@ -196,10 +188,7 @@ TEST_F(CompositorTest, AFaceWithANewRevisionIsUploadedAgainInItsPlace) {
     const auto snapshotWith = [](bool left_dark, std::uint64_t version, std::uint64_t revision) {
         lighting::LightingSnapshot snapshot;
         snapshot.version = version;
-        lighting::FaceModulation f;
-        f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
-        f.width = 8;
-        f.height = 8;
+        lighting::FaceModulation f = floorFace(8, 8);
         for (int j = 0; j < 8; ++j) {
             for (int i = 0; i < 8; ++i) {
                 const bool dark = (i < 4) == left_dark;
@@ -299,11 +288,7 @@ TEST_F(CompositorTest, TheModulationIsDrawnWhereTheSnapshotChangesSomethingAndOn
     const ResponseCurve response = ResponseCurve::srgb();
     lighting::LightingSnapshot snapshot;
     snapshot.version = 1;
-    lighting::FaceModulation f;
-    f.object_index = 0;
-    f.face = 0;
-    f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
-    f.width = f.height = 32;  // 0.125 m a texel
+    lighting::FaceModulation f = floorFace(32, 32);  // 0.125 m a texel
     for (int j = 0; j < 32; ++j) {
         for (int i = 0; i < 32; ++i) {
             const bool patch = (i == 22 || i == 23) && (j == 20 || j == 21);  // x in [0.75, 1], y in [0.5, 0.75]
@@ -393,11 +378,7 @@ TEST_F(CompositorTest, TheModulatedTilesAreWhereTheShadowsAreAndTheCompositeIsTh
     const auto snapshotAt = [](int n) {
         lighting::LightingSnapshot snapshot;
         snapshot.version = 1;
-        lighting::FaceModulation f;
-        f.object_index = 0;
-        f.face = 0;
-        f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
-        f.width = f.height = n;
+        lighting::FaceModulation f = floorFace(n, n);
         const int lit_i = static_cast<int>((0.1 + 2.0) / 4.0 * n), lit_j = static_cast<int>((-0.7 + 2.0) / 4.0 * n);
         for (int j = 0; j < n; ++j) {
             for (int i = 0; i < n; ++i) {

@@ -592,9 +592,7 @@ TEST_F(CompositorTest, NoGlObjectIsLeaked) {
         ASSERT_TRUE(c);
         const Image frame = constantFrame(camera.width, camera.height, 100);
         lighting::LightingSnapshot snapshot;
-        lighting::FaceModulation f;
-        f.corners = {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}};
-        f.width = f.height = 2;
+        lighting::FaceModulation f = floorFace(2, 2);
         f.ratio.assign(4, lighting::Rgb::Constant(0.8f));
         f.difference.assign(4, lighting::Rgb::Constant(-0.1f));
         f.original.assign(4, lighting::Rgb::Constant(0.5f));
